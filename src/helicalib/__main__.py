@@ -1,0 +1,5 @@
+"""``python -m helicalib`` runs the command-line interface."""
+
+from helicalib.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,559 @@
+"""Field config (``../shared/FIELD_CONFIG.md``, version 1) → frozen, validated objects.
+
+``load_field_config(path)`` reads the YAML (and ``heliostats_csv`` beside it), validates every key
+with pydantic and checks the cross references. Any problem raises :class:`ConfigError` whose
+``problems`` are one line each, ``FILE: key.path[3].name: what is wrong``.
+
+helicalib's own optional keys (documented in ``docs/field-config.md``) are declared here too;
+any other key is refused.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator
+
+from helicalib.errors import ConfigError
+
+UNIT_TOLERANCE = 1e-3
+"""A given unit vector may differ from length 1 by this much; it is then normalised exactly."""
+
+
+# ---------------------------------------------------------------------------- value types
+def _numbers(n: int):
+    def check(value: Any) -> tuple[float, ...]:
+        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != n:
+            raise ValueError(f"expected {n} numbers")
+        out = []
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
+                raise ValueError(f"expected {n} numbers, got {item!r}")
+            out.append(float(item))
+        return tuple(out)
+
+    return BeforeValidator(check)
+
+
+def _unit(value: tuple[float, ...]) -> tuple[float, ...]:
+    norm = math.sqrt(sum(x * x for x in value))
+    if abs(norm - 1.0) > UNIT_TOLERANCE:
+        raise ValueError(f"expected a unit vector, length is {norm:.6g}")
+    return tuple(x / norm for x in value)
+
+
+def _nonzero_normalised(value: tuple[float, ...]) -> tuple[float, ...]:
+    norm = math.sqrt(sum(x * x for x in value))
+    if norm < 1e-9:
+        raise ValueError("expected a non-zero vector")
+    return tuple(x / norm for x in value)
+
+
+Vec2 = Annotated[tuple[float, float], _numbers(2)]
+Vec3 = Annotated[tuple[float, float, float], _numbers(3)]
+PositiveFloat = Annotated[float, Field(gt=0)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+
+
+# ---------------------------------------------------------------------------- sections
+class Site(_Model):
+    name: str
+    latitude_deg: float = Field(ge=-90, le=90)
+    longitude_deg: float = Field(ge=-180, le=180)
+    altitude_m: float
+    pressure_hpa: PositiveFloat | None = None
+    temperature_c: float = 12.0
+
+    @property
+    def pressure_hpa_effective(self) -> float:
+        """``pressure_hpa`` or, when absent, the standard atmosphere at ``altitude_m`` [hPa]."""
+        if self.pressure_hpa is not None:
+            return self.pressure_hpa
+        from pvlib.atmosphere import alt2pres
+
+        return float(alt2pres(self.altitude_m)) / 100.0
+
+
+class Tower(_Model):
+    receiver_aim_enu_m: Vec3
+
+
+class Marks(_Model):
+    vertices_m: tuple[Vec2, Vec2, Vec2, Vec2]
+    arm_m: PositiveFloat
+    thickness_m: PositiveFloat
+
+    @field_validator("thickness_m")
+    @classmethod
+    def _thinner_than_arm(cls, value: float, info):
+        arm = info.data.get("arm_m")
+        if arm is not None and value >= arm:
+            raise ValueError(f"must be smaller than arm_m ({arm})")
+        return value
+
+
+class Target(_Model):
+    id: str
+    center_enu_m: Vec3
+    normal_enu: Vec3
+    size_m: Annotated[tuple[PositiveFloat, PositiveFloat], _numbers(2)]
+    standby_offset_m: Annotated[tuple[float, ...], BeforeValidator(lambda v: _standby(v))] | None = None
+    marks: Marks | None = None
+
+    _normal = field_validator("normal_enu")(classmethod(lambda cls, v: _unit(v)))
+
+    @field_validator("standby_offset_m")
+    @classmethod
+    def _standby_off_board(cls, value, info):
+        size = info.data.get("size_m")
+        if value is not None and size is not None:
+            if abs(value[0]) <= size[0] / 2 and abs(value[1]) <= size[1] / 2:
+                raise ValueError("the standby point lies on the board; it must keep the waiting beam off it")
+        return value
+
+    # -- derived geometry -------------------------------------------------------------
+    @property
+    def frame_enu(self) -> np.ndarray:
+        """Rows u, v, w of the target frame in ENU, shape (3, 3).
+
+        u = unit(z_up × normal) (right as seen from the field), v = normal × u (up the board),
+        w = normal (toward the field).
+        """
+        w = np.asarray(self.normal_enu)
+        u = np.cross([0.0, 0.0, 1.0], w)
+        if np.linalg.norm(u) < 1e-9:  # horizontal board (normal up): u = east by convention
+            u = np.array([1.0, 0.0, 0.0])
+        u = u / np.linalg.norm(u)
+        v = np.cross(w, u)
+        return np.stack([u, v, w])
+
+    @property
+    def standby_uvw_m(self) -> tuple[float, float, float]:
+        """The standby point in the target frame (u, v, w) [m]; the default lies beside the board."""
+        if self.standby_offset_m is not None:
+            s = tuple(self.standby_offset_m) + (0.0,) * (3 - len(self.standby_offset_m))
+            return (float(s[0]), float(s[1]), float(s[2]))
+        width = self.size_m[0]
+        return (-(width / 2 + max(width / 2, 6.0)), 0.0, 0.0)
+
+    def uvw_to_enu(self, uvw_m: np.ndarray) -> np.ndarray:
+        """Target-frame points (..., 2 or 3) [m] → ENU points (..., 3) [m]."""
+        uvw = np.asarray(uvw_m, dtype=float)
+        if uvw.shape[-1] == 2:
+            uvw = np.concatenate([uvw, np.zeros(uvw.shape[:-1] + (1,))], axis=-1)
+        return np.asarray(self.center_enu_m) + uvw @ self.frame_enu
+
+    def enu_to_uvw(self, enu_m: np.ndarray) -> np.ndarray:
+        """ENU points (..., 3) [m] → target-frame (u, v, w) (..., 3) [m]."""
+        return (np.asarray(enu_m, dtype=float) - np.asarray(self.center_enu_m)) @ self.frame_enu.T
+
+
+def _standby(value: Any) -> tuple[float, ...]:
+    if isinstance(value, Sequence) and not isinstance(value, str) and len(value) in (2, 3):
+        return _numbers(len(value)).func(value)
+    raise ValueError("expected 2 or 3 numbers (u, v[, w])")
+
+
+class Intrinsics(_Model):
+    fx: PositiveFloat
+    fy: PositiveFloat
+    cx: float
+    cy: float
+
+
+class Camera(_Model):
+    id: str
+    target: str
+    url: str
+    intrinsics: Intrinsics | None = None
+    distortion: Annotated[tuple[float, ...], BeforeValidator(lambda v: _distortion(v))] | None = None
+    # helicalib's own optional keys: where the camera stands and its frame size (the simulated
+    # plant renders from them; a real camera's frames say their own size)
+    position_enu_m: Vec3 | None = None
+    resolution_px: Annotated[tuple[int, int], _numbers(2), BeforeValidator(lambda v: v)] = (1280, 1024)
+
+    @field_validator("resolution_px")
+    @classmethod
+    def _pixels(cls, value):
+        w, h = value
+        if w != int(w) or h != int(h) or w < 64 or h < 64:
+            raise ValueError("expected two whole numbers >= 64 (width, height)")
+        return (int(w), int(h))
+
+    @property
+    def camera_matrix(self) -> np.ndarray | None:
+        if self.intrinsics is None:
+            return None
+        k = self.intrinsics
+        return np.array([[k.fx, 0.0, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]])
+
+
+def _distortion(value: Any) -> tuple[float, ...]:
+    if isinstance(value, Sequence) and not isinstance(value, str) and len(value) in (4, 5, 8):
+        return _numbers(len(value)).func(value)
+    raise ValueError("expected 4, 5 or 8 numbers (OpenCV order k1 k2 p1 p2 [k3 ...])")
+
+
+class Actuator(_Model):
+    arm_fixed_m: PositiveFloat
+    arm_moving_m: PositiveFloat
+    gamma0_deg: float = Field(gt=0, lt=180)
+    sign: Literal[1, -1]
+    length_at_zero_stroke_m: PositiveFloat
+    stroke_range_mm: Annotated[tuple[float, float], _numbers(2)]
+
+    @field_validator("stroke_range_mm")
+    @classmethod
+    def _ordered(cls, value):
+        if not value[0] < value[1]:
+            raise ValueError(f"stroke range is reversed or empty: [{value[0]}, {value[1]}]; expected [min, max]")
+        return value
+
+
+DriveKind = Literal["azimuth-elevation", "tilt-roll", "custom"]
+
+PRESETS: dict[str, tuple[tuple[float, float, float], ...]] = {
+    "azimuth-elevation": ((0.0, 0.0, -1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+    "tilt-roll": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+}
+
+
+class Drive(_Model):
+    kind: DriveKind
+    mirror_offset_m: float
+    mirror_size_m: Annotated[tuple[PositiveFloat, PositiveFloat], _numbers(2)]
+    actuators: tuple[Actuator, Actuator]
+    axis1_enu: Vec3 | None = None
+    axis2_enu: Vec3 | None = None
+    normal0_enu: Vec3 | None = None
+
+    _norm = field_validator("axis1_enu", "axis2_enu", "normal0_enu")(
+        classmethod(lambda cls, v: None if v is None else _nonzero_normalised(v))
+    )
+
+    @property
+    def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(a1, a2, n0) as unit vectors in ENU, from the preset or the custom keys."""
+        if self.kind == "custom":
+            return tuple(np.asarray(x, dtype=float) for x in (self.axis1_enu, self.axis2_enu, self.normal0_enu))
+        return tuple(np.asarray(x, dtype=float) for x in PRESETS[self.kind])
+
+
+class Heliostat(_Model):
+    id: str
+    position_enu_m: Vec3
+    drive: str
+    target: str
+
+
+class Endpoint(_Model):
+    host: str
+    port: int = Field(ge=1, le=65535)
+    unit: int = Field(default=1, ge=0, le=255)
+    timeout_s: PositiveFloat = 2.0
+
+
+class Plant(_Model):
+    scs: Endpoint
+    weather: Endpoint | None = None
+    clock: Literal["plant", "system"] = "plant"
+
+    @property
+    def weather_endpoint(self) -> Endpoint:
+        return self.weather or self.scs
+
+
+class Calibration(_Model):
+    loop_threshold_mrad: PositiveFloat
+    max_iterations: int = Field(ge=1)
+    # helicalib's own optional keys
+    after_frames: int = Field(default=1, ge=1, le=50)
+    spot_method: Literal["grlm", "grlm-centroid", "centroid"] = "grlm-centroid"
+    settle_timeout_s: PositiveFloat = 300.0
+
+
+class Gating(_Model):
+    wind_max_ms: PositiveFloat
+    wind_preferred_ms: PositiveFloat
+    stow_wind_ms: PositiveFloat
+    dni_min_wm2: float = Field(ge=0)
+    dni_preferred_wm2: float = Field(ge=0)
+    cleanliness_min: float = Field(ge=0, le=1)
+    cleanliness_preferred: float = Field(ge=0, le=1)
+
+
+class Acceptance(_Model):
+    low_band_deg: Annotated[tuple[float, float], _numbers(2)]
+    high_elevation_deg: float
+    high_window_h: PositiveFloat
+    min_points: int = Field(ge=1)
+    max_rms_mrad: PositiveFloat
+
+    @field_validator("low_band_deg")
+    @classmethod
+    def _band(cls, value):
+        if not value[0] < value[1]:
+            raise ValueError(f"band is reversed or empty: [{value[0]}, {value[1]}]")
+        return value
+
+
+class WindBin(_Model):
+    wind_ms: float = Field(ge=0)
+    min_fraction: float = Field(ge=0, le=1)
+
+
+class TrackingTest(_Model):
+    threshold_mrad: PositiveFloat
+    wind_bins: tuple[WindBin, ...]
+    bin_half_width_ms: PositiveFloat
+
+
+class Storage(_Model):
+    database: str
+    images_dir: str
+
+    @field_validator("database")
+    @classmethod
+    def _sqlite_url(cls, value: str):
+        if not value.startswith("sqlite:///") or len(value) <= len("sqlite:///"):
+            raise ValueError("expected a URL 'sqlite:///relative/or/absolute/path.db'")
+        return value
+
+
+class FieldConfig(_Model):
+    site: Site
+    tower: Tower
+    targets: tuple[Target, ...] = Field(min_length=1)
+    cameras: tuple[Camera, ...]
+    drives: dict[str, Drive] = Field(min_length=1)
+    heliostats: tuple[Heliostat, ...] | None = None
+    heliostats_csv: str | None = None
+    plant: Plant
+    calibration: Calibration
+    gating: Gating
+    acceptance: Acceptance
+    tracking_test: TrackingTest
+    storage: Storage
+
+    _source: Path | None = PrivateAttr(default=None)
+
+    # -- lookups ----------------------------------------------------------------------
+    @property
+    def source(self) -> Path | None:
+        """The file this config was read from (None when built in memory)."""
+        return self._source
+
+    @property
+    def base_dir(self) -> Path:
+        return self._source.parent if self._source is not None else Path.cwd()
+
+    def resolve_path(self, relative: str | Path) -> Path:
+        """A path from the config, resolved next to the config file."""
+        p = Path(relative)
+        return p if p.is_absolute() else (self.base_dir / p)
+
+    @property
+    def database_path(self) -> Path:
+        return self.resolve_path(self.storage.database[len("sqlite:///") :])
+
+    @property
+    def images_path(self) -> Path:
+        return self.resolve_path(self.storage.images_dir)
+
+    def target(self, target_id: str) -> Target:
+        for t in self.targets:
+            if t.id == target_id:
+                return t
+        raise ConfigError(f"{self._where()}targets: no target '{target_id}'")
+
+    def heliostat(self, heliostat_id: str) -> Heliostat:
+        idx = self.heliostat_index(heliostat_id)
+        return self.heliostats[idx]
+
+    def heliostat_index(self, heliostat_id: str) -> int:
+        """0-based block index of a heliostat (order of ``heliostats``), as in the plant interface."""
+        index = self.__dict__.get("_index_cache")
+        if index is None:
+            index = {h.id: i for i, h in enumerate(self.heliostats)}
+            self.__dict__["_index_cache"] = index
+        try:
+            return index[heliostat_id]
+        except KeyError:
+            raise ConfigError(f"{self._where()}heliostats: no heliostat '{heliostat_id}'") from None
+
+    def drive_of(self, heliostat_id: str) -> Drive:
+        return self.drives[self.heliostat(heliostat_id).drive]
+
+    def cameras_for(self, target_id: str) -> tuple[Camera, ...]:
+        return tuple(c for c in self.cameras if c.target == target_id)
+
+    def heliostat_positions_enu_m(self) -> np.ndarray:
+        """Pivot positions of all heliostats, shape (N, 3) [m, ENU]."""
+        return np.array([h.position_enu_m for h in self.heliostats], dtype=float).reshape(-1, 3)
+
+    def _where(self) -> str:
+        return f"{self._source}: " if self._source is not None else ""
+
+
+# ---------------------------------------------------------------------------- loading
+def _loc_to_path(loc: Sequence[Any]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _message(err: Mapping[str, Any]) -> str:
+    msg = str(err["msg"])
+    for prefix in ("Value error, ", "Assertion failed, "):
+        if msg.startswith(prefix):
+            msg = msg[len(prefix) :]
+    if err["type"] == "extra_forbidden":
+        return "unknown key"
+    if err["type"] == "missing":
+        return "missing required key"
+    return msg
+
+
+def _clean_loc(loc: Sequence[Any]) -> list[Any]:
+    # pydantic inserts the branch name of union / tagged types ("tuple[float, float]", "function-before"...)
+    return [p for p in loc if not (isinstance(p, str) and ("[" in p or "-" in p and p.startswith("function")))]
+
+
+def _read_heliostats_csv(path: Path, where: str) -> list[dict[str, Any]]:
+    if not path.is_file():
+        raise ConfigError(f"{where}heliostats_csv: file not found: {path}")
+    rows = []
+    want = ["id", "e_m", "n_m", "u_m", "drive", "target"]
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        if reader.fieldnames is None or [h.strip() for h in reader.fieldnames] != want:
+            raise ConfigError(f"{path}: line 1: expected the header {','.join(want)}, got {reader.fieldnames}")
+        for line_no, row in enumerate(reader, start=2):
+            try:
+                pos = [float(row["e_m"]), float(row["n_m"]), float(row["u_m"])]
+            except (TypeError, ValueError):
+                raise ConfigError(f"{path}: line {line_no}: e_m, n_m, u_m must be numbers") from None
+            rows.append({"id": row["id"].strip(), "position_enu_m": pos,
+                         "drive": (row["drive"] or "").strip(), "target": (row["target"] or "").strip()})
+    return rows
+
+
+def _cross_check(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
+    problems: list[str] = []
+    target_ids = [t.id for t in cfg.targets]
+    for i, tid in enumerate(target_ids):
+        if tid in target_ids[:i]:
+            problems.append(f"targets[{i}].id: duplicate target id '{tid}'")
+    camera_ids = [c.id for c in cfg.cameras]
+    for i, cam in enumerate(cfg.cameras):
+        if cam.id in camera_ids[:i]:
+            problems.append(f"cameras[{i}].id: duplicate camera id '{cam.id}'")
+        if cam.target not in target_ids:
+            problems.append(f"cameras[{i}].target: unknown target '{cam.target}' (defined: {', '.join(target_ids)})")
+    seen: set[str] = set()
+    for i, h in enumerate(cfg.heliostats or ()):
+        if h.id in seen:
+            problems.append(f"{heliostat_loc}[{i}].id: duplicate heliostat id '{h.id}'")
+        seen.add(h.id)
+        if h.drive not in cfg.drives:
+            problems.append(f"{heliostat_loc}[{i}].drive: unknown drive '{h.drive}' (defined: {', '.join(cfg.drives)})")
+        if h.target not in target_ids:
+            problems.append(f"{heliostat_loc}[{i}].target: unknown target '{h.target}' (defined: {', '.join(target_ids)})")
+    for name, d in cfg.drives.items():
+        if d.kind == "custom" and None in (d.axis1_enu, d.axis2_enu, d.normal0_enu):
+            problems.append(f"drives.{name}: kind custom needs axis1_enu, axis2_enu and normal0_enu")
+        if d.kind != "custom" and any(x is not None for x in (d.axis1_enu, d.axis2_enu, d.normal0_enu)):
+            problems.append(f"drives.{name}: axis1_enu/axis2_enu/normal0_enu are only for kind custom")
+    g = cfg.gating
+    if not g.wind_preferred_ms <= g.wind_max_ms <= g.stow_wind_ms:
+        problems.append("gating: expected wind_preferred_ms <= wind_max_ms <= stow_wind_ms")
+    if g.dni_preferred_wm2 < g.dni_min_wm2:
+        problems.append("gating.dni_preferred_wm2: smaller than dni_min_wm2")
+    if g.cleanliness_preferred < g.cleanliness_min:
+        problems.append("gating.cleanliness_preferred: smaller than cleanliness_min")
+    return problems
+
+
+def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConfig:
+    """Validate an already-parsed field config mapping; ``source`` names the file in messages."""
+    where = f"{source}: " if source is not None else ""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}(top level): expected a mapping of sections, got {type(data).__name__}")
+    data = dict(data)
+    base = Path(source).parent if source is not None else Path.cwd()
+    heliostat_loc = "heliostats"
+    has_list, has_csv = data.get("heliostats") is not None, data.get("heliostats_csv") is not None
+    if has_list == has_csv:
+        raise ConfigError(f"{where}heliostats: give exactly one of 'heliostats' or 'heliostats_csv'")
+    if has_csv:
+        csv_path = Path(str(data["heliostats_csv"]))
+        csv_path = csv_path if csv_path.is_absolute() else base / csv_path
+        data["heliostats"] = _read_heliostats_csv(csv_path, where)
+        heliostat_loc = f"heliostats_csv({csv_path.name})"
+        if not data["heliostats"]:
+            raise ConfigError(f"{where}heliostats_csv: {csv_path} lists no heliostats")
+    try:
+        cfg = FieldConfig.model_validate(data)
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            loc = _loc_to_path(_clean_loc(err["loc"]))
+            if has_csv and loc.startswith("heliostats["):
+                loc = heliostat_loc + loc[len("heliostats") :]
+            line = f"{where}{loc}: {_message(err)}"
+            if line not in lines:
+                lines.append(line)
+        raise ConfigError("\n".join(lines), problems=lines) from None
+    problems = [f"{where}{p}" for p in _cross_check(cfg, heliostat_loc)]
+    if problems:
+        raise ConfigError("\n".join(problems), problems=problems)
+    if source is not None:
+        cfg._source = Path(source).resolve()
+    return cfg
+
+
+def load_field_config(path: str | Path) -> FieldConfig:
+    """Read and validate a field config YAML file (and its heliostat CSV)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise ConfigError(f"{path}: {at}not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    return parse_field_config(data, path)
+
+
+def write_field_config(data: Mapping[str, Any], path: str | Path) -> FieldConfig:
+    """Write a field config mapping as YAML, then load it back (so every file written is valid)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(_plain(data), sort_keys=False, default_flow_style=None, width=110))
+    return load_field_config(path)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [_plain(v) for v in value.tolist()]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
