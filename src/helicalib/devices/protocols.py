@@ -1,0 +1,93 @@
+"""What the controller needs from a plant, a camera and a clock.
+
+Real devices (Modbus TCP + HTTP) and the in-process simulated plant both implement these
+protocols; the controller cannot tell them apart. Times are plant time in UTC seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from helicalib.devices.registers import FieldState, HeliostatState
+
+
+@dataclass(frozen=True)
+class Weather:
+    """One weather reading (PLANT_INTERFACE weather block)."""
+
+    wind_ms: float
+    wind_direction_deg: float
+    dni_wm2: float
+    temperature_c: float
+    pressure_hpa: float
+
+
+@dataclass(frozen=True)
+class HeliostatStatus:
+    """Read-back of one heliostat block."""
+
+    index: int
+    state: HeliostatState
+    sequence_done: int
+    fault: int
+    strokes_mm: tuple[float, float]
+    cleanliness: float
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera frame: the raw body, the capture time in plant time, and where it came from."""
+
+    data: bytes
+    capture_time_s: float
+    source: str
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Plant time. ``sleep`` waits for plant seconds (a virtual clock just advances)."""
+
+    def now_s(self) -> float: ...
+
+    def sleep(self, seconds: float) -> None: ...
+
+
+@runtime_checkable
+class Plant(Protocol):
+    """The solar field control system and its weather station."""
+
+    def heliostat_count(self) -> int: ...
+
+    def plant_time(self) -> tuple[float, float]:
+        """(plant time [UTC s], rate)."""
+        ...
+
+    def weather(self) -> Weather: ...
+
+    def field_state(self) -> FieldState: ...
+
+    def field_command(self, command: int) -> None: ...
+
+    def status(self, index: int) -> HeliostatStatus: ...
+
+    def move_to(self, index: int, strokes_mm: np.ndarray) -> int:
+        """Command strokes (mm, actuator 1 and 2) and hold; returns the sequence number sent."""
+        ...
+
+    def track(self, index: int, corrections_mm: np.ndarray) -> int:
+        """Return to tracking with these stroke corrections; returns the sequence number sent."""
+        ...
+
+    def stow(self, index: int) -> int: ...
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """A target camera."""
+
+    def grab(self) -> Frame:
+        """The current frame; raises :class:`helicalib.errors.MeasurementError` or ``PlantError`` on failure."""
+        ...
