@@ -1,0 +1,44 @@
+"""Shared fixtures: the demo field config and helpers to write variants of it."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO_FIELD = ROOT / "field_config" / "demo_north.yaml"
+
+
+@pytest.fixture(scope="session")
+def demo_field_path() -> Path:
+    return DEMO_FIELD
+
+
+@pytest.fixture()
+def demo_data() -> dict:
+    """A fresh, mutable copy of the demo field config as parsed YAML."""
+    return copy.deepcopy(_demo_data())
+
+
+_CACHE: dict = {}
+
+
+def _demo_data() -> dict:
+    if "d" not in _CACHE:
+        _CACHE["d"] = yaml.safe_load(DEMO_FIELD.read_text())
+    return _CACHE["d"]
+
+
+@pytest.fixture()
+def write_field(tmp_path):
+    """Write a field-config mapping to a YAML file in tmp_path and return its path."""
+
+    def _write(data: dict, name: str = "field.yaml") -> Path:
+        path = tmp_path / name
+        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        return path
+
+    return _write
