@@ -1,0 +1,226 @@
+"""Two-axis drive kinematics and the push-rod triangle linkage, vectorised over heliostats.
+
+Conventions (``FIELD_CONFIG.md``, "Drive kinematics"): with axis angles θ1, θ2 the mirror normal is
+
+    n = R(a1, θ1) · R(a2, θ2) · n0
+
+with R(a, θ) the right-handed rotation about the unit vector a (a1 fixed to the pedestal, a2 given
+in the zero pose and turning with axis 1, n0 the normal in the zero pose). Each axis is driven by a
+linear actuator in a triangle of a fixed arm ``ra`` and a moving arm ``rb`` meeting at the axis with
+angle γ = γ0 + sign·θ, γ ∈ (0, π); actuator length ℓ = sqrt(ra² + rb² − 2·ra·rb·cos γ) and stroke
+s = 1000·(ℓ − ℓ0) [mm].
+
+Every function comes with its inverse (``strokes_to_angles`` / ``angles_to_strokes``,
+``angles_to_normal`` / ``normal_to_angles``). Nothing is clipped: impossible strokes give NaN
+angles, angles outside the linkage give NaN strokes, unreachable normals are flagged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True)
+class DriveArrays:
+    """Drive parameters of N heliostats as arrays (one row per heliostat).
+
+    Attributes
+    ----------
+    axis1_enu, axis2_enu, normal0_enu : ndarray, shape (N, 3)
+        Unit vectors a1, a2 (zero pose), n0 in ENU.
+    arm_fixed_m, arm_moving_m : ndarray, shape (N, 2)
+        Triangle arms ``ra``, ``rb`` of actuator 1 (main, axis 1) and 2 (secondary, axis 2) [m].
+    gamma0_rad : ndarray, shape (N, 2)
+        Triangle angle at θ = 0 [rad].
+    sign : ndarray, shape (N, 2)
+        +1 or −1: γ = γ0 + sign·θ.
+    length_at_zero_m : ndarray, shape (N, 2)
+        Actuator length at stroke 0 [m].
+    stroke_min_mm, stroke_max_mm : ndarray, shape (N, 2)
+        Commandable stroke range [mm].
+    mirror_offset_m : ndarray, shape (N,)
+        Distance from pivot to mirror centre along the normal [m].
+    mirror_size_m : ndarray, shape (N, 2)
+        Mirror width and height [m].
+    """
+
+    axis1_enu: np.ndarray
+    axis2_enu: np.ndarray
+    normal0_enu: np.ndarray
+    arm_fixed_m: np.ndarray
+    arm_moving_m: np.ndarray
+    gamma0_rad: np.ndarray
+    sign: np.ndarray
+    length_at_zero_m: np.ndarray
+    stroke_min_mm: np.ndarray
+    stroke_max_mm: np.ndarray
+    mirror_offset_m: np.ndarray
+    mirror_size_m: np.ndarray
+
+    @classmethod
+    def from_drives(cls, drives: Sequence) -> DriveArrays:
+        """Stack ``config.Drive`` objects (one per heliostat) into arrays."""
+        drives = list(drives)
+        axes = [d.axes for d in drives]
+
+        def act(attr: str) -> np.ndarray:
+            return np.array([[float(getattr(a, attr)) for a in d.actuators] for d in drives], dtype=float).reshape(-1, 2)
+
+        ranges = np.array([[a.stroke_range_mm for a in d.actuators] for d in drives], dtype=float).reshape(-1, 2, 2)
+        return cls(
+            axis1_enu=np.array([a[0] for a in axes], dtype=float).reshape(-1, 3),
+            axis2_enu=np.array([a[1] for a in axes], dtype=float).reshape(-1, 3),
+            normal0_enu=np.array([a[2] for a in axes], dtype=float).reshape(-1, 3),
+            arm_fixed_m=act("arm_fixed_m"),
+            arm_moving_m=act("arm_moving_m"),
+            gamma0_rad=np.radians(act("gamma0_deg")),
+            sign=act("sign"),
+            length_at_zero_m=act("length_at_zero_stroke_m"),
+            stroke_min_mm=ranges[:, :, 0],
+            stroke_max_mm=ranges[:, :, 1],
+            mirror_offset_m=np.array([float(d.mirror_offset_m) for d in drives], dtype=float),
+            mirror_size_m=np.array([d.mirror_size_m for d in drives], dtype=float).reshape(-1, 2),
+        )
+
+    def __len__(self) -> int:
+        return int(self.axis1_enu.shape[0])
+
+    def take(self, indices) -> DriveArrays:
+        """Rows ``indices`` (any integer index array; repeats allowed) as a new DriveArrays."""
+        idx = np.asarray(indices, dtype=int)
+        return DriveArrays(**{f.name: getattr(self, f.name)[idx] for f in dataclasses.fields(self)})
+
+    def replace(self, **changes) -> DriveArrays:
+        return dataclasses.replace(self, **changes)
+
+
+# ---------------------------------------------------------------------------- rotations
+def rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotate vectors ``v`` (..., 3) about unit ``axis`` (..., 3) by ``angle_rad`` (...)."""
+    axis = np.asarray(axis, dtype=float)
+    v = np.asarray(v, dtype=float)
+    c = np.cos(angle_rad)[..., None]
+    s = np.sin(angle_rad)[..., None]
+    dot = np.sum(axis * v, axis=-1, keepdims=True)
+    return v * c + np.cross(axis, v) * s + axis * dot * (1.0 - c)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _rotation_angle(axis: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Signed angle about ``axis`` that takes ``a`` to ``b`` (their components ⊥ axis) [rad]."""
+    a_perp = a - axis * np.sum(axis * a, axis=-1, keepdims=True)
+    b_perp = b - axis * np.sum(axis * b, axis=-1, keepdims=True)
+    return np.arctan2(np.sum(axis * np.cross(a_perp, b_perp), axis=-1), np.sum(a_perp * b_perp, axis=-1))
+
+
+# ---------------------------------------------------------------------------- linkage
+def gamma_rad(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
+    """Triangle angle γ = γ0 + sign·θ, shape (N, 2) [rad]."""
+    return drives.gamma0_rad + drives.sign * np.asarray(angles_rad, dtype=float)
+
+
+def angle_interval_rad(drives: DriveArrays) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) axis angles, shape (N, 2) each, between which γ stays inside (0, π) [rad] (open)."""
+    a = -drives.gamma0_rad / drives.sign
+    b = (np.pi - drives.gamma0_rad) / drives.sign
+    return np.minimum(a, b), np.maximum(a, b)
+
+
+def angles_to_strokes(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
+    """Axis angles (N, 2) [rad] → actuator strokes (N, 2) [mm]; NaN where γ leaves (0, π)."""
+    g = gamma_rad(drives, angles_rad)
+    ra, rb = drives.arm_fixed_m, drives.arm_moving_m
+    length = np.sqrt(ra * ra + rb * rb - 2.0 * ra * rb * np.cos(g))
+    strokes = 1000.0 * (length - drives.length_at_zero_m)
+    bad = ~((g > 0.0) & (g < np.pi))
+    return np.where(bad, np.nan, strokes)
+
+
+def strokes_to_angles(drives: DriveArrays, strokes_mm: np.ndarray) -> np.ndarray:
+    """Actuator strokes (N, 2) [mm] → axis angles (N, 2) [rad]; NaN where no triangle exists."""
+    length = drives.length_at_zero_m + np.asarray(strokes_mm, dtype=float) / 1000.0
+    ra, rb = drives.arm_fixed_m, drives.arm_moving_m
+    cos_g = (ra * ra + rb * rb - length * length) / (2.0 * ra * rb)
+    ok = (length > 0.0) & (cos_g > -1.0) & (cos_g < 1.0)
+    g = np.arccos(np.where(ok, cos_g, 0.0))
+    return np.where(ok, (g - drives.gamma0_rad) / drives.sign, np.nan)
+
+
+def strokes_in_range(drives: DriveArrays, strokes_mm: np.ndarray) -> np.ndarray:
+    """(N, 2) bool: stroke finite and inside ``[stroke_min_mm, stroke_max_mm]``."""
+    s = np.asarray(strokes_mm, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(s) & (s >= drives.stroke_min_mm) & (s <= drives.stroke_max_mm)
+
+
+def stroke_margin_mm(drives: DriveArrays, strokes_mm: np.ndarray) -> np.ndarray:
+    """(N, 2) distance to the nearer end of the stroke range [mm]; negative outside, NaN if NaN."""
+    s = np.asarray(strokes_mm, dtype=float)
+    return np.minimum(s - drives.stroke_min_mm, drives.stroke_max_mm - s)
+
+
+# ---------------------------------------------------------------------------- axes ↔ normal
+def angles_to_normal(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
+    """Axis angles (N, 2) [rad] → unit mirror normal (N, 3), ENU: n = R(a1,θ1)·R(a2,θ2)·n0."""
+    th = np.asarray(angles_rad, dtype=float)
+    n = rotate(drives.axis2_enu, th[..., 1], drives.normal0_enu)
+    return rotate(drives.axis1_enu, th[..., 0], n)
+
+
+def _wrap_into_interval(theta: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """θ + 2πk nearest to the centre of (low, high) (the interval is at most π long)."""
+    centre = 0.5 * (low + high)
+    return theta + TWO_PI * np.round((centre - theta) / TWO_PI)
+
+
+def normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """Unit mirror normal (N, 3) → axis angles (N, 2) [rad] and ``reachable`` (N,) bool.
+
+    Solves R(a1,θ1)·R(a2,θ2)·n0 = n in closed form (intersection of the two cones a2·c = a2·n0 and
+    a1·c = a1·n on the unit sphere; general, non-orthogonal axes allowed). Of the two solutions the
+    one whose triangle angles both lie in (0, π) is returned (angles unwrapped into the linkage's
+    range, never wrapped to ±π); if both or neither do, the one nearer the middle of the linkage range.
+    ``reachable`` is False when no exact solution exists (angles NaN) or when the best solution
+    leaves the linkage range (angles returned as found, so the caller can see how far off it is).
+    """
+    n = _unit(np.asarray(normal_enu, dtype=float))
+    a1, a2, n0 = drives.axis1_enu, drives.axis2_enu, drives.normal0_enu
+    c12 = np.sum(a1 * a2, axis=-1)
+    p = np.sum(a1 * n, axis=-1)
+    q = np.sum(a2 * n0, axis=-1)
+    det = 1.0 - c12 * c12
+    alpha = (p - c12 * q) / det
+    beta = (q - c12 * p) / det
+    rem = 1.0 - (alpha * alpha + beta * beta + 2.0 * alpha * beta * c12)
+    exists = rem > -tol
+    g = np.sqrt(np.clip(rem, 0.0, None) / det)
+    w = np.cross(a1, a2)
+    low, high = angle_interval_rad(drives)
+    half = 0.5 * (high - low)
+    mid = 0.5 * (high + low)
+    cands, scores = [], []
+    for sgn in (1.0, -1.0):
+        c = alpha[..., None] * a1 + beta[..., None] * a2 + (sgn * g)[..., None] * w
+        th2 = _rotation_angle(a2, n0, c)
+        th1 = _rotation_angle(a1, c, n)
+        th = _wrap_into_interval(np.stack([th1, th2], axis=-1), low, high)
+        dist = np.abs(th - mid) / half  # < 1 inside the linkage range
+        inside = np.all(dist < 1.0, axis=-1)
+        cands.append(th)
+        scores.append(np.where(inside, 0.0, 10.0) + np.max(dist, axis=-1))
+    pick = scores[1] < scores[0]
+    angles = np.where(pick[..., None], cands[1], cands[0])
+    angles = np.where(exists[..., None], angles, np.nan)
+    gam = gamma_rad(drives, angles)
+    with np.errstate(invalid="ignore"):
+        reachable = exists & np.all((gam > 0.0) & (gam < np.pi), axis=-1)
+    return angles, reachable

@@ -1,0 +1,166 @@
+"""``HeliostatModel``: N heliostats (pivots, drives, error parameters) as one immutable, vectorised model.
+
+Forward: strokes → axis angles → normal → beam from the mirror centre → spot on a target.
+Inverse: sun + aim point → the normal (with the mirror offset) → axis angles → strokes, solved
+exactly with the error model, so a model whose parameters equal a heliostat's true errors puts that
+heliostat's beam on the aim point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from helicalib.geometry import errors as em
+from helicalib.geometry import optics
+from helicalib.geometry.drives import (
+    DriveArrays,
+    angles_to_normal,
+    angles_to_strokes,
+    normal_to_angles,
+    strokes_in_range,
+    strokes_to_angles,
+)
+
+
+@dataclass(frozen=True)
+class AimSolution:
+    """Strokes that put each heliostat's beam on its aim point.
+
+    Attributes
+    ----------
+    strokes_mm : (N, 2) commanded strokes [mm]; NaN where unreachable
+    angles_rad : (N, 2) axis angles of the effective drive [rad]
+    normal_enu : (N, 3) the mirror normal wanted
+    in_range : (N,) bool, both strokes inside their ranges (implies reachable)
+    reachable : (N,) bool, the drive can point the normal there (triangle angles inside (0, π))
+    """
+
+    strokes_mm: np.ndarray
+    angles_rad: np.ndarray
+    normal_enu: np.ndarray
+    in_range: np.ndarray
+    reachable: np.ndarray
+
+
+def _rows(v, n: int, width: int) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    return np.broadcast_to(a, (n, width)) if a.ndim == 1 else a
+
+
+class HeliostatModel:
+    """N heliostats with a geometric error model; immutable (methods return new models).
+
+    Attributes
+    ----------
+    ids : tuple[str, ...]
+    pivots_enu : (N, 3) nominal pivot positions [m, ENU]
+    drives : DriveArrays, nominal drives
+    params : (N, P) error-model parameters (order of ``errors.PARAMETERS``)
+    drives_eff : DriveArrays with the errors applied; ``pivots_eff_enu`` (N, 3) likewise
+    """
+
+    __slots__ = ("ids", "pivots_enu", "drives", "params", "drives_eff", "pivots_eff_enu")
+
+    def __init__(self, ids: Sequence[str], pivots_enu: np.ndarray, drives: DriveArrays, params: np.ndarray | None = None):
+        n = len(drives)
+        pivots = np.asarray(pivots_enu, dtype=float).reshape(n, 3)
+        p = em.zeros(n) if params is None else np.array(params, dtype=float).reshape(n, em.P)
+        if len(ids) != n:
+            raise ValueError(f"{len(ids)} ids for {n} drives")
+        eff, piv = em.apply(drives, pivots, p)
+        for name, value in (("ids", tuple(ids)), ("pivots_enu", pivots), ("drives", drives), ("params", p),
+                            ("drives_eff", eff), ("pivots_eff_enu", piv)):
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name, value):
+        raise AttributeError("HeliostatModel is immutable; use with_params() or subset()")
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def __repr__(self) -> str:
+        return f"HeliostatModel({len(self)} heliostats, errors {'set' if np.any(self.params) else 'zero'})"
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def from_config(cls, cfg, heliostat_ids: Sequence[str] | None = None, params: np.ndarray | None = None) -> HeliostatModel:
+        """Model of the heliostats ``heliostat_ids`` (default: all, in config order) of a ``FieldConfig``."""
+        ids = [h.id for h in cfg.heliostats] if heliostat_ids is None else list(heliostat_ids)
+        pivots = np.array([cfg.heliostat(i).position_enu_m for i in ids], dtype=float).reshape(-1, 3)
+        drives = DriveArrays.from_drives([cfg.drive_of(i) for i in ids])
+        return cls(ids, pivots, drives, params)
+
+    def with_params(self, params: np.ndarray) -> HeliostatModel:
+        """The same heliostats with other error parameters (N, P) (or (P,) for all)."""
+        p = np.broadcast_to(np.asarray(params, dtype=float), (len(self), em.P))
+        return HeliostatModel(self.ids, self.pivots_enu, self.drives, p)
+
+    def subset(self, indices) -> HeliostatModel:
+        """Heliostats ``indices`` (integer array or slice) as a new model."""
+        idx = np.arange(len(self))[indices] if isinstance(indices, slice) else np.asarray(indices, dtype=int).reshape(-1)
+        return HeliostatModel([self.ids[i] for i in idx], self.pivots_enu[idx], self.drives.take(idx), self.params[idx])
+
+    def repeat(self, counts) -> HeliostatModel:
+        """Each heliostat repeated ``counts`` times (for evaluating many observations in one call)."""
+        idx = np.repeat(np.arange(len(self)), counts)
+        return self.subset(idx)
+
+    # -- forward ------------------------------------------------------------------------
+    @property
+    def mirror_offset_m(self) -> np.ndarray:
+        return self.drives.mirror_offset_m
+
+    def angles(self, strokes_mm: np.ndarray) -> np.ndarray:
+        """Effective axis angles (N, 2) [rad] for commanded strokes (N, 2) [mm]; NaN if impossible."""
+        return strokes_to_angles(self.drives_eff, strokes_mm)
+
+    def normal(self, strokes_mm: np.ndarray) -> np.ndarray:
+        """Mirror normal (N, 3), ENU, for commanded strokes (N, 2) [mm], errors applied."""
+        return angles_to_normal(self.drives_eff, self.angles(strokes_mm))
+
+    def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Reflected beam for strokes (N, 2) [mm] and sun (3,) or (N, 3).
+
+        Returns ``(origin_enu (N, 3), direction_enu (N, 3))``: the mirror centre and unit direction.
+        """
+        n = self.normal(strokes_mm)
+        s = optics.unit(_rows(sun_enu, len(self), 3))
+        return optics.mirror_centre(self.pivots_eff_enu, n, self.mirror_offset_m), optics.reflect(s, n)
+
+    def spot_on_target(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, target) -> np.ndarray:
+        """Beam centre on the target plane(s), target frame (u, v), shape (N, 2) [m]; NaN if missed.
+
+        ``target`` is one ``config.Target`` or a sequence of N of them (one per heliostat).
+        """
+        origin, direction = self.beam(strokes_mm, sun_enu)
+        if isinstance(target, Sequence) and not isinstance(target, str):
+            uv = np.full((len(self), 2), np.nan)
+            for t in {id(t): t for t in target}.values():
+                sel = np.array([tt is t for tt in target])
+                uv[sel] = optics.intersect_target(origin[sel], direction[sel], t)[0]
+            return uv
+        return optics.intersect_target(origin, direction, target)[0]
+
+    # -- inverse ------------------------------------------------------------------------
+    def normal_to_strokes(self, normal_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Normal (N, 3) → (strokes_mm (N, 2), angles_rad (N, 2), reachable (N,)), errors applied."""
+        angles, reachable = normal_to_angles(self.drives_eff, normal_enu)
+        strokes = angles_to_strokes(self.drives_eff, angles)
+        reachable = reachable & np.all(np.isfinite(strokes), axis=-1)
+        return strokes, angles, reachable
+
+    def strokes_for_aim(self, sun_enu: np.ndarray, aim_enu: np.ndarray) -> AimSolution:
+        """Strokes that put the beam on ``aim_enu`` ((3,) or (N, 3) [m]) for the sun (3,) or (N, 3)."""
+        n_rows = len(self)
+        s = optics.unit(_rows(sun_enu, n_rows, 3))
+        t = _rows(aim_enu, n_rows, 3)
+        normal = optics.aim_normal(self.pivots_eff_enu, s, t, self.mirror_offset_m)
+        strokes, angles, reachable = self.normal_to_strokes(normal)
+        in_range = reachable & np.all(strokes_in_range(self.drives, strokes), axis=-1)
+        return AimSolution(strokes_mm=strokes, angles_rad=angles, normal_enu=normal, in_range=in_range,
+                           reachable=reachable)
