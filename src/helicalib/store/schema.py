@@ -1,0 +1,158 @@
+"""The SQLite schema of a campaign database (version 1) and its creation.
+
+One file holds every campaign run against it. Times are plant time in UTC seconds (REAL);
+vectors are stored one column per component; JSON columns hold dictionaries and lists.
+The ``schema_version`` table holds one row; a database of a newer version is refused.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+
+from helicalib.errors import ConfigError
+
+SCHEMA_VERSION = 1
+
+DDL = """
+CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL);
+
+CREATE TABLE IF NOT EXISTS campaigns (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    name TEXT NOT NULL,
+    mode TEXT NOT NULL,
+    started_s REAL NOT NULL,
+    ended_s REAL,
+    status TEXT NOT NULL DEFAULT 'running',
+    config_path TEXT NOT NULL DEFAULT '',
+    config_sha256 TEXT NOT NULL DEFAULT '',
+    settings_json TEXT NOT NULL DEFAULT '{}'
+);
+
+CREATE TABLE IF NOT EXISTS heliostats (
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    heliostat_id TEXT NOT NULL,
+    block_index INTEGER NOT NULL,
+    target_id TEXT NOT NULL,
+    PRIMARY KEY (campaign_id, heliostat_id)
+);
+
+CREATE TABLE IF NOT EXISTS visits (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    heliostat_id TEXT NOT NULL,
+    target_id TEXT NOT NULL,
+    started_s REAL NOT NULL,
+    ended_s REAL,
+    outcome TEXT NOT NULL DEFAULT 'running',
+    reason TEXT NOT NULL DEFAULT '',
+    iterations INTEGER NOT NULL DEFAULT 0,
+    first_error_mrad REAL,
+    final_error_mrad REAL
+);
+CREATE INDEX IF NOT EXISTS visits_by_heliostat ON visits (campaign_id, heliostat_id);
+
+CREATE TABLE IF NOT EXISTS observations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    heliostat_id TEXT NOT NULL,
+    target_id TEXT NOT NULL,
+    visit_id INTEGER REFERENCES visits(id),
+    iteration INTEGER NOT NULL,
+    capture_time_s REAL NOT NULL,
+    stroke_cmd_1_mm REAL NOT NULL,
+    stroke_cmd_2_mm REAL NOT NULL,
+    stroke_read_1_mm REAL,
+    stroke_read_2_mm REAL,
+    sun_e REAL NOT NULL,
+    sun_n REAL NOT NULL,
+    sun_u REAL NOT NULL,
+    sun_azimuth_deg REAL NOT NULL,
+    sun_elevation_deg REAL NOT NULL,
+    sun_rising INTEGER,
+    wind_ms REAL,
+    wind_direction_deg REAL,
+    dni_wm2 REAL,
+    temperature_c REAL,
+    cleanliness REAL,
+    valid INTEGER NOT NULL,
+    reason TEXT NOT NULL,
+    message TEXT NOT NULL,
+    offset_u_m REAL,
+    offset_v_m REAL,
+    spot_x_px REAL,
+    spot_y_px REAL,
+    spot_area_px REAL,
+    threshold REAL,
+    jitter_px REAL,
+    spot_e_m REAL,
+    spot_n_m REAL,
+    spot_u_m REAL,
+    error_mrad REAL,
+    before_frame_path TEXT,
+    after_frame_paths_json TEXT NOT NULL DEFAULT '[]'
+);
+CREATE INDEX IF NOT EXISTS observations_by_heliostat ON observations (campaign_id, heliostat_id, valid);
+
+CREATE TABLE IF NOT EXISTS fits (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    heliostat_id TEXT NOT NULL,
+    time_s REAL NOT NULL,
+    model TEXT NOT NULL,
+    params_json TEXT NOT NULL,
+    sigma_json TEXT NOT NULL,
+    rms_mrad REAL NOT NULL,
+    n_points INTEGER NOT NULL
+);
+CREATE INDEX IF NOT EXISTS fits_by_heliostat ON fits (heliostat_id, id);
+
+CREATE TABLE IF NOT EXISTS verdicts (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    heliostat_id TEXT NOT NULL,
+    time_s REAL NOT NULL,
+    accepted INTEGER NOT NULL,
+    n_points INTEGER NOT NULL,
+    rms_mrad REAL,
+    reasons_json TEXT NOT NULL,
+    details_json TEXT NOT NULL DEFAULT '{}'
+);
+CREATE INDEX IF NOT EXISTS verdicts_by_heliostat ON verdicts (campaign_id, heliostat_id, id);
+
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    time_s REAL NOT NULL,
+    kind TEXT NOT NULL,
+    heliostat_id TEXT,
+    reason TEXT NOT NULL,
+    data_json TEXT NOT NULL DEFAULT '{}'
+);
+CREATE INDEX IF NOT EXISTS events_by_campaign ON events (campaign_id, time_s);
+"""
+
+
+def ensure_schema(conn: sqlite3.Connection, where: str) -> int:
+    """Create the tables of an empty database or check the version of an existing one.
+
+    Returns the schema version. Raises :class:`ConfigError` for a database written by a newer
+    helicalib (its version is higher than :data:`SCHEMA_VERSION`) or a file that is not a
+    helicalib database (tables present but no version).
+    """
+    tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    if tables and "schema_version" not in tables:
+        raise ConfigError(f"{where}: not a helicalib database (tables {sorted(tables)[:5]} but no schema_version)")
+    if "schema_version" in tables:
+        row = conn.execute("SELECT version FROM schema_version").fetchone()
+        version = int(row[0]) if row else 0
+        if version > SCHEMA_VERSION:
+            raise ConfigError(
+                f"{where}: database schema version {version} is newer than this helicalib's ({SCHEMA_VERSION}); upgrade helicalib"
+            )
+        if version == SCHEMA_VERSION:
+            return version
+    with conn:
+        conn.executescript(DDL)
+        conn.execute("DELETE FROM schema_version")
+        conn.execute("INSERT INTO schema_version (version) VALUES (?)", (SCHEMA_VERSION,))
+    return SCHEMA_VERSION

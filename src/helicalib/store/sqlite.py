@@ -1,0 +1,406 @@
+"""The campaign store: one SQLite file (WAL) plus PNG frames in an images directory beside it.
+
+Every write is its own transaction, committed before the call returns, and every frame file is
+renamed into place before the row that points to it is inserted: a campaign killed with
+``kill -9`` at any instant loses nothing it had recorded, and no row points to a missing frame.
+Resuming is reopening the file and continuing :meth:`Store.unfinished_campaign`.
+
+The store is safe to share between threads (one connection behind a lock).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from helicalib.errors import ConfigError
+from helicalib.store import frames as _frames
+from helicalib.store.observation_rows import OBSERVATION_COLUMNS, observation_from_row, observation_to_row
+from helicalib.store.records import Campaign, CampaignHeliostat, Event, Fit, Observation, Verdict, Visit
+from helicalib.store.schema import ensure_schema
+
+FrameData = bytes | np.ndarray
+
+
+def _json(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, default=_json_default)
+
+
+def _json_default(value: Any):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (set, frozenset, tuple)):
+        return list(value)
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+class Store:
+    """A campaign database. Build it with :meth:`Store.open`.
+
+    Parameters
+    ----------
+    conn : sqlite3.Connection
+        Open connection (WAL mode, schema checked).
+    path : Path
+        The database file.
+    images_dir : Path
+        Directory of the frame PNGs; observation rows hold paths relative to it.
+    durable : bool
+        fsync frames and use ``synchronous=FULL`` (survives power loss); False keeps the kill -9
+        guarantee (``synchronous=NORMAL`` in WAL) and is faster for simulations.
+    """
+
+    def __init__(self, conn: sqlite3.Connection, path: Path, images_dir: Path, durable: bool):
+        self._conn = conn
+        self._lock = threading.RLock()
+        self.path = path
+        self.images_dir = images_dir
+        self.durable = durable
+
+    # ------------------------------------------------------------------ opening
+    @classmethod
+    def open(cls, path: str | Path, images_dir: str | Path | None = None, *, durable: bool = True) -> "Store":
+        """Create the database at ``path`` or reopen it.
+
+        Parameters
+        ----------
+        path : str or Path
+            Database file; a ``sqlite:///`` URL is accepted too. Parent directories are created.
+        images_dir : str or Path, optional
+            Frames directory; default ``images`` beside the database. Relative paths are taken
+            relative to the database's directory.
+        durable : bool
+            See :class:`Store`.
+
+        Raises
+        ------
+        ConfigError
+            The file is not a helicalib database, is of a newer schema, or cannot be opened.
+        """
+        text = str(path)
+        if text.startswith("sqlite:///"):
+            text = text[len("sqlite:///"):]
+        db = Path(text)
+        db.parent.mkdir(parents=True, exist_ok=True)
+        images = Path(images_dir) if images_dir is not None else Path("images")
+        if not images.is_absolute():
+            images = db.parent / images
+        try:
+            conn = sqlite3.connect(db, timeout=30.0, check_same_thread=False)
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute(f"PRAGMA synchronous={'FULL' if durable else 'NORMAL'}")
+            conn.execute("PRAGMA foreign_keys=ON")
+            ensure_schema(conn, str(db))
+        except sqlite3.DatabaseError as exc:
+            raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
+        _frames.clean_temporary(images)
+        return cls(conn, db, images, durable)
+
+    def close(self) -> None:
+        """Close the connection (every write is already committed)."""
+        with self._lock:
+            self._conn.close()
+
+    def __enter__(self) -> "Store":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _write(self, sql: str, params: Sequence[Any] = ()) -> int:
+        with self._lock, self._conn:
+            cur = self._conn.execute(sql, params)
+            return int(cur.lastrowid or 0)
+
+    def _read(self, sql: str, params: Sequence[Any] = ()) -> list[sqlite3.Row]:
+        with self._lock:
+            cur = self._conn.execute(sql, params)
+            cur.row_factory = sqlite3.Row
+            return cur.fetchall()
+
+    # ------------------------------------------------------------------ campaigns
+    def start_campaign(self, *, name: str, mode: str, started_s: float,
+                       heliostats: Iterable[CampaignHeliostat | tuple[str, int, str]],
+                       config_path: str | Path = "", config_sha256: str = "",
+                       settings: dict[str, Any] | None = None) -> int:
+        """Record a new campaign and its heliostats (id, plant block index, target); returns its id."""
+        rows = [h if isinstance(h, CampaignHeliostat) else CampaignHeliostat(str(h[0]), int(h[1]), str(h[2]))
+                for h in heliostats]
+        with self._lock, self._conn:
+            cur = self._conn.execute(
+                "INSERT INTO campaigns (name, mode, started_s, status, config_path, config_sha256, settings_json)"
+                " VALUES (?, ?, ?, 'running', ?, ?, ?)",
+                (name, mode, float(started_s), str(config_path), config_sha256, _json(settings or {})),
+            )
+            cid = int(cur.lastrowid)
+            self._conn.executemany(
+                "INSERT INTO heliostats (campaign_id, heliostat_id, block_index, target_id) VALUES (?, ?, ?, ?)",
+                [(cid, h.heliostat_id, h.block_index, h.target_id) for h in rows],
+            )
+        return cid
+
+    def finish_campaign(self, campaign_id: int, ended_s: float, status: str = "finished") -> None:
+        """Mark a campaign ended (it is then no longer resumed)."""
+        self._write("UPDATE campaigns SET ended_s = ?, status = ? WHERE id = ?", (float(ended_s), status, int(campaign_id)))
+
+    def campaign(self, campaign_id: int) -> Campaign:
+        rows = self._read("SELECT * FROM campaigns WHERE id = ?", (int(campaign_id),))
+        if not rows:
+            raise ConfigError(f"{self.path}: no campaign {campaign_id}")
+        return _campaign(rows[0])
+
+    def campaigns(self) -> list[Campaign]:
+        """All campaigns, oldest first."""
+        return [_campaign(r) for r in self._read("SELECT * FROM campaigns ORDER BY id")]
+
+    def unfinished_campaign(self, mode: str | None = None) -> Campaign | None:
+        """The newest campaign still ``'running'`` (optionally of one mode), or None: what ``run`` resumes."""
+        sql = "SELECT * FROM campaigns WHERE status = 'running'"
+        params: tuple = ()
+        if mode is not None:
+            sql += " AND mode = ?"
+            params = (mode,)
+        rows = self._read(sql + " ORDER BY id DESC LIMIT 1", params)
+        return _campaign(rows[0]) if rows else None
+
+    def campaign_heliostats(self, campaign_id: int) -> list[CampaignHeliostat]:
+        rows = self._read("SELECT heliostat_id, block_index, target_id FROM heliostats WHERE campaign_id = ?"
+                          " ORDER BY block_index", (int(campaign_id),))
+        return [CampaignHeliostat(r["heliostat_id"], int(r["block_index"]), r["target_id"]) for r in rows]
+
+    # ------------------------------------------------------------------ visits
+    def begin_visit(self, campaign_id: int, heliostat_id: str, target_id: str, started_s: float) -> int:
+        """Open a visit (outcome ``'running'``); returns its id."""
+        return self._write(
+            "INSERT INTO visits (campaign_id, heliostat_id, target_id, started_s) VALUES (?, ?, ?, ?)",
+            (int(campaign_id), heliostat_id, target_id, float(started_s)),
+        )
+
+    def end_visit(self, visit_id: int, *, ended_s: float, outcome: str, reason: str = "", iterations: int = 0,
+                  first_error_mrad: float | None = None, final_error_mrad: float | None = None) -> None:
+        """Close a visit with its outcome (``'valid'``, ``'invalid'``, ``'aborted'``) and reason."""
+        self._write(
+            "UPDATE visits SET ended_s = ?, outcome = ?, reason = ?, iterations = ?, first_error_mrad = ?,"
+            " final_error_mrad = ? WHERE id = ?",
+            (float(ended_s), outcome, reason, int(iterations), _opt(first_error_mrad), _opt(final_error_mrad), int(visit_id)),
+        )
+
+    def close_interrupted_visits(self, campaign_id: int, time_s: float) -> int:
+        """Mark visits left ``'running'`` by a killed process ``'interrupted'``; returns how many."""
+        with self._lock, self._conn:
+            cur = self._conn.execute(
+                "UPDATE visits SET outcome = 'interrupted', reason = 'process ended during the visit', ended_s = ?"
+                " WHERE campaign_id = ? AND outcome = 'running'", (float(time_s), int(campaign_id)))
+            return int(cur.rowcount)
+
+    def visits(self, campaign_id: int | None = None, heliostat_id: str | None = None) -> list[Visit]:
+        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
+        return [Visit(**{k: r[k] for k in r.keys()}) for r in self._read(f"SELECT * FROM visits{where} ORDER BY id", params)]
+
+    # ------------------------------------------------------------------ observations
+    def save_frame(self, frame: FrameData, *, campaign_id: int, heliostat_id: str, visit_id: int | None,
+                   iteration: int, capture_time_s: float, kind: str) -> str:
+        """Write one frame as PNG (atomically) and return its path relative to ``images_dir``."""
+        data = _frames.to_png_bytes(frame)
+        with self._lock:
+            rel = _frames.unique_path(self.images_dir, _frames.frame_relpath(
+                campaign_id, heliostat_id, visit_id, iteration, capture_time_s, kind))
+            _frames.write_atomic(self.images_dir / rel, data, durable=self.durable)
+        return rel.as_posix()
+
+    def record_observation(self, obs: Observation, *, before_frame: FrameData | None = None,
+                           after_frames: Sequence[FrameData] | FrameData | None = None) -> int:
+        """Save the frames, then insert the observation in its own transaction; returns its id.
+
+        Frames given here are written first and their paths replace ``obs.before_frame_path`` /
+        ``obs.after_frame_paths``; already-saved paths in ``obs`` are kept when no frame is given.
+        """
+        if isinstance(after_frames, (bytes, bytearray, np.ndarray)):
+            after_frames = [after_frames]
+        key = dict(campaign_id=obs.campaign_id, heliostat_id=obs.heliostat_id, visit_id=obs.visit_id,
+                   iteration=obs.iteration, capture_time_s=obs.capture_time_s)
+        before_path = obs.before_frame_path
+        if before_frame is not None:
+            before_path = self.save_frame(before_frame, kind="before", **key)
+        after_paths = tuple(obs.after_frame_paths)
+        if after_frames:
+            after_paths = tuple(self.save_frame(f, kind=f"after{i}", **key) for i, f in enumerate(after_frames))
+        row = observation_to_row(obs, before_path, after_paths)
+        cols = ", ".join(row)
+        marks = ", ".join("?" for _ in row)
+        return self._write(f"INSERT INTO observations ({cols}) VALUES ({marks})", tuple(row.values()))
+
+    def observations(self, campaign_id: int | None = None, heliostat_id: str | None = None,
+                     valid: bool | None = None) -> list[Observation]:
+        """Observations in recording order, filtered by campaign, heliostat and validity."""
+        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id,
+                               valid=None if valid is None else int(bool(valid)))
+        return [observation_from_row(r) for r in self._read(f"SELECT * FROM observations{where} ORDER BY id", params)]
+
+    def observations_frame(self, campaign_id: int | None = None, heliostat_id: str | None = None,
+                           valid: bool | None = None):
+        """The same selection as :meth:`observations` as a pandas DataFrame of the flat columns."""
+        import pandas as pd
+
+        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id,
+                               valid=None if valid is None else int(bool(valid)))
+        rows = self._read(f"SELECT {', '.join(OBSERVATION_COLUMNS)} FROM observations{where} ORDER BY id", params)
+        frame = pd.DataFrame([tuple(r) for r in rows], columns=list(OBSERVATION_COLUMNS))
+        frame["valid"] = frame["valid"].astype(bool)
+        return frame
+
+    def count_observations(self, campaign_id: int | None = None, valid: bool | None = None) -> int:
+        where, params = _where(campaign_id=campaign_id, valid=None if valid is None else int(bool(valid)))
+        return int(self._read(f"SELECT COUNT(*) FROM observations{where}", params)[0][0])
+
+    def export_observations_csv(self, path: str | Path, campaign_id: int | None = None,
+                                valid: bool | None = None) -> int:
+        """Write the observations (flat columns, see ``docs/campaign.md``) to CSV; returns the row count."""
+        frame = self.observations_frame(campaign_id=campaign_id, valid=valid)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        frame.to_csv(path, index=False, float_format="%.10g")
+        return len(frame)
+
+    def export_fit_csv(self, path: str | Path, campaign_id: int | None = None,
+                       spot_method: str = "grlm-centroid") -> int:
+        """Write the VALID observations in the fit-input format of :mod:`helicalib.calibration.observations`.
+
+        ``helicalib fit`` reads that file. Strokes are the read-back ones (commanded when none was
+        read); ``target_u_m``/``target_v_m`` are the offsets from the aim point (the board centre);
+        ``record_id`` is the observation's row id, ``source`` is ``campaign``. Returns the row count.
+        """
+        import pandas as pd
+
+        from helicalib.calibration.observations import Observation as FitRow
+        from helicalib.calibration.observations import write_observations
+
+        rows = []
+        for o in self.observations(campaign_id=campaign_id, valid=True):
+            if o.spot_enu_m is None or o.offset_u_m is None or o.offset_v_m is None:
+                continue
+            strokes = o.strokes_read_mm or o.strokes_cmd_mm
+            when = pd.Timestamp(o.capture_time_s, unit="s", tz="UTC").isoformat()
+            rows.append(FitRow(heliostat_id=o.heliostat_id, utc_time=when, sun_e=o.sun_enu[0], sun_n=o.sun_enu[1],
+                               sun_u=o.sun_enu[2], stroke1_mm=strokes[0], stroke2_mm=strokes[1], target_id=o.target_id,
+                               spot_e_m=o.spot_enu_m[0], spot_n_m=o.spot_enu_m[1], spot_u_m=o.spot_enu_m[2],
+                               target_u_m=o.offset_u_m, target_v_m=o.offset_v_m, spot_method=spot_method,
+                               source="campaign", record_id=str(o.id)))
+        write_observations(path, rows, comments=[f"helicalib campaign database {self.path}"
+                                                 + ("" if campaign_id is None else f", campaign {campaign_id}")])
+        return len(rows)
+
+    # ------------------------------------------------------------------ fits, verdicts, events
+    def record_fit(self, *, campaign_id: int, heliostat_id: str, time_s: float, model: str,
+                   params: dict[str, float], sigma: dict[str, float], rms_mrad: float, n_points: int) -> int:
+        """Record one error-model fit (named parameters and their 1-sigma); returns its id."""
+        return self._write(
+            "INSERT INTO fits (campaign_id, heliostat_id, time_s, model, params_json, sigma_json, rms_mrad, n_points)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (int(campaign_id), heliostat_id, float(time_s), model, _json(params), _json(sigma), float(rms_mrad), int(n_points)),
+        )
+
+    def latest_fit(self, heliostat_id: str, campaign_id: int | None = None) -> Fit | None:
+        """The newest fit of a heliostat (in a campaign, or in any when ``campaign_id`` is None)."""
+        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
+        rows = self._read(f"SELECT * FROM fits{where} ORDER BY id DESC LIMIT 1", params)
+        return _fit(rows[0]) if rows else None
+
+    def fits(self, campaign_id: int | None = None, heliostat_id: str | None = None) -> list[Fit]:
+        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
+        return [_fit(r) for r in self._read(f"SELECT * FROM fits{where} ORDER BY id", params)]
+
+    def record_verdict(self, *, campaign_id: int, heliostat_id: str, time_s: float, accepted: bool,
+                       n_points: int, rms_mrad: float | None, reasons: Sequence[str],
+                       details: dict[str, Any] | None = None) -> int:
+        """Record one acceptance verdict; returns its id."""
+        return self._write(
+            "INSERT INTO verdicts (campaign_id, heliostat_id, time_s, accepted, n_points, rms_mrad, reasons_json, details_json)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (int(campaign_id), heliostat_id, float(time_s), int(bool(accepted)), int(n_points), _opt(rms_mrad),
+             _json(list(reasons)), _json(details or {})),
+        )
+
+    def latest_verdicts(self, campaign_id: int) -> dict[str, Verdict]:
+        """The newest verdict of each heliostat of a campaign, by heliostat id."""
+        rows = self._read(
+            "SELECT * FROM verdicts WHERE id IN (SELECT MAX(id) FROM verdicts WHERE campaign_id = ? GROUP BY heliostat_id)",
+            (int(campaign_id),))
+        return {r["heliostat_id"]: _verdict(r) for r in rows}
+
+    def record_event(self, *, campaign_id: int, time_s: float, kind: str, reason: str,
+                     heliostat_id: str | None = None, data: dict[str, Any] | None = None) -> int:
+        """Record a stow, resume, gated, fault, ... event with its reason sentence; returns its id."""
+        return self._write(
+            "INSERT INTO events (campaign_id, time_s, kind, heliostat_id, reason, data_json) VALUES (?, ?, ?, ?, ?, ?)",
+            (int(campaign_id), float(time_s), kind, heliostat_id, reason, _json(data or {})),
+        )
+
+    def events(self, campaign_id: int | None = None, kind: str | None = None) -> list[Event]:
+        where, params = _where(campaign_id=campaign_id, kind=kind)
+        return [Event(id=r["id"], campaign_id=r["campaign_id"], time_s=r["time_s"], kind=r["kind"], reason=r["reason"],
+                      heliostat_id=r["heliostat_id"], data=json.loads(r["data_json"]))
+                for r in self._read(f"SELECT * FROM events{where} ORDER BY time_s, id", params)]
+
+    # ------------------------------------------------------------------ summary
+    def progress(self, campaign_id: int) -> list[dict[str, Any]]:
+        """Per heliostat of a campaign: target, visits, observations, valid ones, last error, verdict.
+
+        The table ``helicalib status`` prints.
+        """
+        rows = self._read(
+            """
+            SELECT h.heliostat_id, h.target_id,
+              (SELECT COUNT(*) FROM visits v WHERE v.campaign_id = h.campaign_id AND v.heliostat_id = h.heliostat_id) AS visits,
+              (SELECT COUNT(*) FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id) AS observations,
+              (SELECT COUNT(*) FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id AND o.valid = 1) AS valid,
+              (SELECT o.error_mrad FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id
+                 AND o.valid = 1 ORDER BY o.id DESC LIMIT 1) AS last_error_mrad
+            FROM heliostats h WHERE h.campaign_id = ? ORDER BY h.block_index
+            """, (int(campaign_id),))
+        verdicts = self.latest_verdicts(campaign_id)
+        out = []
+        for r in rows:
+            v = verdicts.get(r["heliostat_id"])
+            out.append({**{k: r[k] for k in r.keys()}, "accepted": None if v is None else v.accepted,
+                        "rms_mrad": None if v is None else v.rms_mrad, "reasons": () if v is None else v.reasons})
+        return out
+
+
+# ---------------------------------------------------------------------- helpers
+def _opt(value: float | None) -> float | None:
+    return None if value is None else float(value)
+
+
+def _where(**filters: Any) -> tuple[str, tuple]:
+    parts, params = [], []
+    for column, value in filters.items():
+        if value is not None:
+            parts.append(f"{column} = ?")
+            params.append(value)
+    return (" WHERE " + " AND ".join(parts) if parts else ""), tuple(params)
+
+
+def _campaign(r: sqlite3.Row) -> Campaign:
+    return Campaign(id=r["id"], name=r["name"], mode=r["mode"], started_s=r["started_s"], ended_s=r["ended_s"],
+                    status=r["status"], config_path=r["config_path"], config_sha256=r["config_sha256"],
+                    settings=json.loads(r["settings_json"]))
+
+
+def _fit(r: sqlite3.Row) -> Fit:
+    return Fit(id=r["id"], campaign_id=r["campaign_id"], heliostat_id=r["heliostat_id"], time_s=r["time_s"],
+               model=r["model"], params=json.loads(r["params_json"]), sigma=json.loads(r["sigma_json"]),
+               rms_mrad=r["rms_mrad"], n_points=r["n_points"])
+
+
+def _verdict(r: sqlite3.Row) -> Verdict:
+    return Verdict(id=r["id"], campaign_id=r["campaign_id"], heliostat_id=r["heliostat_id"], time_s=r["time_s"],
+                   accepted=bool(r["accepted"]), n_points=r["n_points"], rms_mrad=r["rms_mrad"],
+                   reasons=tuple(json.loads(r["reasons_json"])), details=json.loads(r["details_json"]))
