@@ -1,0 +1,358 @@
+"""Spot centre on the target board, T/GRLM 02-2014 clause 7.2 and annex A.2, with validity checks.
+
+Pipeline for one "before" frame (no beam) and one or more "after" frames (beam on the board):
+
+1. marks on the before frame (or given) → homography → a metric grid of the board
+   (:mod:`helicalib.vision.rectify`); both frames are sampled onto it, so everything below is
+   in board metres, free of perspective;
+2. ambient ratio ``k`` = median(after / before) over the board; the difference ``D = after - k·before``
+   removes the board, its marks and uneven light, and compensates a small change of daylight;
+3. threshold ``T`` by Otsu's method on the histogram of ``D`` (A.1), raised to 4 noise sigmas;
+   ``I = D`` where ``D ≥ T`` else 0; spot area ``S`` = count of ``D ≥ T`` (cells);
+4. window side ``l = √S`` (A.2), the window sum ``f`` at every position from one integral image
+   (A.3), its maximum (A.4);
+5. centre by method:
+   ``grlm``           the window's geometric centre, as the standard says (integer cells);
+   ``grlm-centroid``  (default) the intensity centroid of ``I`` inside a window of side ``l`` that is
+                      re-centred on that centroid until it stops moving (sub-cell; the fixed point is
+                      the centre of a symmetric spot);
+   ``centroid``       the intensity centroid of all of ``I``;
+6. with several after frames the mean centre and its jitter (RMS distance to the mean, T/GRLM 3.3).
+
+Every result says valid or not, with a reason code (:data:`REASONS`) and one sentence.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from helicalib.config import Camera, Target
+from helicalib.errors import MeasurementError
+from helicalib.vision.frames import as_gray_u8
+from helicalib.vision.marks import MarksResult, board_to_image, find_marks
+from helicalib.vision.rectify import BoardGrid, board_grid
+
+METHODS = ("grlm", "grlm-centroid", "centroid")
+REASONS = ("ok", "no_spot", "clipped", "saturated", "low_contrast", "marks_not_found", "reprojection",
+           "ambient_change", "jitter", "bad_frame")
+SATURATED_LEVEL = 250
+
+
+@dataclass(frozen=True)
+class SpotLimits:
+    """Validity limits of a spot measurement."""
+
+    max_reprojection_px: float = 1.5
+    """Marks fit worse than this [px RMS] → "reprojection"."""
+    min_snr: float = 8.0
+    """Peak of the 3×3-smoothed difference below this many noise sigmas → "no_spot"."""
+    min_contrast: float = 20.0
+    """Peak of the difference below this [grey levels] → "low_contrast" (weak DNI, dirty mirror, cloud)."""
+    max_saturated_fraction: float = 0.10
+    """More of the spot area at ≥ 250 grey levels in the after frame than this → "saturated"."""
+    max_ambient_change: float = 0.25
+    """|after/before light ratio - 1| above this → "ambient_change"."""
+    max_jitter_m: float = 0.10
+    """RMS distance of the frame centres to their mean above this [m] → "jitter"."""
+    min_area_cells: int = 9
+    """Fewer thresholded cells than this → "no_spot"."""
+    max_clipped_cells: int = 2
+    """More thresholded cells than this on the board rim or the frame edge → "clipped"."""
+
+
+@dataclass(frozen=True)
+class FrameSpot:
+    """The spot in one after frame (grid cell coordinates: column, row)."""
+
+    center_cell: np.ndarray
+    offset_m: np.ndarray
+    threshold: float
+    area_cells: int
+    window_side_cells: float
+    window_center_cell: np.ndarray
+    ambient_ratio: float
+    peak: float
+    noise: float
+    saturated_fraction: float
+    clipped_cells: int
+
+
+@dataclass(frozen=True)
+class SpotResult:
+    """A spot measurement. Pixel values are frame pixels; ``offset_m`` is (u, v) on the board from its centre.
+
+    ``spot_area_px`` is the annex A spot area ``S`` counted on the board grid (cells of
+    ``1/cells_per_m`` metres; ``spot_area_m2`` is the same in square metres). ``window_px`` holds the
+    corners (4, 2) of the square A.2 window in the frame; ``window_side_m`` its side.
+    """
+
+    valid: bool
+    reason: str
+    message: str
+    method: str = "grlm-centroid"
+    marks: MarksResult | None = None
+    spot_center_px: np.ndarray | None = None
+    offset_m: np.ndarray | None = None
+    target_center_px: np.ndarray | None = None
+    spot_area_px: float | None = None
+    spot_area_m2: float | None = None
+    threshold: float | None = None
+    jitter_m: float | None = None
+    window_px: np.ndarray | None = None
+    window_side_m: float | None = None
+    cells_per_m: float | None = None
+    frame_offsets_m: np.ndarray | None = None
+    frames: tuple[FrameSpot, ...] = field(default_factory=tuple)
+    failed_frame: int | None = None
+
+    def to_json(self) -> dict:
+        """A JSON-ready dict (lists and floats; None where not measured)."""
+
+        def arr(a, nd=4):
+            return None if a is None else np.round(np.asarray(a, dtype=float), nd).tolist()
+
+        def num(x, nd=4):
+            return None if x is None or not np.isfinite(x) else round(float(x), nd)
+
+        f0 = self.frames[0] if self.frames else None
+        return {
+            "valid": self.valid, "reason": self.reason, "message": self.message, "method": self.method,
+            "spot_center_px": arr(self.spot_center_px, 3), "offset_m": arr(self.offset_m, 5),
+            "target_center_px": arr(self.target_center_px, 3), "spot_area_px": num(self.spot_area_px, 1),
+            "spot_area_m2": num(self.spot_area_m2), "threshold": num(self.threshold, 2),
+            "jitter_m": num(self.jitter_m, 5), "window_px": arr(self.window_px, 2),
+            "window_side_m": num(self.window_side_m), "cells_per_m": num(self.cells_per_m, 3),
+            "frame_offsets_m": arr(self.frame_offsets_m, 5), "failed_frame": self.failed_frame,
+            "ambient_ratio": None if f0 is None else num(f0.ambient_ratio),
+            "peak": None if f0 is None else num(f0.peak, 2), "noise": None if f0 is None else num(f0.noise, 3),
+            "saturated_fraction": None if f0 is None else num(f0.saturated_fraction),
+            "marks": None if self.marks is None else self.marks.to_json(),
+        }
+
+
+class _Invalid(Exception):
+    def __init__(self, reason: str, message: str, partial: FrameSpot | None = None):
+        super().__init__(message)
+        self.reason, self.message, self.partial = reason, message, partial
+
+
+# ---------------------------------------------------------------------------- annex A core
+def otsu_threshold(values_u8: np.ndarray) -> float:
+    """Otsu's threshold of 8-bit values (any shape) [grey levels]."""
+    import cv2
+
+    v = np.ascontiguousarray(values_u8, dtype=np.uint8).reshape(-1, 1)
+    t, _ = cv2.threshold(v, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    return float(t)
+
+
+def best_window(I: np.ndarray, side: int) -> tuple[np.ndarray, float]:
+    """Annex A.3–A.4: the ``side``×``side`` window with the largest sum of ``I`` (rows, columns).
+
+    Returns the window's geometric centre (column, row) in cell coordinates — the mean over all
+    positions that reach the maximum — and that maximum.
+    """
+    import cv2
+
+    rows, cols = I.shape
+    side = int(max(1, min(side, rows, cols)))
+    ii = cv2.integral(np.ascontiguousarray(I, dtype=np.float32), sdepth=cv2.CV_64F)
+    f = ii[side:, side:] - ii[:-side, side:] - ii[side:, :-side] + ii[:-side, :-side]
+    fmax = float(f.max())
+    r, c = np.nonzero(f >= fmax - 1e-9 * max(1.0, abs(fmax)))
+    half = (side - 1) / 2.0
+    return np.array([c.mean() + half, r.mean() + half]), fmax
+
+
+def _cover(lo: float, hi: float, n: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """Cells (index range) overlapping [lo, hi] and the covered fraction of each (cell k spans k±½)."""
+    k0, k1 = max(0, int(math.floor(lo + 0.5))), min(n - 1, int(math.floor(hi + 0.5)))
+    if k1 < k0:
+        return k0, np.zeros(0, dtype=int), np.zeros(0)
+    ks = np.arange(k0, k1 + 1)
+    w = np.clip(np.minimum(ks + 0.5, hi) - np.maximum(ks - 0.5, lo), 0.0, 1.0)
+    return k0, ks, w
+
+
+def window_centroid(I: np.ndarray, start_cell: np.ndarray, side: float, iterations: int = 30) -> np.ndarray:
+    """Intensity centroid of ``I`` inside a square window of ``side`` cells, re-centred until it stops moving.
+
+    Partly covered cells count with their covered fraction, so the window slides continuously.
+    Returns (column, row) in cell coordinates.
+    """
+    rows, cols = I.shape
+    c = np.asarray(start_cell, dtype=float).copy()
+    h = side / 2.0
+    for _ in range(iterations):
+        _, js, wx = _cover(c[0] - h, c[0] + h, cols)
+        _, is_, wy = _cover(c[1] - h, c[1] + h, rows)
+        if len(js) == 0 or len(is_) == 0:
+            break
+        patch = I[is_[0]: is_[-1] + 1, js[0]: js[-1] + 1] * wy[:, None] * wx[None, :]
+        tot = float(patch.sum())
+        if tot <= 0:
+            break
+        new = np.array([patch.sum(axis=0) @ js / tot, patch.sum(axis=1) @ is_ / tot])
+        moved = float(np.max(np.abs(new - c)))
+        c = new
+        if moved < 1e-4:
+            break
+    return c
+
+
+def intensity_centroid(I: np.ndarray) -> np.ndarray:
+    """Intensity centroid (column, row) of all of ``I``."""
+    tot = float(I.sum())
+    return np.array([I.sum(axis=0) @ np.arange(I.shape[1]) / tot, I.sum(axis=1) @ np.arange(I.shape[0]) / tot])
+
+
+# ---------------------------------------------------------------------------- one frame
+def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limits: SpotLimits) -> FrameSpot:
+    import cv2
+
+    inside = grid.inside
+    sub = (slice(None, None, 3), slice(None, None, 3))
+    b_in, a_in = B[sub][inside[sub]], A[sub][inside[sub]]
+    if b_in.size < 16:
+        raise _Invalid("marks_not_found", "the board is not inside the frame.")
+    lit = (b_in > 0.25 * float(np.median(b_in))) & (b_in < SATURATED_LEVEL) & (a_in < SATURATED_LEVEL)
+    if np.count_nonzero(lit) < 16:
+        raise _Invalid("low_contrast", "the board is too dark or saturated to compare before and after.")
+    k = float(np.median(a_in[lit] / b_in[lit]))
+    D = A - k * B
+    d_sub = D[sub][inside[sub]]
+    noise = max(0.5, 1.4826 * float(np.median(np.abs(d_sub - np.median(d_sub)))))
+    Dm = np.where(inside, D, 0.0).astype(np.float32)
+    peak = float(cv2.boxFilter(Dm, -1, (3, 3)).max())
+    partial = FrameSpot(np.full(2, np.nan), np.full(2, np.nan), float("nan"), 0, float("nan"), np.full(2, np.nan),
+                        k, peak, noise, float("nan"), 0)
+    if abs(k - 1.0) > limits.max_ambient_change:
+        raise _Invalid("ambient_change", f"the light on the board changed by {100 * (k - 1):+.0f} % between the "
+                       f"before and after frames (limit ±{100 * limits.max_ambient_change:.0f} %).", partial)
+    if peak < limits.min_snr * noise:
+        raise _Invalid("no_spot", f"no spot on the board: the brightest difference is {peak:.1f} grey levels, "
+                       f"{peak / noise:.1f} noise sigmas (need {limits.min_snr:g}).", partial)
+    if peak < limits.min_contrast:
+        raise _Invalid("low_contrast", f"the spot is too faint: {peak:.1f} grey levels above the board "
+                       f"(need {limits.min_contrast:g}; weak DNI, dirty mirror or cloud).", partial)
+    d8 = np.clip(np.rint(Dm), 0, 255).astype(np.uint8)
+    T = max(otsu_threshold(d8[inside]), math.ceil(4.0 * noise), 1.0)
+    mask = Dm >= T
+    S = int(np.count_nonzero(mask & inside))
+    clipped = int(np.count_nonzero(mask & ~inside))
+    A_spot = A[mask & inside]
+    sat = float(np.count_nonzero(A_spot >= SATURATED_LEVEL)) / max(1, S)
+    partial = FrameSpot(np.full(2, np.nan), np.full(2, np.nan), T, S, math.sqrt(S), np.full(2, np.nan),
+                        k, peak, noise, sat, clipped)
+    if S < limits.min_area_cells:
+        raise _Invalid("no_spot", f"no spot: only {S} cells of the board lie above the threshold {T:.0f}.", partial)
+    side = math.sqrt(S)
+    if clipped > limits.max_clipped_cells or side >= min(grid.shape):
+        raise _Invalid("clipped", f"the spot runs over the edge of the board or the frame ({clipped} cells of it "
+                       "on the rim); its centre would be biased.", partial)
+    if sat > limits.max_saturated_fraction:
+        raise _Invalid("saturated", f"{100 * sat:.0f} % of the spot is saturated in the after frame "
+                       f"(limit {100 * limits.max_saturated_fraction:.0f} %); close the aperture.", partial)
+    I = np.where(mask & inside, Dm, 0.0).astype(np.float32)
+    win_centre, _ = best_window(I, int(round(side)))
+    if method == "grlm":
+        centre, win_side = win_centre, float(int(round(side)))
+    elif method == "grlm-centroid":
+        centre = window_centroid(I, win_centre, side)
+        win_centre, win_side = centre, side
+    elif method == "centroid":
+        centre, win_side = intensity_centroid(I), side
+    else:  # pragma: no cover - checked by measure_spot
+        raise ValueError(method)
+    return FrameSpot(centre, grid.cell_to_board(centre), T, S, win_side, win_centre, k, peak, noise, sat, clipped)
+
+
+# ---------------------------------------------------------------------------- public
+def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Target, camera: Camera | None = None,
+                 method: str = "grlm-centroid", marks: MarksResult | None = None,
+                 limits: SpotLimits | None = None, cells_per_m: float | None = None) -> SpotResult:
+    """Measure the spot centre on the board from a before frame and one or more after frames.
+
+    Parameters
+    ----------
+    before : ndarray uint8 (H, W)
+        Frame without the beam on the board.
+    afters : sequence of ndarray uint8 (H, W)
+        Frames with the beam on the board.
+    target : config.Target
+        The board (size and marks).
+    camera : config.Camera, optional
+        Its intrinsics/distortion undistort the marks and the grid.
+    method : {"grlm", "grlm-centroid", "centroid"}
+    marks : MarksResult, optional
+        Marks found earlier (on the before frame); found here otherwise.
+    limits : SpotLimits, optional
+    cells_per_m : float, optional
+        Board grid resolution [cells/m]; default: the board's pixel scale in the frame.
+
+    Returns
+    -------
+    SpotResult
+        ``valid`` False with a reason code when the measurement cannot be trusted; never raises for
+        bad input frames (reason "bad_frame").
+    """
+    if method not in METHODS:
+        raise MeasurementError(f"unknown spot method {method!r}; choose one of {', '.join(METHODS)}")
+    limits = limits or SpotLimits()
+    afters = list(afters) if not isinstance(afters, np.ndarray) or afters.ndim == 3 else [afters]
+    try:
+        before = as_gray_u8(before, "before frame")
+        if not afters:
+            raise MeasurementError("no after frame given")
+        afters = [as_gray_u8(a, f"after frame {i + 1}") for i, a in enumerate(afters)]
+        for i, a in enumerate(afters):
+            if a.shape != before.shape:
+                raise MeasurementError(f"after frame {i + 1} is {a.shape[1]}×{a.shape[0]} px but the before frame "
+                                       f"is {before.shape[1]}×{before.shape[0]} px")
+    except MeasurementError as exc:
+        return SpotResult(False, "bad_frame", f"{exc}.", method)
+    if marks is None:
+        marks = find_marks(before, target, camera, max_reprojection_px=limits.max_reprojection_px)
+    if not marks.found:
+        return SpotResult(False, marks.reason, marks.message, method, marks)
+    if marks.reprojection_px > limits.max_reprojection_px:
+        return SpotResult(False, "reprojection", f"the marks fit only to {marks.reprojection_px:.2f} px RMS "
+                          f"(limit {limits.max_reprojection_px:.2f} px).", method, marks)
+    grid = board_grid(marks, target, before.shape, cells_per_m)
+    B = grid.sample(before)
+    base = dict(method=method, marks=marks, target_center_px=marks.center_px, cells_per_m=grid.cells_per_m)
+    frames: list[FrameSpot] = []
+    for i, a in enumerate(afters):
+        try:
+            frames.append(_frame_spot(B, grid.sample(a), grid, method, limits))
+        except _Invalid as bad:
+            extra = dict(threshold=None, spot_area_px=None)
+            if bad.partial is not None and bad.partial.area_cells:
+                extra = dict(threshold=bad.partial.threshold, spot_area_px=float(bad.partial.area_cells),
+                             spot_area_m2=bad.partial.area_cells / grid.cells_per_m**2)
+            where = f" (after frame {i + 1})" if len(afters) > 1 else ""
+            return SpotResult(False, bad.reason, bad.message.rstrip(".") + where + ".", failed_frame=i,
+                              frames=tuple(frames) + ((bad.partial,) if bad.partial else ()), **extra, **base)
+    offsets = np.array([f.offset_m for f in frames])
+    mean = offsets.mean(axis=0)
+    jitter = float(np.sqrt(np.mean(np.sum((offsets - mean) ** 2, axis=1)))) if len(frames) > 1 else None
+    f0 = frames[0]
+    h = f0.window_side_cells / 2
+    wc = f0.window_center_cell
+    corners_cells = wc + np.array([[-h, -h], [h, -h], [h, h], [-h, h]])
+    window_px = board_to_image(marks, grid.cell_to_board(corners_cells))
+    result = dict(spot_center_px=board_to_image(marks, mean[None, :])[0], offset_m=mean,
+                  spot_area_px=float(np.mean([f.area_cells for f in frames])),
+                  spot_area_m2=float(np.mean([f.area_cells for f in frames])) / grid.cells_per_m**2,
+                  threshold=float(np.mean([f.threshold for f in frames])), jitter_m=jitter, window_px=window_px,
+                  window_side_m=f0.window_side_cells / grid.cells_per_m, frame_offsets_m=offsets, frames=tuple(frames))
+    if jitter is not None and jitter > limits.max_jitter_m:
+        return SpotResult(False, "jitter", f"the spot moved {jitter * 1000:.0f} mm RMS over {len(frames)} frames "
+                          f"(limit {limits.max_jitter_m * 1000:.0f} mm; wind?).", **result, **base)
+    msg = (f"spot centre at u = {mean[0]:+.3f} m, v = {mean[1]:+.3f} m from the board centre ({method}"
+           + (f", {len(frames)} frames, jitter {jitter * 1000:.0f} mm RMS" if jitter is not None else "") + ").")
+    return SpotResult(True, "ok", msg, **result, **base)
