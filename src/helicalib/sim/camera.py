@@ -1,0 +1,203 @@
+"""Target-camera renderer of the simulated plant and ``SimCamera`` (``devices.protocols.Camera``).
+
+A frame is rendered in two steps. The board is rastered in its own plane (target frame u, v):
+a static albedo image (white board, four black L marks) lit by the ambient light (tied to DNI)
+plus the spot of every heliostat whose *true* beam meets the board. Each spot is the mirror's
+footprint (mirror size × incidence, stretched by the board's obliquity) blurred by a Gaussian of
+the sun shape and twice the slope error, carrying ``DNI · area · cos(incidence) · reflectivity ·
+cleanliness`` watts; the footprint and blur are separable, so all spots are one matrix product.
+The lit raster is then warped into the image through the board→pixel homography of a pinhole
+camera at ``position_enu_m`` looking at the board centre, noise is added (a pre-drawn noise tile
+at a random offset), and values saturate at 8 bits.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from scipy.special import ndtr
+
+from helicalib.devices.protocols import Frame
+from helicalib.geometry import optics
+from helicalib.sim.scenario import CameraSpec, Optics
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def camera_pose(position_enu: np.ndarray, look_at_enu: np.ndarray) -> np.ndarray:
+    """World→camera rotation (3, 3), OpenCV axes (x right, y down, z forward), level (no roll)."""
+    f = optics.unit(np.asarray(look_at_enu, float) - np.asarray(position_enu, float))
+    x = np.cross(f, UP)
+    x = x / np.linalg.norm(x)
+    y = np.cross(f, x)
+    return np.stack([x, y, f])
+
+
+def default_camera_position(target) -> np.ndarray:
+    """Default camera position: 80 m out along the board normal, 2 m above the ground [m, ENU]."""
+    c = np.asarray(target.center_enu_m, float)
+    w = np.asarray(target.normal_enu, float)
+    p = c + 80.0 * w
+    p[2] = 2.0
+    return p
+
+
+def board_homography(camera_cfg, target) -> tuple[np.ndarray, tuple[int, int]]:
+    """Homography (3, 3) from board coordinates (u, v, 1) [m] to pixels, and (width, height) [px]."""
+    width, height = camera_cfg.resolution_px
+    pos = np.asarray(camera_cfg.position_enu_m, float) if camera_cfg.position_enu_m is not None \
+        else default_camera_position(target)
+    centre = np.asarray(target.center_enu_m, float)
+    r = camera_pose(pos, centre)
+    k = camera_cfg.camera_matrix
+    if k is None:
+        dist = float(np.linalg.norm(centre - pos))
+        f = 0.7 * width * dist / max(target.size_m)
+        k = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+    frame = target.frame_enu
+    m = np.column_stack([r @ frame[0], r @ frame[1], r @ (centre - pos)])
+    return k @ m, (int(width), int(height))
+
+
+def mark_mask(target, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """True where board points (u, v) [m] lie on one of the four L marks (vertex inward, two arms)."""
+    out = np.zeros(np.broadcast(u, v).shape, dtype=bool)
+    if target.marks is None:
+        return out
+    arm, thick = target.marks.arm_m, target.marks.thickness_m
+    for vu, vv in target.marks.vertices_m:
+        su, sv = -np.sign(vu) or 1.0, -np.sign(vv) or 1.0   # inward directions
+        a = (u - vu) * su                                   # distance inward along u
+        b = (v - vv) * sv
+        arm_u = (a >= 0) & (a <= arm) & (b >= 0) & (b <= thick)
+        arm_v = (b >= 0) & (b <= arm) & (a >= 0) & (a <= thick)
+        out |= arm_u | arm_v
+    return out
+
+
+class BoardRenderer:
+    """Renders frames of one camera (its pose, intrinsics and target board), cached static parts."""
+
+    def __init__(self, camera_cfg, target, spec: CameraSpec, optics_spec: Optics, seed: int = 0):
+        self.camera = camera_cfg
+        self.target = target
+        self.spec = spec
+        self.optics = optics_spec
+        self.h_board, self.size_px = board_homography(camera_cfg, target)
+        w_m, h_m = target.size_m
+        # raster resolution: about 1.5 raster pixels per image pixel at the board centre
+        centre_px = self.h_board @ np.array([0.0, 0.0, 1.0])
+        step_px = self.h_board @ np.array([1.0, 0.0, 1.0])
+        px_per_m = float(np.linalg.norm(step_px[:2] / step_px[2] - centre_px[:2] / centre_px[2]))
+        self.ppm = float(np.clip(1.5 * px_per_m, spec.board_px_per_m, 150.0))
+        self.nu, self.nv = int(math.ceil(w_m * self.ppm)), int(math.ceil(h_m * self.ppm))
+        self.u_m = -w_m / 2 + (np.arange(self.nu) + 0.5) * (w_m / self.nu)
+        self.v_m = h_m / 2 - (np.arange(self.nv) + 0.5) * (h_m / self.nv)
+        raster_to_board = np.array([[w_m / self.nu, 0.0, -w_m / 2], [0.0, -h_m / self.nv, h_m / 2], [0.0, 0.0, 1.0]])
+        # raster pixel (x, y) covers [x, x+1): its centre is (x+0.5); OpenCV maps pixel centres
+        shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
+        self.h_raster = self.h_board @ raster_to_board @ shift
+        uu, vv = np.meshgrid(self.u_m, self.v_m)
+        self.albedo = np.where(mark_mask(target, uu, vv), spec.mark_albedo, spec.board_albedo).astype(np.float32)
+        rng = np.random.default_rng(seed)
+        w, h = self.size_px
+        self._noise = rng.standard_normal((h + 64, w + 64)).astype(np.float32) * np.float32(spec.noise_counts)
+        self._rng = rng
+
+    def spot_flux_wm2(self, uv_m: np.ndarray, power_w: np.ndarray, width_m: np.ndarray,
+                      sigma_m: np.ndarray) -> np.ndarray:
+        """Irradiance raster (nv, nu) [W/m²] of K spots: box (K, 2) ⊗ Gaussian σ (K, 2), total power (K,)."""
+        if len(power_w) == 0:
+            return np.zeros((self.nv, self.nu), dtype=np.float32)
+
+        def profile(grid, centre, width, sigma):  # (K, n), integrates to 1 over the axis
+            g = grid[None, :] - centre[:, None]
+            half = width[:, None] / 2.0
+            s = sigma[:, None]
+            return (ndtr((g + half) / s) - ndtr((g - half) / s)) / width[:, None]
+
+        pu = profile(self.u_m, uv_m[:, 0], width_m[:, 0], sigma_m[:, 0])
+        pv = profile(self.v_m, uv_m[:, 1], width_m[:, 1], sigma_m[:, 1])
+        return ((pv.T * power_w[None, :]) @ pu).astype(np.float32)
+
+    def spots_from_beams(self, origin_enu, direction_enu, sun_enu, normal_enu, mirror_size_m, dni_wm2,
+                         cleanliness):
+        """Board-frame spot parameters of the beams (N, 3) that meet this board from the front."""
+        uv, hit, valid = optics.intersect_target(origin_enu, direction_enu, self.target)
+        w = self.target.frame_enu[2]
+        cos_b = -(direction_enu @ w)
+        dist = np.linalg.norm(hit - origin_enu, axis=-1)
+        cos_inc = np.clip(normal_enu @ np.asarray(sun_enu, float), 0.0, 1.0)
+        sigma_beam = 1e-3 * math.hypot(self.optics.sun_sigma_mrad, 2.0 * self.optics.slope_error_mrad)
+        stretch = 1.0 / np.sqrt(np.clip(cos_b, 0.05, 1.0))
+        width = mirror_size_m * np.sqrt(cos_inc)[:, None] * stretch[:, None]
+        sigma = (sigma_beam * dist * stretch)[:, None] * np.ones((1, 2))
+        half = np.asarray(self.target.size_m) / 2.0
+        with np.errstate(invalid="ignore"):
+            reach = half[None, :] + width / 2 + 4 * sigma
+            near = valid & (cos_b > 0) & (cos_inc > 0) & np.all(np.abs(uv) < reach, axis=-1)
+        area = mirror_size_m[:, 0] * mirror_size_m[:, 1]
+        power = dni_wm2 * area * cos_inc * self.optics.reflectivity * np.asarray(cleanliness)
+        k = near & (power > 0)
+        return uv[k], power[k], np.maximum(width[k], 1e-3), sigma[k]
+
+    def render(self, spots, dni_wm2: float, daylight: bool) -> np.ndarray:
+        """The frame (height, width) uint8 for spots ``(uv, power, width, sigma)`` and the ambient light."""
+        s = self.spec
+        ambient = (s.ambient_fraction * dni_wm2 + s.ambient_offset_wm2) if daylight else 0.0
+        flux = self.spot_flux_wm2(*spots) if spots is not None else 0.0
+        radiance = (self.albedo * (np.float32(ambient) + flux)) * np.float32(s.gain_counts_per_wm2)
+        background = s.background_counts * (dni_wm2 / 1000.0 + 0.2) if daylight else 0.0
+        w, h = self.size_px
+        img = cv2.warpPerspective(radiance, self.h_raster, (w, h), flags=cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=float(background))
+        ox, oy = self._rng.integers(0, 64, size=2)
+        img += self._noise[oy:oy + h, ox:ox + w]
+        np.clip(img, 0.0, 255.0, out=img)
+        return (img + 0.5).astype(np.uint8)
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """8-bit grayscale PNG (fast compression)."""
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+class SimCamera:
+    """A camera of the in-process :class:`~helicalib.sim.plant.SimulatedPlant` (``Camera`` protocol).
+
+    ``grab()`` renders the board at the plant's current time and returns PNG bytes with the
+    capture time in plant time. ``render()`` gives the uint8 array without encoding.
+    """
+
+    def __init__(self, plant, camera_id: str):
+        self.plant = plant
+        cams = {c.id: c for c in plant.cfg.cameras}
+        if camera_id not in cams:
+            raise KeyError(f"no camera {camera_id!r} (defined: {', '.join(cams)})")
+        self.config = cams[camera_id]
+        self.target = plant.cfg.target(self.config.target)
+        sc = plant.scenario
+        seed = (sc.seed * 1000 + list(cams).index(camera_id)) & 0xFFFFFFFF
+        self.renderer = BoardRenderer(self.config, self.target, sc.camera, sc.optics, seed=seed)
+        self.source = self.config.url
+
+    def render(self) -> tuple[np.ndarray, float]:
+        """(frame (height, width) uint8, capture time [UTC s, plant time])."""
+        p = self.plant
+        t = p.t_s
+        sun, elevation = p.sun(t)
+        weather = p.weather()
+        beams = p.true_beams(t)
+        spots = self.renderer.spots_from_beams(
+            beams.origin_enu, beams.direction_enu, sun, beams.normal_enu, p.nominal.drives.mirror_size_m,
+            weather.dni_wm2, p.soiling.cleanliness(t))
+        return self.renderer.render(spots, weather.dni_wm2, elevation > 0.0), t
+
+    def grab(self) -> Frame:
+        image, t = self.render()
+        return Frame(data=encode_png(image), capture_time_s=float(t), source=self.source)

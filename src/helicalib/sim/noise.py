@@ -1,0 +1,65 @@
+"""Deterministic, random-access noise: the same (seed, stream, key) always gives the same number.
+
+The simulated plant must give the same weather and the same jitter for a given plant time no
+matter in which order or how often it is asked, so it does not draw from a stateful generator;
+it hashes integer keys (splitmix64) into uniform and normal variates instead. All functions are
+vectorised over numpy integer arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_TWO53 = float(2**53)
+
+
+def _mix(x: np.ndarray) -> np.ndarray:
+    """splitmix64 finaliser on uint64 arrays (wrapping arithmetic)."""
+    with np.errstate(over="ignore"):
+        z = x + _GOLDEN
+        z = (z ^ (z >> np.uint64(30))) * _M1
+        z = (z ^ (z >> np.uint64(27))) * _M2
+        return z ^ (z >> np.uint64(31))
+
+
+def hash_keys(seed: int, stream: int, *keys) -> np.ndarray:
+    """uint64 hash of (seed, stream, keys...) broadcast over the key arrays."""
+    h = _mix(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) ^ (np.uint64(stream & 0xFFFFFFFF) << np.uint64(32)))
+    h = np.asarray(h, dtype=np.uint64)
+    for k in keys:
+        k = np.asarray(k).astype(np.int64).view(np.uint64) if np.asarray(k).dtype.kind == "i" \
+            else np.asarray(k, dtype=np.uint64)
+        h = _mix(h ^ _mix(k))
+    return h
+
+
+def uniform(seed: int, stream: int, *keys) -> np.ndarray:
+    """Uniform variates in (0, 1), one per broadcast key."""
+    h = hash_keys(seed, stream, *keys)
+    return ((h >> np.uint64(11)).astype(np.float64) + 0.5) / _TWO53
+
+
+def normal(seed: int, stream: int, *keys) -> np.ndarray:
+    """Standard normal variates (Box–Muller on two hashed uniforms), one per broadcast key."""
+    u1 = uniform(seed, stream, *keys, 0)
+    u2 = uniform(seed, stream, *keys, 1)
+    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+
+
+def smooth_normal(seed: int, stream: int, t_s, correlation_s: float, *keys) -> np.ndarray:
+    """A smooth, zero-mean, unit-variance random process of time, evaluated at ``t_s``.
+
+    Independent normal values sit on knots every ``correlation_s`` seconds and are joined by a
+    cosine interpolation rescaled to keep the variance 1 between knots. ``keys`` (e.g. a heliostat
+    index array) select independent processes. Shape: broadcast of ``t_s`` and ``keys``.
+    """
+    x = np.asarray(t_s, dtype=float) / float(correlation_s)
+    k0 = np.floor(x)
+    f = x - k0
+    w = 0.5 - 0.5 * np.cos(np.pi * f)
+    a = normal(seed, stream, k0.astype(np.int64), *keys)
+    b = normal(seed, stream, (k0 + 1).astype(np.int64), *keys)
+    return ((1.0 - w) * a + w * b) / np.sqrt((1.0 - w) ** 2 + w**2)

@@ -1,0 +1,175 @@
+"""Scenario files of the simulated plant: weather, soiling, hidden errors, optics, camera, faults.
+
+A scenario is a YAML mapping; every section and key is optional (defaults below = a clear,
+calm spring week with moderate errors). Unknown keys and bad values are refused with the key
+path, like the field config. ``docs/simulator.md`` lists every key with its unit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from helicalib.errors import ConfigError
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Wind(_Model):
+    mean_ms: float = Field(default=3.0, ge=0)
+    diurnal_amplitude_ms: float = Field(default=1.5, ge=0)   # extra wind at 15:00 local solar time
+    variability_ms: float = Field(default=1.0, ge=0)        # std of the slow fluctuation
+    correlation_h: float = Field(default=1.0, gt=0)
+    direction_deg: float = 300.0
+    direction_variability_deg: float = Field(default=25.0, ge=0)
+
+
+class Dni(_Model):
+    clear_sky_wm2: float = Field(default=1000.0, ge=0)      # DNI with the sun at the zenith, clear sky
+    cloudy_fraction: float = Field(default=0.0, ge=0, le=1)  # share of daylight under passing clouds
+    cloud_attenuation: float = Field(default=0.85, ge=0, le=1)
+    cloud_duration_min: float = Field(default=10.0, gt=0)
+
+
+class Temperature(_Model):
+    mean_c: float = 12.0
+    diurnal_amplitude_c: float = Field(default=7.0, ge=0)
+
+
+class Pressure(_Model):
+    mean_hpa: float | None = Field(default=None, gt=0)       # default: the site's pressure
+    variability_hpa: float = Field(default=2.0, ge=0)
+
+
+class Event(_Model):
+    """An override during [start, end): any value given replaces the generated one."""
+
+    start: str
+    end: str
+    wind_ms: float | None = Field(default=None, ge=0)
+    wind_direction_deg: float | None = None
+    dni_factor: float | None = Field(default=None, ge=0)
+    temperature_c: float | None = None
+
+
+class WeatherSpec(_Model):
+    wind: Wind = Wind()
+    dni: Dni = Dni()
+    temperature: Temperature = Temperature()
+    pressure: Pressure = Pressure()
+    events: tuple[Event, ...] = ()
+
+
+class Soiling(_Model):
+    rate_per_day: float = Field(default=0.004, ge=0)        # cleanliness lost per day (field mean)
+    rate_spread: float = Field(default=0.3, ge=0)           # relative std of the rate across heliostats
+    clean_value: float = Field(default=0.97, gt=0, le=1)
+    cleaning_interval_days: float = Field(default=14.0, gt=0)
+    floor: float = Field(default=0.3, ge=0, le=1)
+
+
+class Unmodelled(_Model):
+    """Effects the error model does not contain (std across heliostats unless said otherwise)."""
+
+    backlash_mm: float = Field(default=0.3, ge=0)           # dead band per actuator; half of it against the approach
+    gravity_sag_mrad: float = Field(default=0.4, ge=0)      # mean sag of the normal at a horizontal mirror normal
+    gravity_sag_spread_mrad: float = Field(default=0.1, ge=0)
+    repeatability_mm: float = Field(default=0.05, ge=0)     # stroke noise, drawn anew at every move
+    wind_jitter_mrad_per_ms: float = Field(default=0.05, ge=0)  # normal jitter std per m/s of wind
+    drift_mrad_per_week: float = Field(default=0.05, ge=0)  # pedestal tilt drift (settlement), per axis
+
+
+class Optics(_Model):
+    sun_sigma_mrad: float = Field(default=2.5, gt=0)        # Gaussian equivalent of the sun shape
+    slope_error_mrad: float = Field(default=1.5, ge=0)      # mirror slope error (the beam gets twice this)
+    reflectivity: float = Field(default=0.93, gt=0, le=1)
+
+
+class Actuators(_Model):
+    speed_mm_s: float = Field(default=10.0, gt=0)
+    settle_s: float = Field(default=3.0, ge=0)
+
+
+class CameraSpec(_Model):
+    gain_counts_per_wm2: float = Field(default=0.3, gt=0)   # counts per W/m² on a white (albedo 1) surface
+    noise_counts: float = Field(default=1.5, ge=0)          # std of the sensor noise
+    ambient_fraction: float = Field(default=0.12, ge=0)     # diffuse light on the board per unit DNI
+    ambient_offset_wm2: float = Field(default=30.0, ge=0)
+    background_counts: float = Field(default=10.0, ge=0)    # sky/tower around the board at DNI 1000
+    board_albedo: float = Field(default=0.9, gt=0, le=1)
+    mark_albedo: float = Field(default=0.04, ge=0, le=1)
+    board_px_per_m: float = Field(default=40.0, gt=0)       # raster of the board before the warp
+
+
+class Faults(_Model):
+    modbus_drop_probability: float = Field(default=0.0, ge=0, le=1)
+    modbus_slow_probability: float = Field(default=0.0, ge=0, le=1)
+    modbus_slow_s: float = Field(default=3.0, ge=0)
+    camera_503_probability: float = Field(default=0.0, ge=0, le=1)
+    camera_truncate_probability: float = Field(default=0.0, ge=0, le=1)
+    camera_slow_probability: float = Field(default=0.0, ge=0, le=1)
+    camera_slow_s: float = Field(default=3.0, ge=0)
+    offline: tuple[str, ...] = ()                           # heliostat ids that never answer commands
+
+
+class Scenario(_Model):
+    name: str = "default"
+    start: str | None = None          # ISO time with zone; the CLI's --start overrides
+    duration_days: float = Field(default=7.0, gt=0)
+    seed: int = 1
+    tracking_aim: Literal["receiver", "target"] = "receiver"
+    weather: WeatherSpec = WeatherSpec()
+    soiling: Soiling = Soiling()
+    errors: dict[str, float] | None = None   # std per error-model parameter; None = the model's priors
+    unmodelled: Unmodelled = Unmodelled()
+    optics: Optics = Optics()
+    actuators: Actuators = Actuators()
+    camera: CameraSpec = CameraSpec()
+    faults: Faults = Faults()
+
+    @field_validator("errors")
+    @classmethod
+    def _known_parameters(cls, value):
+        if value is None:
+            return value
+        from helicalib.geometry import errors as em
+
+        for name, sigma in value.items():
+            if name not in em.NAMES:
+                raise ValueError(f"unknown error-model parameter {name!r}; known: {', '.join(em.NAMES)}")
+            if not sigma >= 0:
+                raise ValueError(f"{name}: standard deviation must be >= 0")
+        return value
+
+
+def parse_scenario(data: Any, source: str | Path | None = None) -> Scenario:
+    """Validate a scenario mapping (None or {} = all defaults)."""
+    where = f"{source}: " if source is not None else ""
+    try:
+        return Scenario.model_validate(data or {})
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in err["loc"]).replace(".[", "[")
+            msg = "unknown key" if err["type"] == "extra_forbidden" else str(err["msg"]).removeprefix("Value error, ")
+            lines.append(f"{where}{loc or '(top level)'}: {msg}")
+        raise ConfigError("\n".join(lines), problems=lines) from None
+
+
+def load_scenario(path: str | Path | None) -> Scenario:
+    """Read a scenario YAML file; ``None`` gives the default scenario."""
+    if path is None:
+        return Scenario()
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: scenario file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    return parse_scenario(data, path)

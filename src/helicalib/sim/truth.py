@@ -1,0 +1,165 @@
+"""The simulator's hidden truth: each heliostat's true errors and where its beam really lands.
+
+True geometry = a :class:`~helicalib.geometry.heliostat.HeliostatModel` with hidden parameters
+drawn from the scenario's distributions, plus effects the error model does not contain:
+
+* backlash: the mirror lags the encoder by half the dead band against the last approach direction;
+* stroke repeatability: a fresh stroke error at every command;
+* gravity sag: the normal droops by ``sag · sin(normal zenith)`` (most when the mirror stands upright);
+* wind jitter: the normal wanders with std ``k · wind`` (redrawn every second of plant time);
+* slow drift: the pedestal tilts (foundation settlement) at a constant hidden rate.
+
+Everything is vectorised over heliostats and deterministic from the scenario seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from helicalib.geometry import errors as em
+from helicalib.geometry import optics
+from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.sim import noise
+from helicalib.sim.scenario import Scenario
+
+WEEK_S = 7 * 86400.0
+UP = np.array([0.0, 0.0, 1.0])
+_S_PARAMS, _S_BACKLASH, _S_SAG, _S_DRIFT, _S_JITTER, _S_REPEAT = 31, 32, 33, 34, 35, 36
+
+
+def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (N, 3) perpendicular to the unit normals ``n`` (N, 3) and to each other."""
+    t1 = np.cross(UP, n)
+    norm = np.linalg.norm(t1, axis=-1, keepdims=True)
+    t1 = np.where(norm > 1e-9, t1 / np.where(norm > 1e-9, norm, 1.0), np.array([1.0, 0.0, 0.0]))
+    return t1, np.cross(n, t1)
+
+
+@dataclass(frozen=True)
+class TrueBeam:
+    """True beams of N heliostats: ``origin_enu`` (N, 3) [m], ``direction_enu`` (N, 3), ``normal_enu`` (N, 3)."""
+
+    origin_enu: np.ndarray
+    direction_enu: np.ndarray
+    normal_enu: np.ndarray
+
+
+class TrueField:
+    """Hidden true errors of every heliostat of a field config.
+
+    Parameters
+    ----------
+    cfg : config.FieldConfig
+    scenario : Scenario
+        ``errors`` (std per parameter; None = the error model's priors), ``unmodelled``, ``seed``.
+    start_s : float
+        Plant time at which the drift is zero [UTC s].
+    zero : bool
+        True for a perfect field (no errors of any kind), e.g. to check the nominal model.
+    """
+
+    def __init__(self, cfg, scenario: Scenario, start_s: float, zero: bool = False):
+        self.cfg = cfg
+        self.nominal = HeliostatModel.from_config(cfg)
+        n = len(self.nominal)
+        self.n = n
+        self.start_s = float(start_s)
+        self.seed = int(scenario.seed)
+        u = scenario.unmodelled
+        idx = np.arange(n)
+        sigma = em.prior_sigma(scenario.errors if scenario.errors is not None else None)
+        if scenario.errors is not None:  # only the listed parameters carry errors
+            sigma = np.array([scenario.errors.get(name, 0.0) for name in em.NAMES], dtype=float)
+        z = noise.normal(self.seed, _S_PARAMS, idx[:, None], np.arange(em.P)[None, :])
+        scale = 0.0 if zero else 1.0
+        self.params0 = scale * z * sigma
+        self.backlash_mm = scale * u.backlash_mm * np.abs(noise.normal(self.seed, _S_BACKLASH, idx[:, None], np.arange(2)))
+        self.sag_mrad = scale * np.maximum(0.0, u.gravity_sag_mrad + u.gravity_sag_spread_mrad
+                                           * noise.normal(self.seed, _S_SAG, idx))
+        self.drift_mrad_per_s = scale * (u.drift_mrad_per_week / WEEK_S) * noise.normal(
+            self.seed, _S_DRIFT, idx[:, None], np.arange(2))
+        self.jitter_mrad_per_ms = scale * u.wind_jitter_mrad_per_ms
+        self.repeatability_mm = scale * u.repeatability_mm
+        self._cols_drift = [em.index("pedestal_tilt_e_mrad"), em.index("pedestal_tilt_n_mrad")]
+        self._cache: tuple[int, HeliostatModel] | None = None
+
+    # -- hidden parameters -----------------------------------------------------------------
+    def params_at(self, t_s: float) -> np.ndarray:
+        """True error parameters (N, P) at plant time ``t_s`` (drift included)."""
+        p = self.params0.copy()
+        p[:, self._cols_drift] += self.drift_mrad_per_s * (float(t_s) - self.start_s)
+        return p
+
+    def model_at(self, t_s: float) -> HeliostatModel:
+        """The true :class:`HeliostatModel` at ``t_s`` (drift evaluated per hour of plant time)."""
+        hour = int(np.floor(float(t_s) / 3600.0))
+        if self._cache is None or self._cache[0] != hour:
+            self._cache = (hour, self.nominal.with_params(self.params_at(hour * 3600.0)))
+        return self._cache[1]
+
+    def repeat_noise_mm(self, command_count: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
+        """Stroke repeatability error (k, 2) [mm] of the given command number of each heliostat."""
+        idx = np.arange(self.n) if idx is None else np.asarray(idx)
+        return self.repeatability_mm * noise.normal(self.seed, _S_REPEAT, idx[:, None],
+                                                    np.asarray(command_count)[:, None], np.arange(2)[None, :])
+
+    # -- forward ---------------------------------------------------------------------------
+    def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, t_s: float, wind_ms: float = 0.0,
+             approach: np.ndarray | None = None, stroke_noise_mm: np.ndarray | None = None,
+             jitter: bool = True) -> TrueBeam:
+        """True beams of all N heliostats at encoder strokes (N, 2) [mm].
+
+        Parameters
+        ----------
+        strokes_mm : (N, 2) encoder strokes (what the plant reports) [mm]
+        sun_enu : (3,) unit sun vector
+        t_s : plant time [UTC s] (drift, jitter draw)
+        wind_ms : 10-min mean wind [m/s] (jitter amplitude)
+        approach : (N, 2) sign of the last motion of each actuator (+1 extending); None = no backlash
+        stroke_noise_mm : (N, 2) repeatability error of the current command; None = none
+        jitter : include the wind jitter
+        """
+        s = np.asarray(strokes_mm, dtype=float)
+        if approach is not None:
+            s = s - 0.5 * self.backlash_mm * np.sign(approach)
+        if stroke_noise_mm is not None:
+            s = s + stroke_noise_mm
+        model = self.model_at(t_s)
+        n = model.normal(s)
+        # gravity sag: tilt the normal down toward the horizon by sag · sin(zenith of the normal)
+        up_t = UP - n[:, 2:3] * n
+        sin_zen = np.linalg.norm(up_t, axis=-1)
+        e_up = up_t / np.where(sin_zen > 1e-9, sin_zen, 1.0)[:, None]
+        a = 1e-3 * self.sag_mrad * sin_zen
+        n = np.cos(a)[:, None] * n - np.sin(a)[:, None] * e_up
+        if jitter and self.jitter_mrad_per_ms > 0 and wind_ms > 0:
+            t1, t2 = _tangent_basis(n)
+            tick = np.int64(np.floor(t_s))
+            j = 1e-3 * self.jitter_mrad_per_ms * wind_ms * noise.normal(
+                self.seed, _S_JITTER, tick, np.arange(self.n)[:, None], np.arange(2)[None, :])
+            n = optics.unit(n + j[:, :1] * t1 + j[:, 1:] * t2)
+        sun = optics.unit(np.broadcast_to(np.asarray(sun_enu, dtype=float), n.shape))
+        origin = optics.mirror_centre(model.pivots_eff_enu, n, model.mirror_offset_m)
+        return TrueBeam(origin, optics.reflect(sun, n), n)
+
+    def spots(self, beam: TrueBeam, targets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where each beam meets the plane of its own target (one ``config.Target`` per heliostat).
+
+        Returns ``(uv_m (N, 2), hit_enu (N, 3), on_board (N,) bool)``.
+        """
+        uv = np.full((self.n, 2), np.nan)
+        hit = np.full((self.n, 3), np.nan)
+        for t in {id(t): t for t in targets}.values():
+            sel = np.array([tt is t for tt in targets])
+            uv[sel], hit[sel], _ = optics.intersect_target(beam.origin_enu[sel], beam.direction_enu[sel], t)
+        half = np.array([t.size_m for t in targets], dtype=float) / 2.0
+        with np.errstate(invalid="ignore"):
+            on = np.all(np.abs(uv) <= half, axis=-1)
+        return uv, hit, on
+
+    def tracking_error_mrad(self, beam: TrueBeam, aim_enu: np.ndarray, targets) -> np.ndarray:
+        """True tracking error (N,) [mrad] of each beam against its aim point (N, 3) on its target plane."""
+        _, hit, _ = self.spots(beam, targets)
+        return optics.tracking_error_mrad(hit, aim_enu, self.nominal.pivots_enu)
