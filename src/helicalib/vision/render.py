@@ -153,25 +153,47 @@ def _image_to_board(pose: CameraPose, target: Target, xs: np.ndarray, ys: np.nda
     return u, v, w
 
 
+def _board_bbox(pose: CameraPose, target: Target) -> tuple[int, int, int, int]:
+    """Pixel box (x0, y0, x1, y1) holding the board, with a margin; the whole frame if unsure."""
+    width, height = pose.resolution_px
+    hw, hh = target.size_m[0] / 2, target.size_m[1] / 2
+    edge = np.linspace(-1.0, 1.0, 9)
+    uv = np.concatenate([np.column_stack([edge * hw, np.full(9, s * hh)]) for s in (-1, 1)]
+                        + [np.column_stack([np.full(9, s * hw), edge * hh]) for s in (-1, 1)])
+    frame = target.frame_enu
+    P = np.asarray(target.center_enu_m) + uv[:, :1] * frame[0] + uv[:, 1:2] * frame[1]
+    if np.any((P - pose.C) @ pose.R[2] <= 0):
+        return 0, 0, width, height
+    px = project_board_points(pose, target, uv)
+    margin = 4 + 0.02 * max(width, height)
+    x0, y0 = np.floor(px.min(axis=0) - margin).astype(int)
+    x1, y1 = np.ceil(px.max(axis=0) + margin).astype(int)
+    return max(0, x0), max(0, y0), min(width, x1), min(height, y1)
+
+
 def render_frame(target: Target, pose: CameraPose, spots: Sequence[Spot] = (), lighting: Lighting = Lighting(), *,
                  rng: np.random.Generator | int | None = 0, supersample: int = 2) -> np.ndarray:
     """Render one 8-bit frame, uint8 (H, W) with H, W from ``pose.resolution_px``."""
     rng = np.random.default_rng(rng)
     width, height = pose.resolution_px
     hw, hh = target.size_m[0] / 2, target.size_m[1] / 2
-    acc = np.zeros((height, width), dtype=np.float64)
-    offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
-    ys0, xs0 = np.mgrid[0:height, 0:width].astype(np.float64)
-    for oy in offsets:
-        for ox in offsets:
-            u, v, w = _image_to_board(pose, target, xs0 + ox, ys0 + oy)
-            on_board = (np.abs(u) <= hw) & (np.abs(v) <= hh) & (w > 0)
-            light = lighting.ambient * (1.0 + lighting.gradient[0] * u / hw + lighting.gradient[1] * v / hh)
-            for s in spots:
-                light = light + s.irradiance(u, v)
-            albedo = np.where(mark_mask(target, u, v), lighting.mark_albedo, 1.0)
-            acc += np.where(on_board, albedo * light, lighting.background * (1.0 + 0.1 * (ys0 / height)))
-    img = acc / supersample**2
+    ys_full = np.arange(height, dtype=np.float64)[:, None]
+    img = np.broadcast_to(lighting.background * (1.0 + 0.1 * ys_full / height), (height, width)).copy()
+    x0, y0, x1, y1 = _board_bbox(pose, target)
+    if x1 > x0 and y1 > y0:
+        acc = np.zeros((y1 - y0, x1 - x0), dtype=np.float64)
+        ys0, xs0 = np.mgrid[y0:y1, x0:x1].astype(np.float64)
+        offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
+        for oy in offsets:
+            for ox in offsets:
+                u, v, w = _image_to_board(pose, target, xs0 + ox, ys0 + oy)
+                on_board = (np.abs(u) <= hw) & (np.abs(v) <= hh) & (w > 0)
+                light = lighting.ambient * (1.0 + lighting.gradient[0] * u / hw + lighting.gradient[1] * v / hh)
+                for s in spots:
+                    light = light + s.irradiance(u, v)
+                albedo = np.where(mark_mask(target, u, v), lighting.mark_albedo, 1.0)
+                acc += np.where(on_board, albedo * light, lighting.background * (1.0 + 0.1 * (ys0 / height)))
+        img[y0:y1, x0:x1] = acc / supersample**2
     if lighting.noise_sigma > 0:
         img = img + rng.normal(0.0, lighting.noise_sigma, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
