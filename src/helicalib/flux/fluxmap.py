@@ -34,7 +34,9 @@ class FluxMap:
     power_w : float
         Power on the board, Σ E·ΔA over the seen cells [W]. Negative noise is kept (unbiased).
     centre_uv_m : (float, float)
-        Flux-weighted centre, Σ max(E, 0)·(u, v) / Σ max(E, 0) [m, target frame].
+        Flux-weighted centre, Σ E·(u, v) / Σ E over the cells with E >= ``centre_threshold`` × peak
+        [m, target frame]. The threshold keeps the board-wide noise (whose positive part would pull
+        the centre toward the board centre) out of the sum.
     seen_fraction : float
         Fraction of the grid's cells that were inside the frame.
     """
@@ -61,7 +63,7 @@ class FluxMap:
 
 
 def flux_map(grey_map: np.ndarray, grid: BoardGrid, fe_wm2_per_grey: float,
-             factor: np.ndarray | float = 1.0) -> FluxMap:
+             factor: np.ndarray | float = 1.0, centre_threshold: float = 0.05) -> FluxMap:
     """``E = F_e · a · G`` on the board grid and its figures.
 
     Parameters
@@ -74,6 +76,8 @@ def flux_map(grey_map: np.ndarray, grid: BoardGrid, fe_wm2_per_grey: float,
         Calibration factor F_e [W/m² per grey level].
     factor : float or np.ndarray of shape grid.shape
         Further per-cell factors, e.g. the non-Lambertian ``a_LB`` [-].
+    centre_threshold : float
+        Cells below this fraction of the peak do not count in the flux-weighted centre.
 
     Returns
     -------
@@ -89,7 +93,8 @@ def flux_map(grey_map: np.ndarray, grid: BoardGrid, fe_wm2_per_grey: float,
     uu, vv = grid.mesh_m()
     filled = np.where(seen, flux, -np.inf)
     k = np.unravel_index(int(np.argmax(filled)), flux.shape)
-    positive = np.where(seen & (flux > 0), flux, 0.0)
+    peak = float(flux[k])
+    positive = np.where(seen & (flux >= centre_threshold * peak) & (flux > 0), flux, 0.0)
     total = float(positive.sum())
     if total > 0:
         centre = (float((positive * uu).sum() / total), float((positive * vv).sum() / total))
@@ -98,7 +103,7 @@ def flux_map(grey_map: np.ndarray, grid: BoardGrid, fe_wm2_per_grey: float,
     return FluxMap(
         flux_wm2=flux,
         grid=grid,
-        peak_wm2=float(flux[k]),
+        peak_wm2=peak,
         peak_uv_m=(float(uu[k]), float(vv[k])),
         power_w=float(np.nansum(flux) * grid.cell_area_m2),
         centre_uv_m=centre,
