@@ -241,10 +241,11 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
                        f"(need {limits.min_contrast:g}; weak DNI, dirty mirror or cloud).", partial)
     d8 = np.clip(np.rint(Dm), 0, 255).astype(np.uint8)
     T = max(otsu_threshold(d8[inside]), math.ceil(4.0 * noise), 1.0)
-    mask = Dm >= T
-    S = int(np.count_nonzero(mask & inside))
-    clipped = int(np.count_nonzero(mask & ~inside))
-    A_spot = A[mask & inside]
+    above = D >= T
+    mask = above & inside
+    S = int(np.count_nonzero(mask))
+    clipped = int(np.count_nonzero(above & ~inside))
+    A_spot = A[mask]
     sat = float(np.count_nonzero(A_spot >= SATURATED_LEVEL)) / max(1, S)
     partial = FrameSpot(np.full(2, np.nan), np.full(2, np.nan), T, S, math.sqrt(S), np.full(2, np.nan),
                         k, peak, noise, sat, clipped)
@@ -257,7 +258,7 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
     if sat > limits.max_saturated_fraction:
         raise _Invalid("saturated", f"{100 * sat:.0f} % of the spot is saturated in the after frame "
                        f"(limit {100 * limits.max_saturated_fraction:.0f} %); close the aperture.", partial)
-    I = np.where(mask & inside, Dm, 0.0).astype(np.float32)
+    I = np.where(mask, Dm, 0.0).astype(np.float32)
     win_centre, _ = best_window(I, int(round(side)))
     if method == "grlm":
         centre, win_side = win_centre, float(int(round(side)))
