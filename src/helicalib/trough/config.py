@@ -1,0 +1,198 @@
+"""COLLECTOR.yaml and CAMERA.yaml for the trough overlay method → frozen, validated objects.
+
+Every key is documented in ``docs/trough.md``. Problems raise :class:`ConfigError` with one line
+per problem, ``FILE: key.path: what is wrong``. The loaders read files; the models and
+:meth:`Collector.facets` are pure.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from helicalib.errors import ConfigError
+from helicalib.trough.camera import PinholeCamera
+
+Finite = Field(allow_inf_nan=False)
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass(frozen=True)
+class FacetLayout:
+    """The N = rows × columns facets, row-major from the top-left (all arrays shape (N,), mm).
+
+    Row 1 is the top row (largest Y), column 1 the leftmost in the photo (smallest X). Facet ids
+    read ``R<row>C<column>``.
+    """
+
+    ids: tuple[str, ...]
+    row: np.ndarray
+    column: np.ndarray
+    y_min_mm: np.ndarray
+    y_max_mm: np.ndarray
+    x_min_mm: np.ndarray
+    x_max_mm: np.ndarray
+
+
+class Collector(_Model):
+    """One collector module (COLLECTOR.yaml)."""
+
+    focal_length_mm: float = Field(gt=0, allow_inf_nan=False)
+    aperture_mm: float = Field(gt=0, allow_inf_nan=False)
+    length_mm: float = Field(gt=0, allow_inf_nan=False)
+    tube_radius_mm: float = Field(gt=0, allow_inf_nan=False)
+    tube_length_mm: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    rows: int = Field(ge=1, le=16)
+    columns: int = Field(ge=1, le=64)
+    row_edges_mm: tuple[tuple[float, float], ...] | None = None
+    row_gap_mm: float = Field(default=0.0, ge=0, allow_inf_nan=False)
+    column_gap_mm: float = Field(default=0.0, ge=0, allow_inf_nan=False)
+    tilt_tolerance_mrad: float = Field(default=2.0, gt=0, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _check(self):
+        half = self.aperture_mm / 2.0
+        if self.tube_radius_mm >= self.focal_length_mm:
+            raise ValueError("tube_radius_mm must be smaller than focal_length_mm")
+        if self.row_edges_mm is not None:
+            edges = self.row_edges_mm
+            if len(edges) != self.rows:
+                raise ValueError(f"row_edges_mm: expected {self.rows} pairs (one per row), got {len(edges)}")
+            for i, (lo, hi) in enumerate(edges):
+                if not (math.isfinite(lo) and math.isfinite(hi) and -half - 1e-9 <= lo < hi <= half + 1e-9):
+                    raise ValueError(f"row_edges_mm[{i}]: expected y_min < y_max inside ±aperture_mm/2 = ±{half:g}")
+                if i and lo >= edges[i - 1][0]:
+                    raise ValueError(f"row_edges_mm[{i}]: rows are listed from the top (largest Y) down")
+                if i and hi > edges[i - 1][0]:
+                    raise ValueError(f"row_edges_mm[{i}]: overlaps row {i}")
+        else:
+            if self.row_gap_mm * (self.rows + 1) >= self.aperture_mm:
+                raise ValueError("row_gap_mm: gaps leave no mirror")
+        if self.column_gap_mm * self.columns >= self.length_mm:
+            raise ValueError("column_gap_mm: gaps leave no mirror")
+        return self
+
+    def row_bounds_mm(self) -> np.ndarray:
+        """Y bounds of each row from the top, shape (rows, 2) [mm]."""
+        if self.row_edges_mm is not None:
+            return np.array(self.row_edges_mm, dtype=float)
+        half = self.aperture_mm / 2.0
+        cuts = np.linspace(half, -half, self.rows + 1)
+        g = self.row_gap_mm / 2.0
+        lo = cuts[1:] + np.where(np.arange(self.rows) < self.rows - 1, g, 0.0)
+        hi = cuts[:-1] - np.where(np.arange(self.rows) > 0, g, 0.0)
+        return np.stack([lo, hi], axis=1)
+
+    def facets(self) -> FacetLayout:
+        """All facets, row-major from the top-left."""
+        rows = self.row_bounds_mm()
+        cuts = np.linspace(-self.length_mm / 2.0, self.length_mm / 2.0, self.columns + 1)
+        g = self.column_gap_mm / 2.0
+        x_lo = cuts[:-1] + np.where(np.arange(self.columns) > 0, g, 0.0)
+        x_hi = cuts[1:] - np.where(np.arange(self.columns) < self.columns - 1, g, 0.0)
+        r_idx, c_idx = np.meshgrid(np.arange(self.rows), np.arange(self.columns), indexing="ij")
+        r_idx, c_idx = r_idx.ravel(), c_idx.ravel()
+        return FacetLayout(ids=tuple(f"R{r + 1}C{c + 1}" for r, c in zip(r_idx, c_idx)),
+                           row=r_idx + 1, column=c_idx + 1,
+                           y_min_mm=rows[r_idx, 0], y_max_mm=rows[r_idx, 1], x_min_mm=x_lo[c_idx], x_max_mm=x_hi[c_idx])
+
+    def pivots_yz_mm(self, layout: FacetLayout) -> np.ndarray:
+        """Tilt pivots: each strip's centre on the parabola, shape (N, 2) [mm]."""
+        yc = 0.5 * (layout.y_min_mm + layout.y_max_mm)
+        return np.stack([yc, yc * yc / (4.0 * self.focal_length_mm)], axis=-1)
+
+    @property
+    def tube_x_range_mm(self) -> tuple[float, float]:
+        """Tube ends along X [mm] (centred on the module)."""
+        half = (self.tube_length_mm or self.length_mm) / 2.0
+        return -half, half
+
+
+class Camera(_Model):
+    """One camera of the overlay rig (CAMERA.yaml)."""
+
+    position_mm: tuple[float, float, float]
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    image_size_px: tuple[int, int]
+    focal_length_mm: float = Field(gt=0, allow_inf_nan=False)
+    pixel_pitch_um: float = Field(gt=0, allow_inf_nan=False)
+    principal_point_px: tuple[float, float] | None = None
+
+    @model_validator(mode="after")
+    def _check(self):
+        for key in ("position_mm", "rotation_deg", "principal_point_px"):
+            value = getattr(self, key)
+            if value is not None and not all(math.isfinite(v) for v in value):
+                raise ValueError(f"{key}: expected finite numbers")
+        w, h = self.image_size_px
+        if w < 16 or h < 16:
+            raise ValueError("image_size_px: expected width and height >= 16")
+        if any(abs(a) > 10.0 for a in self.rotation_deg):
+            raise ValueError("rotation_deg: residual attitude beyond ±10° — the camera must look along -Z")
+        return self
+
+    def pinhole(self) -> PinholeCamera:
+        """The :class:`PinholeCamera` this file describes."""
+        w, h = self.image_size_px
+        pp = self.principal_point_px if self.principal_point_px is not None else ((w - 1) / 2.0, (h - 1) / 2.0)
+        return PinholeCamera(position_mm=np.array(self.position_mm, dtype=float),
+                             focal_length_px=self.focal_length_mm * 1000.0 / self.pixel_pitch_um,
+                             principal_point_px=(float(pp[0]), float(pp[1])), image_size_px=(int(w), int(h)),
+                             rotation_deg=tuple(float(a) for a in self.rotation_deg))
+
+
+def _loc(loc) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def parse(model: type[_Model], data: Any, source: str | Path | None = None):
+    """Validate a parsed mapping as ``model``; ``source`` names the file in error lines."""
+    where = f"{source}: " if source is not None else ""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}(top level): expected a mapping of keys, got {type(data).__name__}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            msg = str(err["msg"]).removeprefix("Value error, ")
+            msg = {"extra_forbidden": "unknown key", "missing": "missing required key"}.get(err["type"], msg)
+            line = f"{where}{_loc(err['loc'])}: {msg}"
+            if line not in lines:
+                lines.append(line)
+        raise ConfigError("\n".join(lines), problems=lines) from None
+
+
+def _load(model, path: str | Path):
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise ConfigError(f"{path}: {at}not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    return parse(model, data, path)
+
+
+def load_collector(path: str | Path) -> Collector:
+    """Read and validate COLLECTOR.yaml."""
+    return _load(Collector, path)
+
+
+def load_camera(path: str | Path) -> Camera:
+    """Read and validate CAMERA.yaml."""
+    return _load(Camera, path)
