@@ -1,0 +1,76 @@
+"""``helicalib sim-plant``: serve a simulated plant (Modbus TCP + HTTP cameras) on loopback."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sim-plant", help="serve a simulated plant over the plant interface (Modbus TCP + HTTP cameras)",
+        description="Simulated plant with hidden heliostat errors, weather, soiling and rendering cameras, "
+                    "served on 127.0.0.1 at the addresses of the field config (options override them). "
+                    "Stops cleanly on Ctrl-C or SIGTERM. See docs/simulator.md.")
+    p.add_argument("field", help="field config YAML")
+    p.add_argument("--rate", type=float, default=600.0, help="plant seconds per real second (default 600)")
+    p.add_argument("--start", default=None,
+                   help="plant start time, ISO 8601 with offset (default: the scenario's start, else now)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the hidden errors and weather (default: scenario's)")
+    p.add_argument("--port", type=int, default=None, help="Modbus TCP port (default: plant.scs.port; 0 = free port)")
+    p.add_argument("--camera-port", type=int, default=None,
+                   help="HTTP port for every camera (default: the ports of the cameras' URLs; 0 = free port)")
+    p.add_argument("--scenario", default=None, help="scenario YAML (weather, soiling, errors, faults)")
+    p.add_argument("--zero-errors", action="store_true", help="a perfect field: no hidden errors at all")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import signal
+    import threading
+    import time
+    from datetime import datetime, timezone
+
+    from helicalib.config import load_field_config
+    from helicalib.errors import ConfigError
+    from helicalib.geometry.sun import parse_time, to_unix_seconds, utc_now
+    from helicalib.sim.clock import RateClock
+    from helicalib.sim.plant import SimulatedPlant
+    from helicalib.sim.scenario import load_scenario
+    from helicalib.sim.server import FaultInjector, PlantServer
+
+    if not args.rate > 0:
+        raise ConfigError(f"--rate {args.rate}: must be > 0")
+    cfg = load_field_config(args.field)
+    scenario = load_scenario(args.scenario)
+    if args.seed is not None:
+        scenario = scenario.model_copy(update={"seed": args.seed})
+    start = args.start or scenario.start
+    start_s = float(to_unix_seconds(parse_time(start))) if start else float(to_unix_seconds(utc_now()))
+    plant = SimulatedPlant(cfg, scenario, start_s=start_s, rate=args.rate, zero_errors=args.zero_errors)
+    clock = RateClock(start_s, args.rate, time.monotonic, time.sleep)
+    port = cfg.plant.scs.port if args.port is None else args.port
+    weather = cfg.plant.weather_endpoint
+    weather_port = weather.port if (args.port is None and weather.port != cfg.plant.scs.port) else None
+    server = PlantServer(plant, clock, modbus_port=port, camera_port=args.camera_port, weather_port=weather_port,
+                         faults=FaultInjector.from_scenario(scenario.faults, scenario.seed))
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        server.start()
+    except OSError as exc:
+        raise ConfigError(f"sim-plant: cannot bind on 127.0.0.1 ({exc}); choose --port/--camera-port") from None
+    print(f"sim-plant: {plant.n} heliostats, scenario '{scenario.name}', seed {scenario.seed}, rate {args.rate}x, "
+          f"plant time starts {datetime.fromtimestamp(start_s, tz=timezone.utc).isoformat()}")
+    for p in server.modbus_ports:
+        print(f"  Modbus TCP  127.0.0.1:{p}  unit(s) {sorted(server.units)}")
+    for c in cfg.cameras:
+        print(f"  camera {c.id:<6} {server.camera_url(c.id)}")
+    print("  Ctrl-C or SIGTERM to stop", flush=True)
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        server.stop()
+        print("sim-plant: stopped", flush=True)
+    return 0

@@ -1,0 +1,287 @@
+"""Serve a :class:`SimulatedPlant` over the real plant interface: Modbus TCP + HTTP cameras.
+
+``PlantServer`` runs a pymodbus TCP server (its own asyncio loop in a thread) whose datastore is
+:class:`~helicalib.sim.modbus_map.PlantRegisters`, and one stdlib ``ThreadingHTTPServer`` per
+camera port answering ``GET <camera url path>`` with a PNG frame and ``X-Capture-Time``. Both bind
+to loopback only (a port of 0 picks a free one; see ``modbus_port`` / ``camera_ports``). Plant
+time comes from an injected clock. Faults (:class:`FaultInjector`) can be switched at run time.
+
+Not part of the interface but served for honest judging: ``GET /truth.json`` on a camera port
+returns the true state of every heliostat (strokes, state, true tracking error while holding).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import random
+import threading
+import time
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from urllib.parse import urlparse
+
+import numpy as np
+from pymodbus.constants import ExcCodes
+from pymodbus.datastore import ModbusServerContext
+from pymodbus.exceptions import NoSuchIdException
+from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
+
+from helicalib.sim.camera import SimCamera, encode_png
+from helicalib.sim.modbus_map import PlantRegisters
+
+LOOPBACK = "127.0.0.1"
+
+
+@dataclass
+class FaultInjector:
+    """Probabilities of injected faults (mutable at run time); ``rng`` decides each request."""
+
+    modbus_drop_probability: float = 0.0
+    modbus_slow_probability: float = 0.0
+    modbus_slow_s: float = 3.0
+    camera_503_probability: float = 0.0
+    camera_truncate_probability: float = 0.0
+    camera_slow_probability: float = 0.0
+    camera_slow_s: float = 3.0
+    rng: random.Random = field(default_factory=lambda: random.Random(0))
+
+    @classmethod
+    def from_scenario(cls, faults, seed: int = 0) -> FaultInjector:
+        return cls(**{k: getattr(faults, k) for k in (
+            "modbus_drop_probability", "modbus_slow_probability", "modbus_slow_s", "camera_503_probability",
+            "camera_truncate_probability", "camera_slow_probability", "camera_slow_s")}, rng=random.Random(seed))
+
+    def happens(self, probability: float) -> bool:
+        return probability > 0 and self.rng.random() < probability
+
+
+class _PlantContext(ModbusServerContext):
+    """pymodbus 3.16 server context backed by :class:`PlantRegisters` (bypasses the data blocks)."""
+
+    def __init__(self, registers: PlantRegisters, units: set[int]):  # noqa: D107  (no super().__init__)
+        self.old_simulator = True      # pymodbus then calls our async_getValues/async_setValues
+        self.simdevices = []
+        self._devices = {u: None for u in units}
+        self.registers = registers
+        self.units = units
+
+    def _check(self, device_id: int) -> None:
+        if device_id not in self.units:
+            raise NoSuchIdException(f"device_id {device_id}: this plant answers on unit(s) {sorted(self.units)}")
+
+    async def async_getValues(self, device_id, func_code, address, count=1):
+        self._check(device_id)
+        out = self.registers.read(address, count)
+        return ExcCodes(out) if isinstance(out, int) else out
+
+    async def async_setValues(self, device_id, func_code, address, values):
+        self._check(device_id)
+        rc = self.registers.write(address, values)
+        return None if rc is None else ExcCodes(rc)
+
+    def device_ids(self):
+        return sorted(self.units)
+
+
+class _FaultyHandler(ServerRequestHandler):
+    async def handle_request(self):
+        faults: FaultInjector = self.server.faults
+        if self.last_pdu and faults.happens(faults.modbus_drop_probability):
+            self.last_pdu = None
+            self.close()           # the connection drops without an answer
+            return
+        if faults.happens(faults.modbus_slow_probability):
+            await asyncio.sleep(faults.modbus_slow_s)
+        await super().handle_request()
+
+
+class _FaultyTcpServer(ModbusTcpServer):
+    faults: FaultInjector
+
+    def callback_new_connection(self):
+        return _FaultyHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+
+def _make_http_handler(server: PlantServer, cameras: dict[str, SimCamera]):
+    class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+
+        def log_message(self, *args):  # quiet
+            pass
+
+        def _send(self, code: int, body: bytes, ctype: str, headers: dict | None = None, cut: bool = False):
+            self.send_response(code)
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(len(body)))
+            for k, v in (headers or {}).items():
+                self.send_header(k, v)
+            if cut:
+                self.send_header("Connection", "close")
+            self.end_headers()
+            self.wfile.write(body[: len(body) // 2] if cut else body)
+            if cut:
+                self.wfile.flush()
+                self.close_connection = True
+
+        def do_GET(self):  # noqa: N802
+            path = urlparse(self.path).path
+            f = server.faults
+            if path == "/truth.json":
+                body = json.dumps(server.truth()).encode()
+                return self._send(200, body, "application/json")
+            cam = cameras.get(path)
+            if cam is None:
+                return self._send(404, f"no camera at {path}; cameras: {sorted(cameras)}\n".encode(), "text/plain")
+            if f.happens(f.camera_slow_probability):
+                server.sleep(f.camera_slow_s)
+            if f.happens(f.camera_503_probability):
+                return self._send(503, b"camera busy (injected fault)\n", "text/plain")
+            with server.registers.lock:
+                server.registers.sync()
+                image, t = cam.render()
+            body = encode_png(image)
+            self._send(200, body, "image/png", {"X-Capture-Time": repr(float(t))},
+                       cut=f.happens(f.camera_truncate_probability))
+
+    return Handler
+
+
+class PlantServer:
+    """Serve a simulated plant on loopback (Modbus TCP + HTTP cameras) until :meth:`stop`.
+
+    Parameters
+    ----------
+    plant : SimulatedPlant
+    clock : plant clock with ``now_s()`` and ``rate`` (e.g. :class:`~helicalib.sim.clock.RateClock`)
+    modbus_port : int
+        SCS port (0 = a free port); the weather endpoint is served here too, and on its own
+        port if the field config names another one (``weather_port``).
+    camera_port : int or None
+        Port for every camera (0 = a free one); None = the ports of the cameras' URLs.
+    faults : FaultInjector, optional
+    sleep : callable
+        Real sleep for slow answers (``time.sleep``).
+    """
+
+    def __init__(self, plant, clock, modbus_port: int = 0, camera_port: int | None = 0,
+                 weather_port: int | None = None, faults: FaultInjector | None = None, sleep=time.sleep):
+        self.plant = plant
+        self.clock = clock
+        self.registers = PlantRegisters(plant, clock)
+        self.faults = faults or FaultInjector()
+        self.sleep = sleep
+        cfg = plant.cfg
+        self.units = {cfg.plant.scs.unit, cfg.plant.weather_endpoint.unit}
+        self._want_modbus = [modbus_port]
+        if weather_port is not None and weather_port != modbus_port:
+            self._want_modbus.append(weather_port)
+        # cameras grouped by port
+        self._camera_groups: dict[int, dict[str, SimCamera]] = {}
+        for c in cfg.cameras:
+            url = urlparse(c.url)
+            port = camera_port if camera_port is not None else (url.port or 80)
+            self._camera_groups.setdefault(port, {})[url.path or "/"] = SimCamera(plant, c.id)
+        self.modbus_ports: list[int] = []
+        self.camera_ports: dict[int, int] = {}   # wanted → bound
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._modbus: list[_FaultyTcpServer] = []
+        self._http: list[ThreadingHTTPServer] = []
+        self._threads: list[threading.Thread] = []
+
+    @property
+    def modbus_port(self) -> int:
+        return self.modbus_ports[0]
+
+    def camera_url(self, camera_id: str) -> str:
+        """The URL at which a camera is served (bound port)."""
+        for want, group in self._camera_groups.items():
+            for path, cam in group.items():
+                if cam.config.id == camera_id:
+                    return f"http://{LOOPBACK}:{self.camera_ports[want]}{path}"
+        raise KeyError(camera_id)
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def start(self) -> PlantServer:
+        ready = threading.Event()
+        errors: list[BaseException] = []
+
+        def run_loop():
+            loop = asyncio.new_event_loop()
+            self._loop = loop
+            asyncio.set_event_loop(loop)
+
+            async def boot():
+                for port in self._want_modbus:
+                    ctx = _PlantContext(self.registers, self.units)
+                    srv = _FaultyTcpServer(ctx, address=(LOOPBACK, port))
+                    srv.faults = self.faults
+                    await srv.serve_forever(background=True)
+                    self._modbus.append(srv)
+                    self.modbus_ports.append(srv.transport.sockets[0].getsockname()[1])
+
+            try:
+                loop.run_until_complete(boot())
+            except BaseException as exc:  # noqa: BLE001 - reported to the starting thread
+                errors.append(exc)
+                ready.set()
+                return
+            ready.set()
+            loop.run_forever()
+            loop.close()
+
+        t = threading.Thread(target=run_loop, name="sim-modbus", daemon=True)
+        t.start()
+        self._threads.append(t)
+        ready.wait(10)
+        if errors:
+            raise RuntimeError(f"Modbus server did not start: {errors[0]}")
+        for want, group in self._camera_groups.items():
+            httpd = ThreadingHTTPServer((LOOPBACK, want), _make_http_handler(self, group))
+            httpd.daemon_threads = True
+            self.camera_ports[want] = httpd.server_address[1]
+            th = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.1}, name="sim-http", daemon=True)
+            th.start()
+            self._http.append(httpd)
+            self._threads.append(th)
+        return self
+
+    def stop(self) -> None:
+        """Close every listener and connection; returns when the threads have ended."""
+        for httpd in self._http:
+            httpd.shutdown()
+            httpd.server_close()
+        if self._loop is not None:
+            async def down():
+                for srv in self._modbus:
+                    await srv.shutdown()
+            fut = asyncio.run_coroutine_threadsafe(down(), self._loop)
+            try:
+                fut.result(5)
+            finally:
+                self._loop.call_soon_threadsafe(self._loop.stop)
+        for th in self._threads:
+            th.join(5)
+
+    def __enter__(self) -> PlantServer:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # -- truth ------------------------------------------------------------------------------
+    def truth(self) -> dict:
+        """True state of the plant now (simulator only): per heliostat state, strokes, true error."""
+        with self.registers.lock:
+            self.registers.sync()
+            p = self.plant
+            err = p.true_tracking_error_mrad()
+            return {
+                "plant_time_s": p.t_s,
+                "heliostats": [
+                    {"id": h.id, "state": int(p.state[i]), "strokes_mm": [float(x) for x in p.strokes_mm[i]],
+                     "true_tracking_error_mrad": None if not np.isfinite(err[i]) else float(err[i])}
+                    for i, h in enumerate(p.cfg.heliostats)
+                ],
+            }
