@@ -1,0 +1,181 @@
+"""Who goes on which target next: the gap-filling planner and the paper's plain round robin.
+
+One heliostat per target at a time; targets are planned independently (in parallel). The
+gap-filling planner (:func:`plan`) ranks each free target's candidates in tiers:
+
+0. an acceptance gap in the rising or setting low band that is open now (short, scarce: about an
+   hour a day each, and missed until tomorrow);
+1. a high-elevation window gap open now, the window closing soonest first;
+2. other unaccepted heliostats with a gap open now (more points, RMS too high);
+3. unaccepted heliostats with nothing open now (extra points sharpen their model);
+4. accepted heliostats, only when ``include_accepted`` (a re-check).
+
+Within a tier: the gap that closes soonest, then mirrors of preferred cleanliness, then the
+largest predicted error (a new heliostat, with no model yet, counts as infinite), then the
+fewest visits, then the id. Gated mirrors (cleanliness ≤ min) and heliostats cooling down
+after an invalid visit are skipped. :func:`round_robin` is the paper's "in turn" order, the
+benchmark baseline. Both are pure: state in, frozen assignments out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+from helicalib.calibration.acceptance import Gap
+
+TIER_LOW_BAND, TIER_WINDOW, TIER_OPEN, TIER_EXTRA, TIER_RECHECK = range(5)
+TIER_NAMES = ("low band", "high window", "more points", "extra points", "re-check")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A heliostat's planning state.
+
+    Attributes
+    ----------
+    heliostat_id, target_id : str
+    accepted : bool
+        Its latest verdict accepts it.
+    gaps : tuple of Gap
+        What acceptance still lacks (:func:`helicalib.calibration.acceptance.gaps`).
+    predicted_error_mrad : float or None
+        The expected error of its next first placement [mrad] (None: no model yet).
+    cleanliness : float
+        Mirror cleanliness, 0..1 (NaN unknown).
+    visits : int
+        Visits so far in this campaign.
+    cooldown_until_s : float
+        Not before this plant time [UTC s] (e.g. after an invalid visit); 0 = no wait.
+    """
+
+    heliostat_id: str
+    target_id: str
+    accepted: bool = False
+    gaps: tuple[Gap, ...] = ()
+    predicted_error_mrad: float | None = None
+    cleanliness: float = 1.0
+    visits: int = 0
+    cooldown_until_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """Send ``heliostat_id`` to ``target_id`` now; ``tier`` and ``reason`` say why it was chosen."""
+
+    target_id: str
+    heliostat_id: str
+    tier: int
+    reason: str
+
+
+def _eligible(c: Candidate, now_s: float, gating) -> bool:
+    clean = c.cleanliness
+    return c.cooldown_until_s <= now_s and math.isfinite(clean) and clean > gating.cleanliness_min
+
+
+def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False) -> tuple | None:
+    """The sort key of a candidate at ``now_s`` (smaller goes first), or None when it should not go.
+
+    The key is ``(tier, closes_s, not_preferred, -predicted_error, visits, id)``.
+    """
+    if c.accepted and not include_accepted:
+        return None
+    open_gaps = [g for g in c.gaps if g.is_open(now_s)]
+    if c.accepted:
+        tier, closes = TIER_RECHECK, math.inf
+    else:
+        band = [g.next_end_s for g in open_gaps if g.kind in ("rising", "setting")]
+        window = [g.next_end_s for g in open_gaps if g.kind == "window"]
+        if band:
+            tier, closes = TIER_LOW_BAND, min(band)
+        elif window:
+            tier, closes = TIER_WINDOW, min(window)
+        elif open_gaps:
+            tier, closes = TIER_OPEN, math.inf
+        else:
+            tier, closes = TIER_EXTRA, math.inf
+    err = math.inf if c.predicted_error_mrad is None else float(c.predicted_error_mrad)
+    not_preferred = not (c.cleanliness > gating.cleanliness_preferred)
+    return (tier, closes, not_preferred, -err, c.visits, c.heliostat_id)
+
+
+def _reason(c: Candidate, key: tuple, now_s: float) -> str:
+    tier = key[0]
+    open_gaps = [g.description for g in c.gaps if g.is_open(now_s)]
+    what = f": {open_gaps[0]}" if open_gaps and tier <= TIER_OPEN else ""
+    err = "no model yet" if c.predicted_error_mrad is None else f"predicted error {c.predicted_error_mrad:.1f} mrad"
+    return f"{TIER_NAMES[tier]}{what} ({err})"
+
+
+def plan(candidates: Iterable[Candidate], now_s: float, gating, *, busy_targets: Iterable[str] = (),
+         busy_heliostats: Iterable[str] = (), include_accepted: bool = False,
+         skip_extra: bool = False) -> tuple[Assignment, ...]:
+    """One assignment per free target: the best-ranked eligible heliostat of that target.
+
+    Parameters
+    ----------
+    candidates : iterable of Candidate
+        Every heliostat of the campaign.
+    now_s : float
+        Plant time [UTC s].
+    gating : helicalib.config.Gating
+        For the cleanliness limits.
+    busy_targets, busy_heliostats : iterable of str
+        Targets with a visit under way, and heliostats in one (or otherwise unavailable).
+    include_accepted : bool
+        Consider accepted heliostats too (re-check mode).
+    skip_extra : bool
+        Leave a target idle rather than spend it on tier 3 (nothing open now).
+
+    Returns
+    -------
+    tuple of Assignment
+        Sorted by target id. The field gate (wind, DNI) is the caller's: do not call it when
+        :func:`helicalib.campaign.gating.gate_field` says no calibration.
+    """
+    busy_t, busy_h = set(busy_targets), set(busy_heliostats)
+    best: dict[str, tuple[tuple, Candidate]] = {}
+    for c in candidates:
+        if c.target_id in busy_t or c.heliostat_id in busy_h or not _eligible(c, now_s, gating):
+            continue
+        key = rank(c, now_s, gating, include_accepted)
+        if key is None or (skip_extra and key[0] == TIER_EXTRA):
+            continue
+        if c.target_id not in best or key < best[c.target_id][0]:
+            best[c.target_id] = (key, c)
+    return tuple(Assignment(t, c.heliostat_id, key[0], _reason(c, key, now_s))
+                 for t, (key, c) in sorted(best.items()))
+
+
+def round_robin(candidates: Sequence[Candidate], now_s: float, gating, *, cursor: Mapping[str, str | None],
+                busy_targets: Iterable[str] = (), busy_heliostats: Iterable[str] = (),
+                include_accepted: bool = False) -> tuple[Assignment, ...]:
+    """The paper's order: each target takes its heliostats in turn (the order of ``candidates``).
+
+    ``cursor[target]`` is the heliostat that last went on that target (None or absent: start at
+    the first). The next eligible, unaccepted one after it goes, wrapping around. The caller
+    stores each assignment's heliostat as the new cursor.
+    """
+    busy_t, busy_h = set(busy_targets), set(busy_heliostats)
+    by_target: dict[str, list[Candidate]] = {}
+    for c in candidates:
+        by_target.setdefault(c.target_id, []).append(c)
+    out = []
+    for target in sorted(by_target):
+        if target in busy_t:
+            continue
+        queue = by_target[target]
+        ids = [c.heliostat_id for c in queue]
+        last = cursor.get(target)
+        start = ids.index(last) + 1 if last in ids else 0
+        for step in range(len(queue)):
+            c = queue[(start + step) % len(queue)]
+            if c.heliostat_id in busy_h or not _eligible(c, now_s, gating):
+                continue
+            if c.accepted and not include_accepted:
+                continue
+            out.append(Assignment(target, c.heliostat_id, TIER_EXTRA, "in turn"))
+            break
+    return tuple(out)

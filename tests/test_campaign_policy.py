@@ -1,0 +1,143 @@
+"""Gating and planning policy: the paper's limits at their edges, and who goes next."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from helicalib.calibration.acceptance import Gap
+from helicalib.campaign.gating import gate_field, gate_mirrors
+from helicalib.campaign.planner import (
+    TIER_EXTRA, TIER_LOW_BAND, TIER_OPEN, TIER_RECHECK, TIER_WINDOW, Candidate, plan, round_robin,
+)
+from helicalib.config import Gating
+
+G = Gating(wind_max_ms=10, wind_preferred_ms=5, stow_wind_ms=15, dni_min_wm2=300, dni_preferred_wm2=800,
+           cleanliness_min=0.55, cleanliness_preferred=0.7)
+NOW = 1_000_000.0
+
+
+# ----------------------------------------------------------------------------- gating
+@pytest.mark.parametrize("wind, calibrate, stow, good", [
+    (5.0, True, False, True), (5.01, True, False, False), (10.0, True, False, False),
+    (10.01, False, False, False), (15.0, False, False, False), (15.01, False, True, False),
+])
+def test_wind_edges(wind, calibrate, stow, good):
+    g = gate_field(wind, 900.0, G)
+    assert (g.calibrate, g.stow, g.wind_good) == (calibrate, stow, good)
+
+
+@pytest.mark.parametrize("dni, calibrate, good", [(300.0, False, False), (300.1, True, False),
+                                                   (800.0, True, False), (800.1, True, True)])
+def test_dni_edges(dni, calibrate, good):
+    g = gate_field(2.0, dni, G)
+    assert (g.calibrate, g.dni_good) == (calibrate, good)
+    assert g.good is good  # the wind (2 m/s) is good, so the DNI decides
+
+
+def test_reasons_name_readings_and_limits():
+    assert gate_field(16.2, 900, G).reason == "wind 16.2 m/s > 15 m/s: stow the whole field"
+    assert gate_field(11.0, 250, G).reason == "wind 11.0 m/s > 10 m/s; DNI 250 W/m² ≤ 300 W/m²: no calibration"
+    r = gate_field(7.0, 850, G).reason
+    assert r.startswith("calibration allowed") and "above the preferred 5" in r and "DNI 850 W/m² (good)" in r
+
+
+def test_stow_hysteresis_resumes_only_when_calm():
+    assert gate_field(12.0, 900, G, stowed=True).stow  # below the stow limit but not calm
+    assert gate_field(10.0, 900, G, stowed=True).stow is False
+    assert gate_field(10.0, 900, G, stowed=True).calibrate
+    assert gate_field(math.nan, 900, G, stowed=True).stow
+
+
+def test_missing_readings_block_but_never_stow():
+    g = gate_field(math.nan, 900, G)
+    assert not g.calibrate and not g.stow and "no wind reading" in g.reason
+    g = gate_field(3.0, math.nan, G)
+    assert not g.calibrate and "no DNI reading" in g.reason
+
+
+def test_mirror_gate_edges():
+    m = gate_mirrors([0.55, 0.5501, 0.7, 0.7001, np.nan], G)
+    assert m.allowed.tolist() == [False, True, True, True, False]
+    assert m.good.tolist() == [False, False, False, True, False]
+    assert "too soiled" in m.reason(0, 0.55, G) and m.reason(3, 0.7001, G) == "cleanliness 0.70 (good)"
+
+
+@given(st.floats(0, 40), st.floats(0, 1200))
+def test_preferred_limits_never_block(wind, dni):
+    g = gate_field(wind, dni, G)
+    assert g.calibrate == (wind <= G.wind_max_ms and dni > G.dni_min_wm2)
+    assert g.stow == (wind > G.stow_wind_ms)
+    assert not (g.stow and g.calibrate)
+
+
+# ----------------------------------------------------------------------------- planner
+def gap(kind, start, end, window=None):
+    return Gap(kind, window, start, end, f"{kind} {window}")
+
+
+def test_low_band_before_window_before_error():
+    cands = [
+        Candidate("H1", "T1", predicted_error_mrad=20.0, gaps=(gap("points", NOW - 10, NOW + 9000),)),
+        Candidate("H2", "T1", predicted_error_mrad=1.0, gaps=(gap("window", NOW - 10, NOW + 3000, 2),)),
+        Candidate("H3", "T1", predicted_error_mrad=0.5, gaps=(gap("rising", NOW - 10, NOW + 1800),)),
+    ]
+    (a,) = plan(cands, NOW, G)
+    assert (a.heliostat_id, a.tier) == ("H3", TIER_LOW_BAND) and a.reason.startswith("low band")
+    (a,) = plan(cands[:2], NOW, G)
+    assert (a.heliostat_id, a.tier) == ("H2", TIER_WINDOW)
+    (a,) = plan(cands[:1], NOW, G)
+    assert a.tier == TIER_OPEN
+
+
+def test_gaps_not_open_now_do_not_count():
+    later = Candidate("H1", "T1", predicted_error_mrad=1.0, gaps=(gap("setting", NOW + 3600, NOW + 7200),))
+    other = Candidate("H2", "T1", predicted_error_mrad=2.0, gaps=(gap("window", NOW, NOW + 100, 0),))
+    (a,) = plan([later, other], NOW, G)
+    assert a.heliostat_id == "H2"
+    assert plan([later], NOW, G)[0].tier == TIER_EXTRA
+    assert plan([later], NOW, G, skip_extra=True) == ()
+
+
+def test_window_closing_soonest_then_cleanliness_then_largest_error():
+    a = Candidate("HA", "T1", predicted_error_mrad=9.0, gaps=(gap("window", NOW, NOW + 5000, 1),))
+    b = Candidate("HB", "T1", predicted_error_mrad=1.0, gaps=(gap("window", NOW, NOW + 2000, 0),))
+    assert plan([a, b], NOW, G)[0].heliostat_id == "HB"
+    c = Candidate("HC", "T1", predicted_error_mrad=9.0, cleanliness=0.65, gaps=(gap("points", NOW, NOW + 10),))
+    d = Candidate("HD", "T1", predicted_error_mrad=2.0, cleanliness=0.95, gaps=(gap("points", NOW, NOW + 10),))
+    assert plan([c, d], NOW, G)[0].heliostat_id == "HD"  # preferred cleanliness raises priority
+    e = Candidate("HE", "T1", predicted_error_mrad=None, gaps=(gap("points", NOW, NOW + 10),))
+    assert plan([d, e], NOW, G)[0].heliostat_id == "HE"  # no model yet = largest error
+
+
+def test_one_heliostat_per_free_target_and_skips():
+    cands = [
+        Candidate("H1", "T1", predicted_error_mrad=5.0),
+        Candidate("H2", "T1", predicted_error_mrad=3.0),
+        Candidate("H3", "T2", predicted_error_mrad=1.0),
+        Candidate("H4", "T2", predicted_error_mrad=9.0, cleanliness=0.55),      # gated
+        Candidate("H5", "T3", accepted=True),
+        Candidate("H6", "T4", predicted_error_mrad=9.0, cooldown_until_s=NOW + 1),
+        Candidate("H7", "T5", predicted_error_mrad=9.0),
+    ]
+    out = plan(cands, NOW, G, busy_targets=["T5"])
+    assert [(x.target_id, x.heliostat_id) for x in out] == [("T1", "H1"), ("T2", "H3")]
+    out = plan(cands, NOW, G, busy_heliostats=["H1"], include_accepted=True)
+    assert {(x.target_id, x.heliostat_id, x.tier) for x in out} == {
+        ("T1", "H2", TIER_EXTRA), ("T2", "H3", TIER_EXTRA), ("T3", "H5", TIER_RECHECK), ("T5", "H7", TIER_EXTRA)}
+
+
+def test_round_robin_goes_in_turn_and_wraps():
+    cands = [Candidate(f"H{i}", "T1") for i in range(4)] + [Candidate("K0", "T2"), Candidate("K1", "T2", accepted=True)]
+    out = round_robin(cands, NOW, G, cursor={})
+    assert [(a.target_id, a.heliostat_id) for a in out] == [("T1", "H0"), ("T2", "K0")]
+    assert round_robin(cands, NOW, G, cursor={"T1": "H1", "T2": "K0"})[0].heliostat_id == "H2"
+    assert round_robin(cands, NOW, G, cursor={"T1": "H3"})[0].heliostat_id == "H0"
+    # K1 is accepted, so T2 comes back to K0
+    assert round_robin(cands, NOW, G, cursor={"T2": "K0"})[1].heliostat_id == "K0"
+    assert round_robin(cands, NOW, G, cursor={"T1": "H0"}, busy_heliostats=["H1"])[0].heliostat_id == "H2"
+    assert [a.target_id for a in round_robin(cands, NOW, G, cursor={}, busy_targets=["T1"])] == ["T2"]
