@@ -1,0 +1,182 @@
+"""``helicalib spot``: the spot centre on a target board from a before frame and after frames.
+
+    helicalib spot BEFORE.png AFTER.png [AFTER ...] --target TARGET.yaml [--method grlm-centroid] [--json]
+    helicalib spot BEFORE.png AFTER.png --field FIELD.yaml --target-id T1 [--camera-id C1] [--overlay OUT.png]
+
+Exit status: 0 valid measurement, 3 measured but invalid (the reason is printed), 1 user error.
+
+Extension point: a module ``helicalib.vision.single_frame`` may define ``add_arguments(parser)``,
+``wants(args) -> bool`` and ``run_spot(args, target, camera) -> int``; when present its arguments
+are added here and, when ``wants(args)``, it handles the run (e.g. a single-frame mode).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+from pathlib import Path
+
+EXIT_INVALID = 3
+
+
+def _extension():
+    try:
+        return importlib.import_module("helicalib.vision.single_frame")
+    except ImportError:
+        return None
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("spot", help="spot centre on a target board (T/GRLM annex A) from before/after frames",
+                       description="Measure the heliostat spot centre on a target board from a 'before' frame "
+                                   "(no beam) and one or more 'after' frames (beam on), per T/GRLM 02-2014 annex A, "
+                                   "on a metric grid of the board. Exit 0 valid, 3 invalid measurement, 1 error.")
+    p.add_argument("frames", nargs="+", metavar="FRAME", help="BEFORE then AFTER [AFTER ...] (PNG or JPEG)")
+    p.add_argument("--target", type=Path, help="YAML file with one target entry (as under 'targets:')")
+    p.add_argument("--field", type=Path, help="field config YAML (use with --target-id)")
+    p.add_argument("--target-id", help="target id in --field")
+    p.add_argument("--camera-id", help="camera in --field for its intrinsics/distortion (default: the target's)")
+    p.add_argument("--method", choices=["grlm", "grlm-centroid", "centroid"], default=None,
+                   help="centring method (default: calibration.spot_method of --field, else grlm-centroid)")
+    p.add_argument("--cells-per-m", type=float, default=None, help="board grid resolution [cells/m] (default: auto)")
+    p.add_argument("--max-jitter-m", type=float, default=None, help="jitter limit over after frames [m] (default 0.10)")
+    p.add_argument("--max-saturated", type=float, default=None,
+                   help="largest saturated fraction of the spot (default 0.10)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--overlay", type=Path, help="write the after frame with marks, board, window and centre drawn")
+    ext = _extension()
+    if ext is not None and hasattr(ext, "add_arguments"):
+        ext.add_arguments(p)
+    p.set_defaults(func=run)
+
+
+def load_target_file(path: Path):
+    """A Target from a YAML file holding one target entry (bare, in a one-item list, or under ``targets:``)."""
+    import yaml
+    from pydantic import ValidationError
+
+    from helicalib.config import Target
+    from helicalib.errors import ConfigError
+
+    if not path.is_file():
+        raise ConfigError(f"{path}: file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    prefix = ""
+    if isinstance(data, dict) and "targets" in data:
+        data, prefix = data["targets"], "targets"
+    if isinstance(data, list):
+        if len(data) != 1:
+            raise ConfigError(f"{path}: {prefix or '(top level)'}: expected exactly one target entry, got {len(data)}")
+        data, prefix = data[0], f"{prefix}[0]"
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a target entry (id, center_enu_m, normal_enu, size_m, marks)")
+    try:
+        target = Target.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(x) for x in err["loc"] if not str(x).startswith(("function", "tuple")))
+        where = ".".join(x for x in (prefix, loc) if x)
+        raise ConfigError(f"{path}: {where}: {err['msg'].removeprefix('Value error, ')}") from None
+    if target.marks is None:
+        raise ConfigError(f"{path}: {prefix + '.' if prefix else ''}marks: the target needs its marks to be measured")
+    return target
+
+
+def resolve_target(args):
+    """(target, camera, default_method) from ``--target`` or ``--field/--target-id``."""
+    from helicalib.errors import ConfigError
+
+    if (args.target is None) == (args.field is None):
+        raise ConfigError("give either --target TARGET.yaml or --field FIELD.yaml --target-id ID")
+    if args.target is not None:
+        return load_target_file(args.target), None, "grlm-centroid"
+    from helicalib.config import load_field_config
+
+    field = load_field_config(args.field)
+    if not args.target_id:
+        ids = ", ".join(t.id for t in field.targets)
+        raise ConfigError(f"--field needs --target-id (one of {ids})")
+    target = field.target(args.target_id)
+    if target.marks is None:
+        raise ConfigError(f"{args.field}: target {target.id} has no marks")
+    cams = field.cameras_for(target.id)
+    camera = None
+    if args.camera_id:
+        matches = [c for c in field.cameras if c.id == args.camera_id]
+        if not matches:
+            raise ConfigError(f"{args.field}: cameras: no camera '{args.camera_id}'")
+        camera = matches[0]
+    elif cams:
+        camera = cams[0]
+    return target, camera, field.calibration.spot_method
+
+
+def read_frames(paths):
+    """Frames as uint8 arrays, or a ``bad_frame`` SpotResult naming the unusable file."""
+    from helicalib.errors import MeasurementError
+    from helicalib.vision.frames import read_frame
+    from helicalib.vision.spot import SpotResult
+
+    frames = []
+    for p in paths:
+        try:
+            frames.append(read_frame(p))
+        except MeasurementError as exc:
+            return None, SpotResult(False, "bad_frame", f"{exc}.")
+    return frames, None
+
+
+def print_result(result, args, extra: dict | None = None) -> int:
+    """Print the result (JSON or text); returns the exit status."""
+    out = result.to_json()
+    if extra:
+        out.update(extra)
+    if args.json:
+        print(json.dumps(out))
+    else:
+        state = "valid" if result.valid else f"INVALID ({result.reason})"
+        print(f"spot: {state}: {result.message}")
+        if result.offset_m is not None:
+            print(f"  offset (u, v)      {result.offset_m[0]:+.4f} m, {result.offset_m[1]:+.4f} m")
+            print(f"  spot centre        ({result.spot_center_px[0]:.2f}, {result.spot_center_px[1]:.2f}) px")
+        if result.target_center_px is not None:
+            print(f"  target centre      ({result.target_center_px[0]:.2f}, {result.target_center_px[1]:.2f}) px")
+        if result.spot_area_px is not None:
+            print(f"  area S             {result.spot_area_px:.0f} cells ({out['spot_area_m2']} m²), threshold "
+                  f"{result.threshold:.1f}")
+        if result.jitter_m is not None:
+            print(f"  jitter             {result.jitter_m * 1000:.1f} mm RMS")
+    return 0 if result.valid else EXIT_INVALID
+
+
+def run(args) -> int:
+    from helicalib.errors import ConfigError
+    from helicalib.vision.spot import SpotLimits, measure_spot
+
+    target, camera, default_method = resolve_target(args)
+    ext = _extension()
+    if ext is not None and hasattr(ext, "wants") and ext.wants(args):
+        return int(ext.run_spot(args, target, camera))
+    if len(args.frames) < 2:
+        raise ConfigError("give a BEFORE frame and at least one AFTER frame")
+    method = args.method or default_method
+    frames, bad = read_frames(args.frames)
+    if bad is not None:
+        bad = type(bad)(**{**bad.__dict__, "method": method})
+        return print_result(bad, args)
+    limits = SpotLimits(**{k: v for k, v in (("max_jitter_m", args.max_jitter_m),
+                                             ("max_saturated_fraction", args.max_saturated)) if v is not None})
+    result = measure_spot(frames[0], frames[1:], target, camera, method=method, limits=limits,
+                          cells_per_m=args.cells_per_m)
+    extra = {"target": target.id, "before": str(args.frames[0]), "afters": [str(p) for p in args.frames[1:]]}
+    if args.overlay is not None:
+        from helicalib.vision.overlay import draw_overlay
+        from helicalib.vision.frames import write_png
+
+        write_png(args.overlay, draw_overlay(frames[1], result, target))
+        extra["overlay"] = str(args.overlay)
+    return print_result(result, args, extra)
