@@ -1,0 +1,104 @@
+"""Judge a calibrated model honestly: its true tracking error over a year of sun positions.
+
+For every sun position of the year above ``min_elevation_deg`` the *calibrated* model computes the
+strokes that should put each heliostat on its aim point; the simulator's *true* heliostats
+(hidden errors, gravity sag, drift at the evaluation time; no backlash, repeatability or wind
+jitter, which a model cannot predict) then show where those strokes really send the beam.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from helicalib.geometry import optics
+from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.geometry.sun import sun_at_site, to_unix_seconds
+
+
+@dataclass(frozen=True)
+class SkyEvaluation:
+    """True tracking error of a model's strokes over the sky.
+
+    Attributes
+    ----------
+    errors_mrad : (N, T) true tracking error per heliostat and sun position [mrad]; NaN where the
+        model's strokes are out of range or the beam misses the target plane
+    rms_mrad, p95_mrad : (N,) per heliostat over its valid sun positions [mrad]
+    field_rms_mrad, field_p95_mrad : float, over all heliostats and sun positions [mrad]
+    times_s : (T,) the sun instants [UTC s]
+    out_of_range_fraction : (N,) share of sun positions whose strokes the drive cannot reach
+    """
+
+    errors_mrad: np.ndarray
+    rms_mrad: np.ndarray
+    p95_mrad: np.ndarray
+    field_rms_mrad: float
+    field_p95_mrad: float
+    times_s: np.ndarray
+    out_of_range_fraction: np.ndarray
+
+
+def year_sun_times(site, year: int = 2026, step_days: float = 7.0, step_min: float = 30.0,
+                   min_elevation_deg: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """Instants of one year (every ``step_days`` days, every ``step_min`` minutes of the day) with
+    the sun at least ``min_elevation_deg`` high: ``(times_s (T,), sun_enu (T, 3))``."""
+    t0 = float(to_unix_seconds(f"{int(year)}-01-01T00:00:00Z"))
+    days = np.arange(0.0, 365.0, step_days)
+    minutes = np.arange(0.0, 1440.0, step_min)
+    times = (t0 + days[:, None] * 86400.0 + minutes[None, :] * 60.0).ravel()
+    pos = sun_at_site(site, times)
+    keep = pos.elevation_deg >= min_elevation_deg
+    return times[keep], np.asarray(pos.vector_enu)[keep]
+
+
+def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np.ndarray | None = None,
+                   aim_enu: np.ndarray | None = None, t_eval_s: float | None = None,
+                   min_elevation_deg: float = 5.0) -> SkyEvaluation:
+    """True tracking error of the strokes a calibrated model commands, over the sky.
+
+    Parameters
+    ----------
+    truth : TrueField
+        The simulator's hidden truth (``SimulatedPlant.truth``).
+    fitted : HeliostatModel or ndarray (N, P)
+        The calibrated model, or its error parameters (applied to the nominal field).
+    times_s, sun_enu : (T,) [UTC s] and (T, 3), optional
+        Sun positions; default :func:`year_sun_times` of the truth's start year.
+    aim_enu : (N, 3) [m], optional
+        Aim points; default the centre of each heliostat's calibration target.
+    t_eval_s : float, optional
+        Plant time of the true geometry (drift); default the truth's start.
+    """
+    model = fitted if isinstance(fitted, HeliostatModel) else truth.nominal.with_params(np.asarray(fitted, float))
+    if len(model) != truth.n:
+        raise ValueError(f"model has {len(model)} heliostats, the field {truth.n}")
+    if sun_enu is None:
+        year = int(np.datetime64(int(truth.start_s), "s").astype("datetime64[Y]").astype(int) + 1970)
+        times_s, sun_enu = year_sun_times(truth.cfg.site, year, min_elevation_deg=min_elevation_deg)
+    times_s = np.asarray(times_s, float)
+    sun_enu = np.asarray(sun_enu, float).reshape(-1, 3)
+    targets = [truth.cfg.target(h.target) for h in truth.cfg.heliostats]
+    if aim_enu is None:
+        aim_enu = np.array([t.center_enu_m for t in targets], dtype=float)
+    t_eval = truth.start_s if t_eval_s is None else float(t_eval_s)
+    errors = np.full((truth.n, len(sun_enu)), np.nan)
+    outside = np.zeros(truth.n)
+    for k, sun in enumerate(sun_enu):
+        sol = model.strokes_for_aim(sun, aim_enu)
+        beam = truth.beam(np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), sun, t_eval, jitter=False)
+        _, hit, _ = truth.spots(beam, targets)
+        err = optics.tracking_error_mrad(hit, aim_enu, truth.nominal.pivots_enu)
+        errors[:, k] = np.where(sol.in_range, err, np.nan)
+        outside += ~sol.in_range
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(np.nanmean(errors**2, axis=1))
+        p95 = np.nanpercentile(errors, 95, axis=1)
+    flat = errors[np.isfinite(errors)]
+    return SkyEvaluation(
+        errors_mrad=errors, rms_mrad=rms, p95_mrad=p95,
+        field_rms_mrad=float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
+        field_p95_mrad=float(np.percentile(flat, 95)) if flat.size else float("nan"),
+        times_s=times_s, out_of_range_fraction=outside / max(len(sun_enu), 1),
+    )
