@@ -131,3 +131,11 @@ def test_flux_yaml_files_are_resolved_and_checked(tmp_path):
         "ea_wm2": 1, "eb_wm2": 1, "eb_prime_wm2": 1, "gav_grey": 1}}}))
     with pytest.raises(ConfigError, match="fe: give exactly one of"):
         load_flux_calibration(tmp_path / "F2.yaml")
+
+
+def test_shipped_flux_demo_loads(demo_field_path):
+    fc = load_flux_calibration(demo_field_path.parent / "flux_demo.yaml")
+    assert fc.fe_wm2_per_grey() == pytest.approx(2.312)  # the paper's worked value, by eq. (2)
+    data = load_correction_data(fc)
+    assert data.dark_grey == 4.2 and data.response.k1_grey_per_input == pytest.approx(1.0)
+    assert data.response.linearise(np.array(217.5)) == pytest.approx(244.2)
