@@ -172,3 +172,22 @@ def render(camera: PinholeCamera, focal_length_mm: float, tube_radius_mm: float,
     if noise_grey > 0:
         img = img + np.random.default_rng(seed).normal(0.0, noise_grey, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def render_collector(collector, camera: PinholeCamera, tilt_mrad_by_facet: dict[str, float] | None = None,
+                     **options) -> np.ndarray:
+    """Render a :class:`~helicalib.trough.config.Collector` with tilts given per facet id (e.g. ``{"R2C3": 1.5}``).
+
+    ``options`` go to :func:`render` (``supersample``, ``rows_px``, ``noise_grey``, ``seed``).
+    Unknown facet ids raise ``KeyError`` naming them.
+    """
+    layout = collector.facets()
+    tilt = np.zeros((collector.rows, collector.columns))
+    for fid, value in (tilt_mrad_by_facet or {}).items():
+        if fid not in layout.ids:
+            raise KeyError(f"unknown facet '{fid}' (R1C1 … R{collector.rows}C{collector.columns})")
+        i = layout.ids.index(fid)
+        tilt[layout.row[i] - 1, layout.column[i] - 1] = float(value)
+    cols = np.stack([layout.x_min_mm[: collector.columns], layout.x_max_mm[: collector.columns]], axis=1)
+    return render(camera, collector.focal_length_mm, collector.tube_radius_mm, collector.tube_x_range_mm,
+                  collector.row_bounds_mm(), cols, tilt, **options)
