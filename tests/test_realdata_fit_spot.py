@@ -121,3 +121,23 @@ def test_single_frame_refuses_empty_board():
     img = np.full((128, 128), 140, np.uint8)
     with pytest.raises(MeasurementError, match="no spot"):
         spot_centre_single_frame(img, (8.0, 8.0))
+
+
+def test_spot_extension_hook_single_frame(tmp_path, capsys):
+    import argparse
+
+    from helicalib.vision import single_frame
+
+    p = argparse.ArgumentParser()
+    p.add_argument("frames", nargs="+")
+    p.add_argument("--json", action="store_true")
+    single_frame.add_arguments(p)
+    f = tmp_path / "frame.png"
+    cv2.imwrite(str(f), _synthetic_board((100.0, 150.0)))
+    args = p.parse_args([str(f), "--single-frame", "--board-size-m", "8", "8", "--json"])
+    assert single_frame.wants(args)
+    assert single_frame.run_spot(args, None, None) == 0
+    out = json.loads(capsys.readouterr().out)
+    u, v = pixel_to_uv_m(100.0, 150.0, (256, 256), (8.0, 8.0))
+    assert abs(out["offset_m"][0] - u) < 0.1 and abs(out["offset_m"][1] - v) < 0.1
+    assert not single_frame.wants(p.parse_args([str(f)]))
