@@ -69,6 +69,7 @@ def test_flux_command_json_and_plot(files, demo_field_path, capsys):
     assert rc == 0
     r = json.loads(capsys.readouterr().out)
     power = 2 * math.pi * SIGMA**2 * E0
+    print("cli", r["power_w"] / power - 1, r["peak_wm2"] / E0 - 1, r["centre_uv_m"])
     assert r["power_w"] == pytest.approx(power, rel=0.01)
     assert r["peak_wm2"] == pytest.approx(E0, rel=0.03)
     assert r["centre_uv_m"] == pytest.approx(list(CUV), abs=0.01)
