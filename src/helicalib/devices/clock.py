@@ -1,0 +1,98 @@
+"""Clocks for live runs: the plant's own clock (``plant.clock: plant``) and UTC (``system``).
+
+Both implement :class:`helicalib.devices.protocols.Clock`. Only these edge objects read real
+time; the core is handed a clock. :class:`PlantClock` reads the plant's time and rate, then
+extrapolates with a monotonic source between reads (re-reading every ``resync_s`` real
+seconds), and sleeps ``plant seconds / rate`` real seconds.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+from helicalib.errors import PlantError
+
+
+class SystemClock:
+    """UTC from the computer's clock; ``sleep`` waits real seconds."""
+
+    rate = 1.0
+
+    def __init__(self, source: Callable[[], float] = time.time, sleeper: Callable[[float], None] = time.sleep):
+        self._source = source
+        self._sleeper = sleeper
+
+    def now_s(self) -> float:
+        """Now [UTC s]."""
+        return float(self._source())
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            self._sleeper(float(seconds))
+
+
+class PlantClock:
+    """The plant's time (registers 8-13), extrapolated between reads.
+
+    Parameters
+    ----------
+    plant : helicalib.devices.protocols.Plant
+        Anything with ``plant_time() -> (t_s, rate)``.
+    resync_s : float
+        Re-read the plant's time after this many real seconds [s].
+    source : callable
+        Monotonic real time [s] (``time.monotonic``).
+    sleeper : callable
+        Real sleep [s] (``time.sleep``).
+
+    A plant time that runs backwards between reads is refused (:class:`PlantError`); ``now_s``
+    never decreases.
+    """
+
+    def __init__(self, plant, resync_s: float = 30.0, source: Callable[[], float] = time.monotonic,
+                 sleeper: Callable[[float], None] = time.sleep):
+        self._plant = plant
+        self.resync_s = float(resync_s)
+        self._source = source
+        self._sleeper = sleeper
+        self._lock = threading.Lock()
+        self._t0: float | None = None
+        self._m0 = 0.0
+        self.rate = 1.0
+        self._last = -float("inf")
+
+    def sync(self) -> float:
+        """Read the plant's time and rate now; returns the plant time [UTC s]."""
+        t, rate = self._plant.plant_time()
+        m = float(self._source())
+        with self._lock:
+            if self._t0 is not None and t < self._last - 1.0:
+                raise PlantError(f"plant time went backwards: {t:.3f} after {self._last:.3f}")
+            self._t0, self._m0, self.rate = float(t), m, float(rate)
+        return float(t)
+
+    def now_s(self) -> float:
+        """Plant time now [UTC s]."""
+        m = float(self._source())
+        if self._t0 is None or m - self._m0 >= self.resync_s:
+            self.sync()
+        with self._lock:
+            t = self._t0 + self.rate * (m - self._m0)
+            t = max(t, self._last)
+            self._last = t
+        return t
+
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of plant time (``seconds / rate`` real seconds)."""
+        if seconds <= 0:
+            return
+        if self._t0 is None:
+            self.sync()
+        self._sleeper(float(seconds) / self.rate)
+
+
+def make_clock(cfg, plant) -> SystemClock | PlantClock:
+    """The clock a field config asks for (``plant.clock``)."""
+    return PlantClock(plant) if cfg.plant.clock == "plant" else SystemClock()
