@@ -1,0 +1,280 @@
+"""Error-model fit for one heliostat: regularised, robust non-linear least squares with uncertainty.
+
+Data: K observations, each the strokes the heliostat held, the sun vector, and the observed spot
+centre X in ENU (on whatever target plane). Unknowns: the named error parameters of
+:mod:`helicalib.geometry.errors` (all, or those named in ``free``).
+
+Residual (``residual_kind``):
+
+* ``"beam"`` (default): the angle between the model's reflected beam ``r`` and the direction from
+  the model's mirror centre to the observed spot, ``unit(X − M)`` — the tracking error the model
+  would have made, seen from the heliostat [mrad], two components (right, up across the line of sight).
+* ``"normal"``: the model's normal minus the observed normal (the one that reflects the sun to X)
+  [mrad], two components. A normal error is half the beam error, so ``sigma_mrad`` is halved.
+
+The problem is solved in prior-whitened variables ``x = p / prior_sigma``; the priors (mean 0,
+the nominal heliostat) enter as pseudo-observations ``x``; data residuals are divided by the
+measurement noise ``sigma_mrad``. ``scipy.optimize.least_squares`` with a robust loss (default
+``soft_l1``, scale ``f_scale_mrad``) keeps outliers from dragging the fit. The covariance is the
+Gauss-Newton ``(JᵀJ)⁻¹`` at the solution, inflated by the a-posteriori variance factor when the
+residuals are larger than ``sigma_mrad`` says.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from helicalib.geometry import errors as em
+from helicalib.geometry import optics
+from helicalib.geometry.drives import angles_to_normal, strokes_to_angles
+
+NAN_RESIDUAL_MRAD = 1000.0
+"""Residual used where a parameter set makes a stroke impossible (keeps the solver finite)."""
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """What the data determine.
+
+    Attributes
+    ----------
+    data_fraction : {name: f} for free parameters, ``1 − σ_post² / σ_prior²``: 1 = data alone, 0 = prior alone
+    determined : names with ``data_fraction >= 0.75`` (posterior σ at most half the prior's)
+    prior_dominated : names with ``data_fraction < 0.25``
+    correlated : (name_a, name_b, ρ) pairs with ``|ρ| > 0.9``
+    suggestions : list of ``{"azimuth_deg", "elevation_deg", "sun_enu", "gain"}``, the candidate sun
+        positions whose observation would shrink the summed prior-normalised variance most
+        (``gain`` = that reduction), best first
+    """
+
+    data_fraction: dict[str, float]
+    determined: tuple[str, ...]
+    prior_dominated: tuple[str, ...]
+    correlated: tuple[tuple[str, str, float], ...]
+    suggestions: tuple[dict, ...]
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Fitted error model of one heliostat.
+
+    Attributes
+    ----------
+    params : (P,) fitted parameters (order of ``errors.PARAMETERS``; fixed ones as given)
+    covariance : (P, P) posterior covariance (zero rows/columns for fixed parameters)
+    sigma : (P,) posterior standard deviations
+    residual_mrad : (K,) residual magnitude per observation [mrad] (``residual_kind``)
+    residual_vec_mrad : (K, 2) residual components [mrad]
+    rms_mrad : RMS of ``residual_mrad``
+    residual_kind : "beam" or "normal"
+    free : names of the fitted parameters
+    identifiability : :class:`Identifiability`
+    model : the fitted HeliostatModel (N = 1)
+    success, message, nfev : from the solver
+    """
+
+    params: np.ndarray
+    covariance: np.ndarray
+    sigma: np.ndarray
+    residual_mrad: np.ndarray
+    residual_vec_mrad: np.ndarray
+    rms_mrad: float
+    residual_kind: str
+    free: tuple[str, ...]
+    identifiability: Identifiability
+    model: object
+    success: bool
+    message: str
+    nfev: int
+
+    def as_dict(self) -> dict:
+        """Parameters with σ by name, and the summary figures (plain data for JSON)."""
+        return {
+            "params": em.as_dict(self.params), "sigma": em.as_dict(self.sigma), "rms_mrad": self.rms_mrad,
+            "residual_kind": self.residual_kind, "free": list(self.free),
+            "determined": list(self.identifiability.determined),
+            "prior_dominated": list(self.identifiability.prior_dominated),
+        }
+
+
+def _basis(d: np.ndarray) -> np.ndarray:
+    """Two unit vectors (K, 2, 3) across unit directions d (K, 3): right (horizontal) and up."""
+    right = np.cross(d, [0.0, 0.0, 1.0])
+    small = np.linalg.norm(right, axis=-1) < 1e-9
+    right[small] = np.cross(d[small], [0.0, 1.0, 0.0])
+    right = optics.unit(right)
+    return np.stack([right, np.cross(right, d)], axis=1)
+
+
+class _Problem:
+    """Vectorised residuals for many parameter sets at once."""
+
+    def __init__(self, model, strokes, sun, spot, kind):
+        self.model, self.kind = model, kind
+        self.strokes = np.asarray(strokes, dtype=float).reshape(-1, 2)
+        self.sun = optics.unit(np.asarray(sun, dtype=float).reshape(-1, 3))
+        self.spot = np.asarray(spot, dtype=float).reshape(-1, 3)
+        self.k = len(self.strokes)
+        p0 = model.pivots_enu[0]
+        if kind == "beam":
+            ref = optics.unit(self.spot - p0)
+        elif kind == "normal":
+            ref = optics.aim_normal(np.broadcast_to(p0, self.spot.shape), self.sun, self.spot,
+                                    np.full(self.k, model.mirror_offset_m[0]))
+        else:
+            raise ValueError(f"residual_kind must be 'beam' or 'normal', not {kind!r}")
+        self.basis = _basis(ref)
+
+    def residuals(self, param_sets: np.ndarray) -> np.ndarray:
+        """(M, P) parameter sets → residuals (M, K, 2) [mrad]."""
+        m = len(param_sets)
+        rows = np.repeat(param_sets, self.k, axis=0)
+        drives = self.model.drives.take(np.zeros(m * self.k, dtype=int))
+        pivots = np.broadcast_to(self.model.pivots_enu[0], (m * self.k, 3))
+        eff, piv = em.apply(drives, pivots, rows)
+        strokes = np.tile(self.strokes, (m, 1))
+        sun = np.tile(self.sun, (m, 1))
+        spot = np.tile(self.spot, (m, 1))
+        n = angles_to_normal(eff, strokes_to_angles(eff, strokes))
+        if self.kind == "beam":
+            mc = optics.mirror_centre(piv, n, eff.mirror_offset_m)
+            diff = optics.reflect(sun, n) - optics.unit(spot - mc)
+        else:
+            diff = n - optics.aim_normal(piv, sun, spot, eff.mirror_offset_m)
+        basis = np.tile(self.basis, (m, 1, 1))
+        res = 1000.0 * np.einsum("kij,kj->ki", basis, diff)
+        res = np.where(np.isfinite(res), res, NAN_RESIDUAL_MRAD)
+        return res.reshape(m, self.k, 2)
+
+
+def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mapping[str, float] | None = None,
+                    free: Sequence[str] | None = None, loss: str = "soft_l1", f_scale_mrad: float = 1.0,
+                    sigma_mrad: float = 0.3, residual_kind: str = "beam", candidate_sun_enu: np.ndarray | None = None,
+                    aim_enu: np.ndarray | None = None, n_suggestions: int = 3) -> FitResult:
+    """Fit the error model of one heliostat to its observations.
+
+    Parameters
+    ----------
+    model : HeliostatModel with N = 1 (nominal geometry; its params give the values of fixed parameters)
+    strokes_mm : (K, 2) strokes held [mm]
+    sun_enu : (K, 3) unit sun vectors at the captures
+    spot_enu : (K, 3) observed spot centres [m, ENU]
+    prior_sigma : overrides of the default prior σ by name (units of each parameter)
+    free : names to fit (default all); the others stay at ``model.params``
+    loss, f_scale_mrad : robust loss of ``least_squares`` and its scale [mrad]
+    sigma_mrad : measurement noise of one beam-angle component [mrad]
+    residual_kind : "beam" or "normal"
+    candidate_sun_enu : (C, 3) sun positions to rank in the identifiability report (default: a sky grid,
+        elevation 10–80°); ``aim_enu`` (3,) the aim point for them (default: mean observed spot)
+    """
+    if len(model) != 1:
+        raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
+    free_names = tuple(em.NAMES) if free is None else tuple(free)
+    free_idx = np.array([em.index(n) for n in free_names], dtype=int)
+    sig_prior = em.prior_sigma(prior_sigma)[free_idx]
+    base = model.params[0].copy()
+    sigma_eff = sigma_mrad / 2.0 if residual_kind == "normal" else sigma_mrad
+    prob = _Problem(model, strokes_mm, sun_enu, spot_enu, residual_kind)
+    f = len(free_idx)
+
+    def params_of(xs: np.ndarray) -> np.ndarray:
+        out = np.repeat(base[None, :], len(xs), axis=0)
+        out[:, free_idx] = xs * sig_prior
+        return out
+
+    def fun(x):
+        r = prob.residuals(params_of(x[None, :]))[0].ravel() / sigma_eff
+        return np.concatenate([r, x])
+
+    h = 1e-4
+
+    def jac(x):
+        xs = np.repeat(x[None, :], 2 * f, axis=0)
+        xs[np.arange(f), np.arange(f)] += h
+        xs[f + np.arange(f), np.arange(f)] -= h
+        r = prob.residuals(params_of(xs)).reshape(2 * f, -1) / sigma_eff
+        jd = ((r[:f] - r[f:]) / (2 * h)).T
+        return np.vstack([jd, np.eye(f)])
+
+    x0 = base[free_idx] / sig_prior
+    sol = least_squares(fun, x0, jac=jac, loss=loss, f_scale=f_scale_mrad / sigma_eff, method="trf", x_scale=1.0)
+    x = sol.x
+    j = jac(x)
+    jd = j[: 2 * prob.k]
+    info = j.T @ j
+    cov_x = np.linalg.inv(info)
+    res_vec = prob.residuals(params_of(x[None, :]))[0]
+    # a-posteriori variance factor from the data residuals (only when there are spare degrees of freedom)
+    dof = 2 * prob.k - float(np.trace(jd @ cov_x @ jd.T))
+    chi2 = float(np.sum((res_vec / sigma_eff) ** 2))
+    factor = max(1.0, chi2 / dof) if dof >= 3.0 else 1.0
+    cov_x = cov_x * factor
+    params = params_of(x[None, :])[0]
+    cov = np.zeros((em.P, em.P))
+    cov[np.ix_(free_idx, free_idx)] = cov_x * np.outer(sig_prior, sig_prior)
+    sigma = np.sqrt(np.diag(cov))
+    fitted = model.with_params(params)
+    ident = _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x, sigma_eff, residual_kind,
+                             candidate_sun_enu, aim_enu, n_suggestions)
+    mag = np.linalg.norm(res_vec, axis=-1)
+    return FitResult(params=params, covariance=cov, sigma=sigma, residual_mrad=mag, residual_vec_mrad=res_vec,
+                     rms_mrad=float(np.sqrt(np.mean(mag**2))) if len(mag) else float("nan"),
+                     residual_kind=residual_kind, free=free_names, identifiability=ident, model=fitted,
+                     success=bool(sol.success), message=str(sol.message), nfev=int(sol.nfev))
+
+
+def sky_grid(elevations_deg=(10, 20, 30, 45, 60, 80), azimuth_step_deg: float = 20.0) -> np.ndarray:
+    """Candidate sun vectors (C, 3) on a grid over the sky."""
+    from helicalib.geometry.sun import sun_vector_from_angles
+
+    az, el = np.meshgrid(np.arange(0.0, 360.0, azimuth_step_deg), np.asarray(elevations_deg, dtype=float))
+    return sun_vector_from_angles(az.ravel(), el.ravel())
+
+
+def _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x, sigma_eff, kind,
+                     candidates, aim, n_best) -> Identifiability:
+    var = np.diag(cov_x)
+    frac = np.clip(1.0 - var, 0.0, 1.0)
+    data_fraction = {n: float(v) for n, v in zip(free_names, frac)}
+    sd = np.sqrt(var)
+    corr = cov_x / np.outer(sd, sd)
+    pairs = tuple((free_names[a], free_names[b], float(corr[a, b]))
+                  for a in range(len(free_names)) for b in range(a + 1, len(free_names)) if abs(corr[a, b]) > 0.9)
+    suggestions: list[dict] = []
+    cands = sky_grid() if candidates is None else np.asarray(candidates, dtype=float).reshape(-1, 3)
+    aim_pt = np.mean(prob.spot, axis=0) if aim is None else np.asarray(aim, dtype=float)
+    sol = fitted.repeat(len(cands)).strokes_for_aim(cands, aim_pt)
+    ok = sol.in_range
+    if ok.any() and n_best > 0:
+        c_sun, c_strokes = cands[ok], sol.strokes_mm[ok]
+        cprob = _Problem(fitted, c_strokes, c_sun, np.broadcast_to(aim_pt, c_sun.shape), kind)
+        f, h = len(free_idx), 1e-4
+        sets = np.repeat(params[None, :], 2 * f, axis=0)
+        sets[np.arange(f), free_idx] += h * sig_prior
+        sets[f + np.arange(f), free_idx] -= h * sig_prior
+        r = cprob.residuals(sets) / sigma_eff  # (2f, C, 2)
+        jc = np.transpose((r[:f] - r[f:]) / (2 * h), (1, 2, 0))  # (C, 2, f)
+        jcc = jc @ cov_x  # (C, 2, f)
+        s = np.eye(2) + jcc @ np.transpose(jc, (0, 2, 1))
+        gain = np.einsum("cij,cji->c", np.linalg.solve(s, jcc), np.transpose(jcc, (0, 2, 1)))
+        from helicalib.geometry.sun import angles_from_sun_vector
+
+        az, el = angles_from_sun_vector(c_sun)
+        for i in np.argsort(-gain)[:n_best]:
+            suggestions.append({"azimuth_deg": float(az[i]), "elevation_deg": float(el[i]),
+                                "sun_enu": [float(v) for v in c_sun[i]], "gain": float(gain[i])})
+    return Identifiability(
+        data_fraction=data_fraction,
+        determined=tuple(n for n in free_names if data_fraction[n] >= 0.75),
+        prior_dominated=tuple(n for n in free_names if data_fraction[n] < 0.25),
+        correlated=pairs, suggestions=tuple(suggestions))
+
+
+def predict_strokes(result: FitResult, sun_enu: np.ndarray, aim_enu: np.ndarray):
+    """Strokes from the calibrated model for sun positions (M, 3) and aim (3,) or (M, 3) → AimSolution."""
+    sun = np.asarray(sun_enu, dtype=float).reshape(-1, 3)
+    return result.model.repeat(len(sun)).strokes_for_aim(sun, aim_enu)
