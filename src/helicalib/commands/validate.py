@@ -14,6 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Validate a field config; print a summary (exit 0) or every problem, one per line (exit 1).")
     p.add_argument("field", help="field config YAML")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--no-sweep", action="store_true",
+                   help="skip the stroke-feasibility sweep (strokes for every heliostat's target over a year)")
+    p.add_argument("--year", type=int, default=2026, help="year of the stroke-feasibility sweep (default 2026)")
     p.set_defaults(func=run)
 
 
@@ -47,6 +50,57 @@ def summarise(cfg) -> dict:
     }
 
 
+def stroke_feasibility(cfg, year: int = 2026, min_elevation_deg: float = 5.0, every_days: int = 7,
+                       every_hours: float = 0.5) -> dict:
+    """Whether each heliostat's strokes for its target stay in range for all sun elevations ≥ 5° over a year.
+
+    Sun positions every ``every_hours`` h (UTC) on every ``every_days``-th day of ``year``; aim = the
+    centre of the heliostat's target. Returns plain data: per heliostat ``in_range`` and
+    ``worst_margin_mm`` (smallest distance inside the stroke range over both actuators; negative =
+    outside, null = unreachable), and per drive the stroke span actually used.
+    """
+    import pandas as pd
+
+    from helicalib.geometry.heliostat import HeliostatModel, stroke_sweep
+    from helicalib.geometry.sun import sun_at_site
+
+    times = pd.date_range(f"{year}-01-01", f"{year}-12-31 23:00", freq=f"{round(every_hours * 60)}min", tz="UTC")
+    times = times[(times.day_of_year - 1) % every_days == 0]
+    sp = sun_at_site(cfg.site, times)
+    up = np.asarray(sp.elevation_deg) >= min_elevation_deg
+    sun = np.asarray(sp.vector_enu)[up]
+    model = HeliostatModel.from_config(cfg)
+    aims = np.array([cfg.target(h.target).center_enu_m for h in cfg.heliostats], dtype=float)
+    sweep = stroke_sweep(model, sun, aims)
+    margin = sweep["margin_mm"]  # (T, N, 2)
+    worst_t = np.argmin(margin.min(axis=2), axis=0)  # (N,)
+    per = {}
+    for i, h in enumerate(cfg.heliostats):
+        m = float(margin[:, i, :].min())
+        worst_axis = int(np.argmin(margin[worst_t[i], i, :]))
+        per[h.id] = {"in_range": bool(sweep["in_range"][:, i].all()),
+                     "worst_margin_mm": None if not np.isfinite(m) else round(m, 1),
+                     "worst_actuator": worst_axis + 1,
+                     "worst_time_utc": times[up][worst_t[i]].isoformat(),
+                     "out_of_range_fraction": round(float(1.0 - sweep["in_range"][:, i].mean()), 4)}
+    drives = {}
+    for name in cfg.drives:
+        sel = np.array([h.drive == name for h in cfg.heliostats])
+        if not sel.any():
+            continue
+        s = sweep["strokes_mm"][:, sel, :]
+        d = cfg.drives[name]
+        drives[name] = {"stroke_used_mm": [[round(float(np.nanmin(s[..., k])), 1), round(float(np.nanmax(s[..., k])), 1)]
+                                           for k in range(2)],
+                        "stroke_range_mm": [list(a.stroke_range_mm) for a in d.actuators]}
+    bad = [hid for hid, v in per.items() if not v["in_range"]]
+    finite = [v["worst_margin_mm"] for v in per.values() if v["worst_margin_mm"] is not None]
+    return {"year": year, "sun_positions": int(up.sum()), "min_elevation_deg": min_elevation_deg,
+            "every_days": every_days, "every_hours": every_hours, "feasible": not bad, "out_of_range": bad,
+            "worst_margin_mm": (min(finite) if len(finite) == len(per) else None), "drives": drives,
+            "heliostats": per}
+
+
 def run(args) -> int:
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError
@@ -59,7 +113,10 @@ def run(args) -> int:
         print(f"{args.field}: {len(err.problems)} problem(s); not valid", file=sys.stderr)
         return 1
     summary = summarise(cfg)
+    sweep = None if getattr(args, "no_sweep", False) else stroke_feasibility(cfg, year=getattr(args, "year", 2026))
     if args.json:
+        if sweep is not None:
+            summary = dict(summary, stroke_feasibility=sweep)
         print(json.dumps(summary, indent=2))
         return 0
     s = summary["site"]
@@ -77,4 +134,20 @@ def run(args) -> int:
         print(f"drive     {name} ({d['kind']}): {d['heliostats']} heliostats")
     print(f"plant     SCS {summary['plant']['scs']}, clock {summary['plant']['clock']}")
     print(f"storage   {summary['database']}")
+    if sweep is not None:
+        _print_sweep(sweep)
     return 0
+
+
+def _print_sweep(sweep: dict) -> None:
+    head = (f"strokes   sun elevation >= {sweep['min_elevation_deg']:g}° over {sweep['year']} "
+            f"({sweep['sun_positions']} sun positions, every {sweep['every_hours']:g} h on every {sweep['every_days']}th day): ")
+    if sweep["feasible"]:
+        print(head + f"all heliostats in range, worst margin {sweep['worst_margin_mm']} mm")
+    else:
+        print(head + f"OUT OF RANGE for {len(sweep['out_of_range'])} heliostat(s): {', '.join(sweep['out_of_range'][:10])}"
+              + (" ..." if len(sweep["out_of_range"]) > 10 else ""))
+    for name, d in sweep["drives"].items():
+        used = "; ".join(f"actuator {k + 1} uses {u[0]}..{u[1]} of {r[0]:g}..{r[1]:g} mm"
+                         for k, (u, r) in enumerate(zip(d["stroke_used_mm"], d["stroke_range_mm"])))
+        print(f"strokes   drive {name}: {used}")

@@ -164,3 +164,30 @@ class HeliostatModel:
         in_range = reachable & np.all(strokes_in_range(self.drives, strokes), axis=-1)
         return AimSolution(strokes_mm=strokes, angles_rad=angles, normal_enu=normal, in_range=in_range,
                            reachable=reachable)
+
+
+def stroke_sweep(model: HeliostatModel, sun_enu: np.ndarray, aim_enu: np.ndarray) -> dict[str, np.ndarray]:
+    """Strokes each heliostat needs for its aim at many sun positions, and their margins.
+
+    Parameters
+    ----------
+    model : N heliostats
+    sun_enu : (T, 3) sun vectors
+    aim_enu : (3,) or (N, 3) aim points [m]
+
+    Returns
+    -------
+    dict with ``strokes_mm`` (T, N, 2), ``margin_mm`` (T, N, 2) (distance inside the stroke range,
+    negative outside, −inf where unreachable) and ``in_range`` (T, N).
+    """
+    from helicalib.geometry.drives import stroke_margin_mm
+
+    sun = np.asarray(sun_enu, dtype=float).reshape(-1, 3)
+    t, n = len(sun), len(model)
+    aims = np.broadcast_to(np.asarray(aim_enu, dtype=float), (n, 3))
+    big = model.subset(np.tile(np.arange(n), t))
+    sol = big.strokes_for_aim(np.repeat(sun, n, axis=0), np.tile(aims, (t, 1)))
+    margin = stroke_margin_mm(big.drives, sol.strokes_mm)
+    margin = np.where(np.isfinite(margin), margin, -np.inf)
+    return {"strokes_mm": sol.strokes_mm.reshape(t, n, 2), "margin_mm": margin.reshape(t, n, 2),
+            "in_range": sol.in_range.reshape(t, n)}
