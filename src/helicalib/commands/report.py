@@ -1,0 +1,42 @@
+"""``helicalib report DB --out DIR``: the campaign's HTML report, its plots and report.json."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="write a campaign's HTML report, plots and report.json",
+                       description="A self-contained HTML report of one campaign (the newest by default): field "
+                                   "map, progress, pass rates (paper figs. 6-8), T/GRLM figure 3 and clause 8.2, and "
+                                   "one sheet per heliostat; report.json holds the same figures. See docs/report.md.")
+    p.add_argument("database", help="campaign database (SQLite file)")
+    p.add_argument("--out", required=True, help="output folder (index.html, report.json, plots, heliostats/)")
+    p.add_argument("--campaign", type=int, default=None, help="campaign id (default: the newest)")
+    p.add_argument("--field", default=None, help="field config to use instead of the one the campaign recorded")
+    p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
+    p.add_argument("--no-frames", action="store_true", help="do not draw each heliostat's latest frames (faster)")
+    p.add_argument("--json", action="store_true", help="print report.json's summary and status on stdout")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import json
+    import time
+
+    from helicalib.report.build import build_report
+
+    t0 = time.perf_counter()
+    index = build_report(args.database, args.out, args.campaign, field_config=args.field, images_dir=args.images,
+                         frames=not args.no_frames)
+    rep = json.loads((index.parent / "report.json").read_text())
+    if args.json:
+        print(json.dumps({"index": str(index), "status": rep["status"], "summary": rep["summary"],
+                          "tracking_test": rep["tracking_test"]["field"]["verdict"]}, indent=2, ensure_ascii=False))
+        return 0
+    s = rep["summary"]
+    print(f"{index}  ({s['heliostats']} heliostats, {s['accepted']} accepted, {s['visits']} visits; "
+          f"built in {time.perf_counter() - t0:.1f} s)")
+    for m in rep["status"]["messages"]:
+        print(f"  ! {m}")
+    return 0

@@ -1,0 +1,171 @@
+"""Build the campaign report: ``index.html``, ``report.json``, PNG plots and one page per heliostat.
+
+>>> from helicalib.report.build import build_report
+>>> index = build_report("demo_out/helicalib.db", "demo_out/report")
+
+Layout of ``out_dir``::
+
+    index.html            campaign page (banner, summary, maps, progress, pass rates, T/GRLM, table)
+    report.json           every figure of the pages (docs/report.md lists the keys)
+    plots/*.png           campaign plots
+    heliostats/<id>.html  one sheet per heliostat, linked from the sortable table
+    heliostats/<id>.png   its observation plots; <id>_frames.png its latest frames; <id>.json its figures
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import time
+from pathlib import Path
+
+from helicalib.report import figures as F
+from helicalib.report import html, plots
+from helicalib.report.data import CampaignData, load_campaign
+from helicalib.report.grlm import tracking_test
+from helicalib.report.sheets import acceptance_spans, heliostat_sheet
+
+
+def _campaign_info(data: CampaignData) -> dict | None:
+    c = data.campaign
+    if c is None:
+        return None
+    field = str(data.cfg.source) if data.cfg is not None and data.cfg.source is not None else (c.config_path or None)
+    return {"id": c.id, "name": c.name, "mode": c.mode, "status": c.status, "started_s": c.started_s,
+            "ended_s": c.ended_s, "started_utc": F.iso(c.started_s), "ended_utc": F.iso(c.ended_s),
+            "field_config": field, "config_note": data.config_note, "settings": c.settings}
+
+
+def _file_names(ids: list[str]) -> dict[str, str]:
+    """A distinct, file-safe stem per heliostat id."""
+    from helicalib.store.frames import safe_name
+
+    out, used = {}, set()
+    for hid in ids:
+        stem, k = safe_name(hid), 1
+        while stem.lower() in used:
+            stem, k = f"{safe_name(hid)}-{k}", k + 1
+        used.add(stem.lower())
+        out[hid] = stem
+    return out
+
+
+def compute(data: CampaignData) -> dict:
+    """Every campaign-level figure of the report (no per-heliostat sheet), as one JSON-ready dict."""
+    from helicalib import __version__
+
+    visits = F.visit_table(data)
+    summ = F.summary(data, visits)
+    return {
+        "schema": "helicalib-report/1",
+        "helicalib": __version__,
+        "generated_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
+        "database": str(data.db_path),
+        "campaign": _campaign_info(data),
+        "status": F.banner(data, summ),
+        "summary": summ,
+        "field_map": F.field_map(data),
+        "progress": F.progress(data, visits),
+        "pass_rate": F.pass_rates(data, visits),
+        "tracking_test": tracking_test(data.observations, data.cfg),
+        "acceptance": acceptance_spans(data),
+        "events": F.events_log(data),
+    }
+
+
+def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_config=None, images_dir=None,
+                 frames: bool = True) -> Path:
+    """Write the report of one campaign (default: the newest) into ``out_dir``; returns ``index.html``.
+
+    Parameters
+    ----------
+    db_path : str or Path
+        The campaign database.
+    out_dir : str or Path
+        Output folder (created).
+    campaign_id : int, optional
+        Campaign to report (default the newest in the database).
+    field_config : str or Path, optional
+        Field config to use instead of the one the campaign recorded.
+    images_dir : str or Path, optional
+        Frames directory when not ``images`` beside the database.
+    frames : bool
+        Draw each heliostat's latest before/after frames (the slowest part on big fields).
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    (out / "plots").mkdir(parents=True, exist_ok=True)
+    (out / "heliostats").mkdir(parents=True, exist_ok=True)
+    data = load_campaign(db_path, campaign_id, field_config, images_dir)
+    rep = compute(data)
+    t_figures = time.perf_counter()
+
+    images = {"field_map": plots.plot_field_map(rep["field_map"], out / "plots" / "field_map.png"),
+              "progress": plots.plot_progress(rep["progress"], out / "plots" / "progress.png"),
+              "figure_3": plots.plot_figure_3(rep["tracking_test"], out / "plots" / "grlm_figure3.png")}
+    for number, key in ((6, "wind"), (7, "dni"), (8, "cleanliness")):
+        images[f"pass_{key}"] = plots.plot_pass_rate(rep["pass_rate"][key], out / "plots" / f"pass_rate_{key}.png", number)
+    images = {k: v.relative_to(out).as_posix() for k, v in images.items()}
+    t_plots = time.perf_counter()
+
+    rep["heliostats"] = _write_sheets(data, rep, out, frames)
+    t_sheets = time.perf_counter()
+    rep["timing_s"] = {"figures": round(t_figures - t_start, 3), "campaign_plots": round(t_plots - t_figures, 3),
+                       "sheets": round(t_sheets - t_plots, 3), "heliostats": len(rep["heliostats"])}
+    (out / "report.json").write_text(json.dumps(rep, indent=1, ensure_ascii=False, default=_json_default))
+    index = out / "index.html"
+    index.write_text(html.index_page(rep, images, rep["heliostats"]), encoding="utf-8")
+    return index
+
+
+def _json_default(value):
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return value.as_posix()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool) -> list[dict]:
+    """Each heliostat's plot, frames, JSON and page; returns the sheet summaries for ``report.json``."""
+    from helicalib.report.overlay import overlay_latest
+    from helicalib.report.sheet_plots import SheetPlotter
+
+    ids = data.heliostat_ids
+    names = _file_names(ids)
+    errors = F.present_errors(data)
+    per_tt = rep["tracking_test"]["per_heliostat"]
+    visits_by_id = {v.id: v for v in data.visits}
+    obs = data.observations
+    groups = {str(k): g for k, g in obs.groupby("heliostat_id")} if len(obs) else {}
+    empty = obs.iloc[0:0]
+    targets = {h.heliostat_id: h.target_id for h in data.heliostats}
+    summaries = []
+    with SheetPlotter(rep["acceptance"], F.loop_threshold_mrad(data)) as plotter:
+        for hid in ids:
+            stem = names[hid]
+            g = groups.get(hid, empty)
+            own_visits = {k: v for k, v in visits_by_id.items() if v.heliostat_id == hid}
+            sheet = heliostat_sheet(data, hid, targets[hid], g, errors.get(hid), per_tt.get(hid), own_visits)
+            plot = plotter.draw(sheet, out / "heliostats" / f"{stem}.png")
+            drawn = None
+            if frames and sheet["latest_frames"] is not None:
+                drawn = overlay_latest(data.images_dir, sheet["latest_frames"], data.cfg,
+                                       out / "heliostats" / f"{stem}_frames.png")
+                sheet["latest_frames"]["remeasured"] = drawn["remeasured"]
+                sheet["latest_frames"]["note"] = drawn["note"]
+            frames_info = None
+            if drawn is not None:
+                frames_info = {"src": drawn["png"].name if drawn["png"] is not None else None, "note": drawn["note"]}
+            (out / "heliostats" / f"{stem}.json").write_text(
+                json.dumps(sheet, indent=1, ensure_ascii=False, default=_json_default))
+            (out / "heliostats" / f"{stem}.html").write_text(
+                html.sheet_page(sheet, plot.name, frames_info, f"{stem}.json"), encoding="utf-8")
+            summary = {k: v for k, v in sheet.items() if k not in ("observation_rows",)}
+            summary.update(href=f"heliostats/{stem}.html", json=f"heliostats/{stem}.json",
+                           plot=f"heliostats/{plot.name}",
+                           frames_png=f"heliostats/{frames_info['src']}" if frames_info and frames_info["src"] else None)
+            summaries.append(summary)
+    return summaries

@@ -1,0 +1,304 @@
+"""The campaign-level figures of the report, as pure functions: :class:`CampaignData` in, plain dicts out.
+
+Every dictionary here is written unchanged into ``report.json`` and drawn by
+:mod:`helicalib.report.plots`; ``docs/report.md`` lists the keys. Definitions:
+
+* a **visit passed** (the paper's "qualified correction", figures 6–8) when its loop converged:
+  at least one VALID observation of the visit has ``error_mrad < loop_threshold_mrad``;
+* a visit's **conditions** are the wind, DNI and cleanliness of its first observation that
+  recorded them (failure records carry none; such visits are counted as ``n_unknown``);
+* a heliostat's **present tracking error** is the error of its newest valid observation;
+* **stowed** time runs from each ``stow`` event to the next ``resume``, **gated** time from each
+  ``gated`` event to the next ``ungated`` (an interval still open ends at the campaign's end).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from helicalib.report.data import CampaignData
+
+DEFAULT_LOOP_THRESHOLD_MRAD = 3.5
+"""Used for the pass rate only when the campaign's field config cannot be read (the paper's value)."""
+
+PAPER_PASS_RATE = 0.60
+"""The paper's figure: about 60 % correction pass rate in good conditions."""
+
+BINS = {
+    "wind": dict(column="wind_ms", unit="m/s", label="wind speed", edges=np.arange(0.0, 16.0 + 1e-9, 1.0)),
+    "dni": dict(column="dni_wm2", unit="W/m²", label="DNI", edges=np.arange(0.0, 1200.0 + 1e-9, 100.0)),
+    "cleanliness": dict(column="cleanliness", unit="1", label="mirror cleanliness",
+                        edges=np.round(np.arange(0.40, 1.0 + 1e-9, 0.05), 2)),
+}
+"""Bin edges of the pass-rate figures; values outside go to the first or last bin."""
+
+GOOD = {"wind": ("wind_ms", "<=", 5.0), "dni": ("dni_wm2", ">=", 800.0), "cleanliness": ("cleanliness", ">", 0.7)}
+"""The paper's good conditions (section 3): each figure holds the other two at these."""
+
+
+def num(x: Any, nd: int = 4) -> float | None:
+    """A float rounded for JSON, or None for None/NaN."""
+    if x is None:
+        return None
+    try:
+        f = float(x)
+    except (TypeError, ValueError):
+        return None
+    return None if not math.isfinite(f) else round(f, nd)
+
+
+def iso(t_s: float | None) -> str | None:
+    if t_s is None or not math.isfinite(float(t_s)):
+        return None
+    return pd.Timestamp(float(t_s), unit="s", tz="UTC").strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def loop_threshold_mrad(data: CampaignData) -> float:
+    return float(data.cfg.calibration.loop_threshold_mrad) if data.cfg is not None else DEFAULT_LOOP_THRESHOLD_MRAD
+
+
+# ---------------------------------------------------------------------------------------- visits
+def visit_table(data: CampaignData) -> pd.DataFrame:
+    """One row per visit: id, heliostat, outcome, times, observations, valid ones, passed, conditions."""
+    cols = ["visit_id", "heliostat_id", "outcome", "started_s", "ended_s", "n_obs", "n_valid", "passed",
+            "first_error_mrad", "final_error_mrad", "wind_ms", "dni_wm2", "cleanliness"]
+    if not data.visits:
+        return pd.DataFrame(columns=cols)
+    thr = loop_threshold_mrad(data)
+    obs = data.observations
+    rows = []
+    by_visit = {k: g for k, g in obs.groupby("visit_id")} if len(obs) else {}
+    for v in data.visits:
+        g = by_visit.get(v.id)
+        row = dict(visit_id=v.id, heliostat_id=v.heliostat_id, outcome=v.outcome, started_s=v.started_s,
+                   ended_s=v.ended_s, n_obs=0, n_valid=0, passed=False, first_error_mrad=None, final_error_mrad=None,
+                   wind_ms=None, dni_wm2=None, cleanliness=None)
+        if g is not None:
+            valid = g[g["valid"] & g["error_mrad"].notna()]
+            row.update(n_obs=len(g), n_valid=len(valid), passed=bool((valid["error_mrad"] < thr).any()))
+            if len(valid):
+                row.update(first_error_mrad=float(valid["error_mrad"].iloc[0]),
+                           final_error_mrad=float(valid["error_mrad"].iloc[-1]))
+            for c in ("wind_ms", "dni_wm2", "cleanliness"):
+                known = g[c].dropna()
+                row[c] = float(known.iloc[0]) if len(known) else None
+        rows.append(row)
+    return pd.DataFrame(rows, columns=cols)
+
+
+# ---------------------------------------------------------------------------------------- intervals
+def intervals(events, start_kind: str, end_kind: str, end_s: float) -> list[tuple[float, float]]:
+    """[start, end) spans from ``start_kind`` events to the next ``end_kind`` event (or ``end_s``)."""
+    out, open_at = [], None
+    for e in sorted(events, key=lambda e: (e.time_s, e.id)):
+        if e.kind == start_kind and open_at is None:
+            open_at = e.time_s
+        elif e.kind == end_kind and open_at is not None:
+            out.append((open_at, max(open_at, e.time_s)))
+            open_at = None
+    if open_at is not None:
+        out.append((open_at, max(open_at, end_s)))
+    return out
+
+
+def _hours_until(spans, t: np.ndarray) -> np.ndarray:
+    total = np.zeros_like(t, dtype=float)
+    for a, b in spans:
+        total += np.clip(t - a, 0.0, b - a)
+    return total / 3600.0
+
+
+# ---------------------------------------------------------------------------------------- status
+def summary(data: CampaignData, visits: pd.DataFrame) -> dict:
+    """Counts of the campaign: heliostats, accepted, visits by outcome, observations, events, hours."""
+    obs = data.observations
+    n_h = len(data.heliostats)
+    accepted = sum(1 for h in data.heliostat_ids if (v := data.verdicts.get(h)) is not None and v.accepted)
+    end = data.end_s
+    stowed = intervals(data.events, "stow", "resume", end)
+    gated = intervals(data.events, "gated", "ungated", end)
+    attempted = visits[visits["n_obs"] > 0] if len(visits) else visits
+    invalid = obs[~obs["valid"]] if len(obs) else obs
+    return {
+        "heliostats": n_h,
+        "accepted": accepted,
+        "acceptance_rate": num(accepted / n_h) if n_h else None,
+        "visits": len(visits),
+        "visits_by_outcome": dict(sorted(Counter(visits["outcome"]).items())) if len(visits) else {},
+        "valid_visits": int((visits["n_valid"] > 0).sum()) if len(visits) else 0,
+        "passed_visits": int(visits["passed"].sum()) if len(visits) else 0,
+        "pass_rate": num(attempted["passed"].mean()) if len(attempted) else None,
+        "observations": len(obs),
+        "valid_observations": int(obs["valid"].sum()) if len(obs) else 0,
+        "invalid_by_reason": dict(sorted(Counter(invalid["reason"]).items())) if len(invalid) else {},
+        "events_by_kind": dict(sorted(Counter(e.kind for e in data.events).items())),
+        "stowed_hours": num(sum(b - a for a, b in stowed) / 3600.0, 3),
+        "gated_hours": num(sum(b - a for a, b in gated) / 3600.0, 3),
+        "loop_threshold_mrad": loop_threshold_mrad(data),
+    }
+
+
+def banner(data: CampaignData, summ: dict) -> dict:
+    """Whether the campaign is empty or partly failed, and one sentence per finding."""
+    msgs: list[str] = []
+    if data.campaign is None:
+        return {"empty": True, "partly_failed": False, "level": "empty",
+                "messages": ["This database holds no campaign: nothing was recorded."]}
+    empty = summ["visits"] == 0 and summ["observations"] == 0
+    if empty:
+        msgs.append("This campaign recorded no visit and no observation: there is nothing to judge yet.")
+    if data.campaign.status == "running":
+        msgs.append("The campaign is unfinished (status 'running'): the figures are those recorded so far.")
+    failed = {k: n for k, n in summ["visits_by_outcome"].items()
+              if k not in ("converged", "valid", "not_converged", "running")}
+    if failed:
+        msgs.append("Visits that gave no usable result: " + ", ".join(f"{n} {k}" for k, n in failed.items()) + ".")
+    if summ["invalid_by_reason"]:
+        msgs.append(f"{summ['observations'] - summ['valid_observations']} of {summ['observations']} observations are "
+                    "invalid: " + ", ".join(f"{n} {k}" for k, n in summ["invalid_by_reason"].items()) + ".")
+    ev = summ["events_by_kind"]
+    if ev.get("fault"):
+        msgs.append(f"{ev['fault']} fault event(s) were recorded (see the event log).")
+    if ev.get("stow"):
+        msgs.append(f"The field was stowed {ev['stow']} time(s) for {summ['stowed_hours']:g} h in all.")
+    if data.cfg is None:
+        msgs.append(f"Field map, acceptance bands and thresholds are limited: {data.config_note}.")
+    partly = (not empty) and bool(failed or summ["invalid_by_reason"] or ev.get("fault") or ev.get("stow"))
+    level = "empty" if empty else ("partly_failed" if partly else "ok")
+    return {"empty": empty, "partly_failed": partly, "level": level, "messages": msgs}
+
+
+# ---------------------------------------------------------------------------------------- field map
+def present_errors(data: CampaignData) -> dict[str, float]:
+    """Each heliostat's present tracking error: its newest valid observation's error [mrad]."""
+    obs = data.observations
+    if not len(obs):
+        return {}
+    valid = obs[obs["valid"] & obs["error_mrad"].notna()].sort_values("id")
+    last = valid.groupby("heliostat_id")["error_mrad"].last()
+    return {str(k): float(v) for k, v in last.items()}
+
+
+def heliostat_status(data: CampaignData, hid: str) -> str:
+    """``'accepted'``, ``'not accepted'`` or ``'no verdict'``."""
+    v = data.verdicts.get(hid)
+    if v is None:
+        return "no verdict"
+    return "accepted" if v.accepted else "not accepted"
+
+
+def field_map(data: CampaignData) -> dict:
+    """Positions (east, north) [m], acceptance status and present error of every enrolled heliostat."""
+    errors = present_errors(data)
+    rows = []
+    positions = {}
+    if data.cfg is not None and data.cfg.heliostats:
+        positions = {h.id: h.position_enu_m for h in data.cfg.heliostats}
+    for h in data.heliostats:
+        p = positions.get(h.heliostat_id)
+        rows.append({"id": h.heliostat_id, "target": h.target_id,
+                     "east_m": num(p[0], 3) if p else None, "north_m": num(p[1], 3) if p else None,
+                     "status": heliostat_status(data, h.heliostat_id),
+                     "present_error_mrad": num(errors.get(h.heliostat_id))})
+    towers = None
+    if data.cfg is not None:
+        towers = {"tower_east_m": num(data.cfg.tower.receiver_aim_enu_m[0], 3),
+                  "tower_north_m": num(data.cfg.tower.receiver_aim_enu_m[1], 3)}
+    return {"available": bool(positions), "note": "" if positions else data.config_note,
+            "heliostats": rows, "tower": towers}
+
+
+# ---------------------------------------------------------------------------------------- progress
+def progress(data: CampaignData, visits: pd.DataFrame, step_s: float = 3600.0) -> dict:
+    """Cumulative accepted heliostats, visits, valid visits, gated and stowed hours on an hourly grid."""
+    if data.campaign is None:
+        return {"times_s": [], "accepted": [], "visits": [], "valid_visits": [], "gated_hours": [],
+                "stowed_hours": [], "stowed_spans_s": [], "gated_spans_s": []}
+    t0, t1 = float(data.campaign.started_s), float(max(data.end_s, data.campaign.started_s))
+    t = np.append(np.arange(t0, t1, step_s), t1)
+    accepted = np.zeros(t.size, dtype=int)
+    by_h: dict[str, list] = {}
+    for v in data.verdict_history:
+        by_h.setdefault(v.heliostat_id, []).append((v.time_s, v.accepted))
+    for hist in by_h.values():
+        times = np.array([a for a, _ in hist])
+        flags = np.array([b for _, b in hist], dtype=bool)
+        idx = np.searchsorted(times, t, side="right") - 1  # newest verdict at or before t
+        accepted += np.where(idx >= 0, flags[np.maximum(idx, 0)], False)
+    started = np.sort(visits["started_s"].to_numpy(float)) if len(visits) else np.zeros(0)
+    ok = visits[visits["n_valid"] > 0] if len(visits) else visits
+    ok_t = np.sort(ok["ended_s"].fillna(ok["started_s"]).to_numpy(float)) if len(ok) else np.zeros(0)
+    stowed = intervals(data.events, "stow", "resume", t1)
+    gated = intervals(data.events, "gated", "ungated", t1)
+    return {
+        "times_s": [num(x, 1) for x in t],
+        "accepted": accepted.tolist(),
+        "visits": np.searchsorted(started, t, side="right").tolist(),
+        "valid_visits": np.searchsorted(ok_t, t, side="right").tolist(),
+        "gated_hours": [num(x, 3) for x in _hours_until(gated, t)],
+        "stowed_hours": [num(x, 3) for x in _hours_until(stowed, t)],
+        "stowed_spans_s": [[num(a, 1), num(b, 1)] for a, b in stowed],
+        "gated_spans_s": [[num(a, 1), num(b, 1)] for a, b in gated],
+    }
+
+
+# ---------------------------------------------------------------------------------------- pass rate
+def _compare(values: pd.Series, op: str, limit: float) -> pd.Series:
+    return {"<=": values <= limit, ">=": values >= limit, ">": values > limit}[op]
+
+
+def _binned(values: np.ndarray, passed: np.ndarray, edges: np.ndarray) -> dict:
+    k = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(edges) - 2)
+    n = np.bincount(k, minlength=len(edges) - 1)
+    p = np.bincount(k, weights=passed.astype(float), minlength=len(edges) - 1).astype(int)
+    rate = [num(pi / ni) if ni else None for pi, ni in zip(p, n)]
+    return {"n": n.tolist(), "passed": p.tolist(), "rate": rate}
+
+
+def pass_rate_figure(visits: pd.DataFrame, which: str) -> dict:
+    """Correction pass rate against one condition (paper figure 6 wind, 7 DNI, 8 cleanliness).
+
+    ``all`` bins every attempted visit with a known value; ``good_other`` only those whose other two
+    conditions were good (the paper's figures hold them there). Values outside the edges go to the
+    first or last bin.
+    """
+    spec = BINS[which]
+    col = spec["column"]
+    attempted = visits[visits["n_obs"] > 0] if len(visits) else visits
+    known = attempted[attempted[col].notna()] if len(attempted) else attempted
+    good = known
+    conds = []
+    for other, (c, op, lim) in GOOD.items():
+        if other == which or not len(good):
+            continue
+        good = good[good[c].notna() & _compare(good[c].astype(float), op, lim)]
+    for other, (c, op, lim) in GOOD.items():
+        if other != which:
+            conds.append(f"{c} {op} {lim:g}")
+    edges = spec["edges"]
+
+    def series(frame):
+        return _binned(frame[col].to_numpy(float), frame["passed"].to_numpy(bool), edges) if len(frame) else \
+            {"n": [0] * (len(edges) - 1), "passed": [0] * (len(edges) - 1), "rate": [None] * (len(edges) - 1)}
+
+    return {"condition": which, "column": col, "label": spec["label"], "unit": spec["unit"],
+            "edges": [num(e) for e in edges], "n_unknown": int(len(attempted) - len(known)),
+            "all": series(known), "good_other": {**series(good), "condition": " and ".join(conds)},
+            "paper_rate": PAPER_PASS_RATE}
+
+
+def pass_rates(data: CampaignData, visits: pd.DataFrame) -> dict:
+    return {"threshold_mrad": loop_threshold_mrad(data),
+            "definition": "share of visits whose loop converged: a valid observation below the loop threshold",
+            **{k: pass_rate_figure(visits, k) for k in BINS}}
+
+
+def events_log(data: CampaignData, limit: int = 500) -> list[dict]:
+    """The campaign's events (newest ``limit``), for the report's event log."""
+    return [{"time_utc": iso(e.time_s), "time_s": num(e.time_s, 1), "kind": e.kind, "heliostat": e.heliostat_id,
+             "reason": e.reason} for e in data.events[-limit:]]

@@ -1,0 +1,127 @@
+"""The per-heliostat figures of the report (pure): observations, corrections, fit, verdict.
+
+:func:`acceptance_spans` turns the campaign's solar days into the spans the sheets shade (the
+rising and setting 5–15° bands and the high-elevation windows of paper 2.4); :func:`heliostat_sheet`
+gathers one heliostat's numbers. Both return plain dictionaries that go into ``report.json``.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from helicalib.report.data import CampaignData
+from helicalib.report.figures import heliostat_status, iso, num
+
+
+def acceptance_spans(data: CampaignData) -> dict:
+    """The acceptance rules and, per solar day, the band and window spans [UTC s] (empty without a config)."""
+    if data.cfg is None:
+        return {"available": False, "note": data.config_note, "days": []}
+    from helicalib.calibration.acceptance import evaluation_day
+    from helicalib.calibration.sun_days import n_high_windows
+
+    acc = data.cfg.acceptance
+    ref = evaluation_day(data.days, data.end_s)
+    n_win = n_high_windows(ref.high_span_s, acc.high_window_h) if ref is not None else 0
+    days = []
+    for d in data.days:
+        windows = [d.high_window(k, n_win) for k in range(n_win)] if d.high_start_s is not None else []
+        days.append({"noon_s": num(d.noon_s, 1), "noon_elevation_deg": num(d.noon_elevation_deg, 3),
+                     "rising_band_s": [num(d.rise_band_start_s, 1), num(d.rise_band_end_s, 1)],
+                     "setting_band_s": [num(d.set_band_start_s, 1), num(d.set_band_end_s, 1)],
+                     "high_windows_s": [[num(a, 1), num(b, 1)] for a, b in windows if a is not None]})
+    return {"available": True, "low_band_deg": list(acc.low_band_deg), "high_elevation_deg": acc.high_elevation_deg,
+            "high_window_h": acc.high_window_h, "min_points": acc.min_points, "max_rms_mrad": acc.max_rms_mrad,
+            "n_windows": n_win, "days": days}
+
+
+def fit_table(fit) -> dict | None:
+    """A fit's named parameters with their 1-sigma and units (``geometry.errors.PARAMETERS``)."""
+    if fit is None:
+        return None
+    from helicalib.geometry.errors import PARAMETERS
+
+    units = {p.name: (p.unit, p.description) for p in PARAMETERS}
+    names = list(fit.params)
+    ordered = [p.name for p in PARAMETERS if p.name in fit.params] + [n for n in names if n not in units]
+    rows = [{"name": n, "value": num(fit.params.get(n), 6), "sigma": num(fit.sigma.get(n), 6),
+             "unit": units.get(n, ("", ""))[0], "description": units.get(n, ("", ""))[1]} for n in ordered]
+    return {"model": fit.model, "time_utc": iso(fit.time_s), "n_points": fit.n_points,
+            "rms_mrad": num(fit.rms_mrad), "parameters": rows}
+
+
+def corrections(obs: pd.DataFrame, visits_by_id: dict) -> list[dict]:
+    """Per visit: the valid errors in loop order (first placement, then after each correction)."""
+    out = []
+    if not len(obs):
+        return out
+    for vid, g in obs[obs["visit_id"].notna()].groupby("visit_id", sort=True):
+        g = g.sort_values("id")
+        valid = g[g["valid"] & g["error_mrad"].notna()]
+        v = visits_by_id.get(int(vid))
+        out.append({"visit_id": int(vid), "started_utc": iso(v.started_s) if v else None,
+                    "outcome": v.outcome if v else None, "reason": v.reason if v else None,
+                    "iterations": valid["iteration"].astype(int).tolist(),
+                    "errors_mrad": [num(x) for x in valid["error_mrad"]],
+                    "invalid_reasons": g.loc[~g["valid"], "reason"].tolist()})
+    return out
+
+
+def observation_rows(obs: pd.DataFrame) -> list[dict]:
+    """Every observation of a heliostat, valid or not, with its reason (the sheet's table and plots)."""
+    cols = {"id": 0, "visit_id": 0, "iteration": 0, "capture_time_s": 1, "sun_elevation_deg": 3,
+            "sun_azimuth_deg": 3, "sun_rising": None, "wind_ms": 2, "dni_wm2": 1, "cleanliness": 3,
+            "valid": None, "reason": None, "error_mrad": 4, "offset_u_m": 4, "offset_v_m": 4}
+    rows = []
+    for r in obs.sort_values("id").itertuples(index=False):
+        d = {}
+        for c, nd in cols.items():
+            x = getattr(r, c)
+            if nd is None:
+                d[c] = None if x is None or (isinstance(x, float) and x != x) else (bool(x) if c != "reason" else str(x))
+            elif nd == 0:
+                d[c] = None if x is None or x != x else int(x)
+            else:
+                d[c] = num(x, nd)
+        d["time_utc"] = iso(r.capture_time_s)
+        rows.append(d)
+    return rows
+
+
+def latest_frame_observation(obs: pd.DataFrame) -> dict | None:
+    """The newest observation of the newest visit that saved a before and an after frame."""
+    if not len(obs):
+        return None
+    import json
+
+    have = obs[obs["before_frame_path"].notna() & (obs["after_frame_paths_json"] != "[]")]
+    if not len(have):
+        return None
+    r = have.sort_values("id").iloc[-1]
+    return {"id": int(r["id"]), "visit_id": None if pd.isna(r["visit_id"]) else int(r["visit_id"]),
+            "iteration": int(r["iteration"]), "time_utc": iso(r["capture_time_s"]), "target_id": r["target_id"],
+            "before": r["before_frame_path"], "after": json.loads(r["after_frame_paths_json"]),
+            "valid": bool(r["valid"]), "reason": r["reason"], "message": r["message"],
+            "spot_px": None if pd.isna(r["spot_x_px"]) else [float(r["spot_x_px"]), float(r["spot_y_px"])],
+            "error_mrad": num(r["error_mrad"])}
+
+
+def heliostat_sheet(data: CampaignData, hid: str, target_id: str, obs: pd.DataFrame, present_error: float | None,
+                    tracking: dict | None, visits_by_id: dict) -> dict:
+    """One heliostat's sheet: status, verdict with reasons, fit, corrections, observations, frames."""
+    v = data.verdicts.get(hid)
+    valid = obs[obs["valid"] & obs["error_mrad"].notna()] if len(obs) else obs
+    n_visits = sum(1 for x in visits_by_id.values() if x.heliostat_id == hid)
+    return {
+        "id": hid, "target": target_id, "status": heliostat_status(data, hid),
+        "verdict": None if v is None else {"accepted": v.accepted, "time_utc": iso(v.time_s), "n_points": v.n_points,
+                                           "rms_mrad": num(v.rms_mrad), "reasons": list(v.reasons)},
+        "visits": n_visits, "observations": int(len(obs)), "valid_observations": int(len(valid)),
+        "present_error_mrad": num(present_error),
+        "valid_rms_mrad": num(float((valid["error_mrad"] ** 2).mean() ** 0.5)) if len(valid) else None,
+        "tracking_test": tracking,
+        "fit": fit_table(data.fits.get(hid)),
+        "corrections": corrections(obs, visits_by_id),
+        "latest_frames": latest_frame_observation(obs),
+        "observation_rows": observation_rows(obs),
+    }
