@@ -148,9 +148,13 @@ def run_gauge(args) -> int:
     c = load_collector(args.collector)
     f, r = c.focal_length_mm, c.tube_radius_mm
     if args.gauge_width_mm is not None:
-        dist = boresight_distance_mm(args.gauge_width_mm, f, r, args.gauge_z_mm)
-        print(f"gauge width d = {args.gauge_width_mm:g} mm  →  centre camera at OPc = {dist:.1f} mm from the vertex")
+        d = args.gauge_width_mm
+        dist = boresight_distance_mm(d, f, r, args.gauge_z_mm)
+        print(f"gauge width d = {d:g} mm  →  centre camera at OPc = {dist:.1f} mm from the vertex")
     else:
-        d = boresight_gauge_width_mm(args.distance_mm, f, r, args.gauge_z_mm)
-        print(f"centre camera at OPc = {args.distance_mm:g} mm  →  gauge width d = {d:.2f} mm")
+        dist = args.distance_mm
+        d = boresight_gauge_width_mm(dist, f, r, args.gauge_z_mm)
+        print(f"centre camera at OPc = {dist:g} mm  →  gauge width d = {d:.3f} mm")
+    step = boresight_distance_mm(d + 0.05, f, r, args.gauge_z_mm) - boresight_distance_mm(d - 0.05, f, r, args.gauge_z_mm)
+    print(f"sensitivity: 1 mm more gauge width moves the camera {step / 0.1:+.0f} mm along the axis")
     return 0
