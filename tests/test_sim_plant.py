@@ -175,3 +175,15 @@ def test_sky_evaluation_zero_for_true_params_without_unmodelled(cfg):
     nominal = evaluate_model(p.truth, p.nominal, times, sun)
     assert nominal.field_rms_mrad > 1.0 and nominal.rms_mrad.shape == (40,)
     assert nominal.field_p95_mrad >= np.sqrt(np.nanmean(nominal.errors_mrad**2)) * 0.9
+
+
+@pytest.mark.parametrize("name", ["clear_week", "windy"])
+def test_shipped_scenarios_load_and_run(cfg, name, demo_field_path):
+    from helicalib.sim.scenario import load_scenario
+
+    sc = load_scenario(demo_field_path.parents[1] / "simulations" / "scenarios" / f"{name}.yaml")
+    start = float(to_unix_seconds(sc.start))
+    p = SimulatedPlant(cfg, sc, start_s=start)
+    p.advance_to(start + 86400.0)
+    w = p.weather()
+    assert w.wind_ms >= 0 and 0 <= w.wind_direction_deg < 360

@@ -8,12 +8,23 @@ path, like the field config. ``docs/simulator.md`` lists every key with its unit
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from datetime import datetime, timezone
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator
 
 from helicalib.errors import ConfigError
+
+
+def _iso(value: Any) -> Any:
+    """YAML turns unquoted times into datetimes (naive = UTC, as YAML says); keep ISO strings."""
+    if isinstance(value, datetime):
+        return (value if value.tzinfo else value.replace(tzinfo=timezone.utc)).isoformat()
+    return value
+
+
+Time = Annotated[str, BeforeValidator(_iso)]
 
 
 class _Model(BaseModel):
@@ -49,8 +60,8 @@ class Pressure(_Model):
 class Event(_Model):
     """An override during [start, end): any value given replaces the generated one."""
 
-    start: str
-    end: str
+    start: Time
+    end: Time
     wind_ms: float | None = Field(default=None, ge=0)
     wind_direction_deg: float | None = None
     dni_factor: float | None = Field(default=None, ge=0)
@@ -119,7 +130,7 @@ class Faults(_Model):
 
 class Scenario(_Model):
     name: str = "default"
-    start: str | None = None          # ISO time with zone; the CLI's --start overrides
+    start: Time | None = None          # ISO time with zone; the CLI's --start overrides
     duration_days: float = Field(default=7.0, gt=0)
     seed: int = 1
     tracking_aim: Literal["receiver", "target"] = "receiver"
