@@ -53,6 +53,15 @@ class BoardGrid:
     frame_shape: tuple[int, int]
     inside: np.ndarray
 
+    @property
+    def inside_f32(self) -> np.ndarray:
+        """``inside`` as float32 0/1 (rows, columns), for masking by multiplication."""
+        cached = self.__dict__.get("_inside_f32")
+        if cached is None:
+            cached = self.inside.astype(np.float32)
+            object.__setattr__(self, "_inside_f32", cached)
+        return cached
+
     # -- coordinates ----------------------------------------------------------------
     def cell_to_board(self, col_row: np.ndarray) -> np.ndarray:
         """Grid (column, row) (..., 2), fractional allowed → board (u, v) (..., 2) [m]."""

@@ -211,23 +211,52 @@ def intensity_centroid(I: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- one frame
+def _ambient_ratio(a_s: np.ndarray, b_s: np.ndarray, lit: np.ndarray) -> tuple[float, np.ndarray]:
+    """Light ratio after/before on the board, away from the spot, and a spot-free sample of the difference.
+
+    Pass 1: median ratio over the lit board. Pass 2: the cells clearly lit by the spot (more than
+    3 noise sigmas) are grown by their own extent (the faint tails of a real spot reach far) and left
+    out; the median ratio of the rest is ``k``. Works on a sub-sampled grid (2-D arrays).
+    """
+    import cv2
+
+    k = float(np.median(a_s[lit] / b_s[lit]))
+    d = a_s - k * b_s
+    dl = d[lit]
+    noise = max(0.5, 1.4826 * float(np.median(np.abs(dl - np.median(dl)))))
+    spot = ((d > 3.0 * noise) & lit).astype(np.uint8)
+    n_spot = int(np.count_nonzero(spot))
+    if n_spot:
+        r = int(np.ceil(0.3 * np.sqrt(n_spot))) + 1  # about half the spot radius beyond its 3-sigma edge
+        grown = cv2.dilate(spot, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))).astype(bool)
+        rest = lit & ~grown
+        if np.count_nonzero(rest) >= max(16, 0.05 * np.count_nonzero(lit)):
+            k = float(np.median(a_s[rest] / b_s[rest]))
+            return k, a_s[rest] - k * b_s[rest]
+    return k, d[lit]
+
+
 def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limits: SpotLimits) -> FrameSpot:
+    """One after frame; ``B``, ``A`` are the before and after frames sampled on the grid (uint8)."""
     import cv2
 
     inside = grid.inside
-    sub = (slice(None, None, 3), slice(None, None, 3))
-    b_in, a_in = B[sub][inside[sub]], A[sub][inside[sub]]
-    if b_in.size < 16:
+    step = 4
+    sub = (slice(None, None, step), slice(None, None, step))
+    in_sub = inside[sub]
+    b_s, a_s = B[sub].astype(np.float32), A[sub].astype(np.float32)
+    if np.count_nonzero(in_sub) < 16:
         raise _Invalid("marks_not_found", "the board is not inside the frame.")
-    lit = (b_in > 0.25 * float(np.median(b_in))) & (b_in < SATURATED_LEVEL) & (a_in < SATURATED_LEVEL)
+    b_med = float(np.median(b_s[in_sub]))
+    lit = in_sub & (b_s > 0.25 * b_med) & (b_s < SATURATED_LEVEL) & (a_s < SATURATED_LEVEL)
     if np.count_nonzero(lit) < 16:
         raise _Invalid("low_contrast", "the board is too dark or saturated to compare before and after.")
-    k = float(np.median(a_in[lit] / b_in[lit]))
-    D = A - k * B
-    d_sub = D[sub][inside[sub]]
-    noise = max(0.5, 1.4826 * float(np.median(np.abs(d_sub - np.median(d_sub)))))
-    Dm = np.where(inside, D, 0.0).astype(np.float32)
-    peak = float(cv2.boxFilter(Dm, -1, (3, 3)).max())
+    k, d0 = _ambient_ratio(a_s, b_s, lit)
+    D = cv2.addWeighted(A, 1.0, B, -k, 0.0, dtype=cv2.CV_32F)  # after - k·before
+    # noise sigma of the difference, from the board cells outside the spot (second pass above)
+    noise = max(0.5, 1.4826 * float(np.median(np.abs(d0 - np.median(d0)))))
+    Dm = cv2.multiply(D, grid.inside_f32)  # zero off the board's inner part
+    peak = float(cv2.minMaxLoc(cv2.boxFilter(Dm, -1, (3, 3)))[1])
     partial = FrameSpot(np.full(2, np.nan), np.full(2, np.nan), float("nan"), 0, float("nan"), np.full(2, np.nan),
                         k, peak, noise, float("nan"), 0)
     if abs(k - 1.0) > limits.max_ambient_change:
@@ -239,14 +268,15 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
     if peak < limits.min_contrast:
         raise _Invalid("low_contrast", f"the spot is too faint: {peak:.1f} grey levels above the board "
                        f"(need {limits.min_contrast:g}; weak DNI, dirty mirror or cloud).", partial)
-    d8 = np.clip(np.rint(Dm), 0, 255).astype(np.uint8)
-    T = max(otsu_threshold(d8[inside]), math.ceil(4.0 * noise), 1.0)
+    # A.1: threshold from the grey-level histogram of the difference on the board (every 2nd cell)
+    half = (slice(None, None, 2), slice(None, None, 2))
+    d8 = np.clip(Dm[half][inside[half]], 0, 255).astype(np.uint8)
+    T = max(otsu_threshold(d8), math.ceil(4.0 * noise), 1.0)
     above = D >= T
     mask = above & inside
     S = int(np.count_nonzero(mask))
-    clipped = int(np.count_nonzero(above & ~inside))
-    A_spot = A[mask]
-    sat = float(np.count_nonzero(A_spot >= SATURATED_LEVEL)) / max(1, S)
+    clipped = int(np.count_nonzero(above)) - S
+    sat = float(np.count_nonzero(A[mask] >= SATURATED_LEVEL)) / max(1, S)
     partial = FrameSpot(np.full(2, np.nan), np.full(2, np.nan), T, S, math.sqrt(S), np.full(2, np.nan),
                         k, peak, noise, sat, clipped)
     if S < limits.min_area_cells:
@@ -258,8 +288,14 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
     if sat > limits.max_saturated_fraction:
         raise _Invalid("saturated", f"{100 * sat:.0f} % of the spot is saturated in the after frame "
                        f"(limit {100 * limits.max_saturated_fraction:.0f} %); close the aperture.", partial)
-    I = np.where(mask, Dm, 0.0).astype(np.float32)
-    win_centre, _ = best_window(I, int(round(side)))
+    # I of A.1, on the part of the grid a window touching the spot can reach (windows elsewhere sum to 0)
+    l_int = int(round(side))
+    rows_any, cols_any = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    r0, r1 = max(0, rows_any[0] - l_int), min(grid.shape[0], rows_any[-1] + l_int + 1)
+    c0, c1 = max(0, cols_any[0] - l_int), min(grid.shape[1], cols_any[-1] + l_int + 1)
+    I = Dm[r0:r1, c0:c1] * mask[r0:r1, c0:c1]
+    origin = np.array([c0, r0], dtype=float)
+    win_centre, _ = best_window(I, l_int)
     if method == "grlm":
         centre, win_side = win_centre, float(int(round(side)))
     elif method == "grlm-centroid":
@@ -269,10 +305,27 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
         centre, win_side = intensity_centroid(I), side
     else:  # pragma: no cover - checked by measure_spot
         raise ValueError(method)
+    centre, win_centre = centre + origin, win_centre + origin
     return FrameSpot(centre, grid.cell_to_board(centre), T, S, win_side, win_centre, k, peak, noise, sat, clipped)
 
 
 # ---------------------------------------------------------------------------- public
+_GRIDS: dict = {}
+
+
+def _grid_for(marks: MarksResult, target: Target, shape, cells_per_m) -> BoardGrid:
+    """The board grid, memoised for the same marks object (a campaign reuses the marks of its before frame)."""
+    key = (id(marks), target.id, tuple(shape), cells_per_m)
+    hit = _GRIDS.get(key)
+    if hit is not None and hit[0] is marks:
+        return hit[1]
+    grid = board_grid(marks, target, shape, cells_per_m)
+    if len(_GRIDS) >= 8:
+        _GRIDS.pop(next(iter(_GRIDS)))
+    _GRIDS[key] = (marks, grid)
+    return grid
+
+
 def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Target, camera: Camera | None = None,
                  method: str = "grlm-centroid", marks: MarksResult | None = None,
                  limits: SpotLimits | None = None, cells_per_m: float | None = None) -> SpotResult:
@@ -323,13 +376,13 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
     if marks.reprojection_px > limits.max_reprojection_px:
         return SpotResult(False, "reprojection", f"the marks fit only to {marks.reprojection_px:.2f} px RMS "
                           f"(limit {limits.max_reprojection_px:.2f} px).", method, marks)
-    grid = board_grid(marks, target, before.shape, cells_per_m)
-    B = grid.sample(before)
+    grid = _grid_for(marks, target, before.shape, cells_per_m)
+    B = grid.sample(before, dtype=None)
     base = dict(method=method, marks=marks, target_center_px=marks.center_px, cells_per_m=grid.cells_per_m)
     frames: list[FrameSpot] = []
     for i, a in enumerate(afters):
         try:
-            frames.append(_frame_spot(B, grid.sample(a), grid, method, limits))
+            frames.append(_frame_spot(B, grid.sample(a, dtype=None), grid, method, limits))
         except _Invalid as bad:
             extra = dict(threshold=None, spot_area_px=None)
             if bad.partial is not None and bad.partial.area_cells:
