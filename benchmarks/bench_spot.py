@@ -110,7 +110,10 @@ def main() -> int:
     n, reps = (12, 10) if args.quick else (40, 30)
     acc = accuracy(n)
     thr = {"1280x1024": throughput((1280, 1024), 5200, reps), "2448x2048": throughput((2448, 2048), 9950, reps)}
-    out = {"threads": 1, "accuracy": acc, "throughput": thr, "goal_pairs_per_s": 15}
+    import os
+
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    out = {"threads": 1, "load_average_1min": load, "cpus": os.cpu_count(), "accuracy": acc, "throughput": thr, "goal_pairs_per_s": 15}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=2))
     print(f"accuracy over {n} rendered frames ({acc['board_px_per_m']} px/m on the board):")
@@ -126,6 +129,7 @@ def main() -> int:
         print(f"  {key}: {line}")
         print(f"  {key}: floor absdiff+integral {t['floor_absdiff_integral_ms']:.2f} ms; marks {t['marks_ms']:.1f} ms; "
               f"with marks {t['with_marks_ms_per_pair']:.1f} ms per pair")
+    print(f"load average {load} on {os.cpu_count()} CPUs (timings are best-of-N; a shared machine inflates them)")
     print(f"wrote {OUT}")
     return 0
 
