@@ -1,0 +1,322 @@
+"""The visit loop of the 2022 paper (section 2.3.2) for one heliostat on one target.
+
+A visit is a generator: it talks only to device protocols (:class:`~helicalib.devices.protocols.Plant`,
+``Camera``) and yields the plant seconds it wants to wait, so one runner can interleave visits on
+several targets on a virtual clock, or drive them from a live scheduler. It returns a
+:class:`VisitOutcome`.
+
+Steps: park the beam at the standby point → "before" frame → on-target strokes from the current
+model → wait for "holding" → "after" frame(s) → spot → tracking error. Above the loop threshold:
+the inverse model's stroke correction and again, up to ``max_iterations``. A spot not found (or
+clipped) starts a search: aim points on the board opposite to where the spot was seen, then a
+ring around the centre. Every attempt is recorded, valid or not, with its reason. At the end the
+heliostat goes back to standby, then to tracking with its new corrections.
+
+Safety: every stroke is checked against the drive's range before it is sent; beams rest only on
+the board or at the standby point (search aims never leave the board); on any fault the
+heliostat is returned to tracking.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from helicalib.calibration.correction import stroke_correction
+from helicalib.devices.protocols import Camera, Plant
+from helicalib.devices.registers import HeliostatState
+from helicalib.errors import HelicalibError, MeasurementError, PlantError
+from helicalib.geometry import optics
+from helicalib.geometry.drives import strokes_in_range
+from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.store.records import Observation
+from helicalib.vision.frames import decode_frame
+from helicalib.vision.marks import find_marks
+from helicalib.vision.spot import measure_spot
+
+POLL_S = 2.0
+"""Plant seconds between status polls while waiting for a heliostat to settle."""
+
+
+@dataclass(frozen=True)
+class VisitSettings:
+    """What a visit needs from the field config."""
+
+    loop_threshold_mrad: float
+    max_iterations: int
+    after_frames: int
+    spot_method: str
+    settle_timeout_s: float
+    search_steps: int = 6
+
+    @classmethod
+    def from_config(cls, cfg) -> VisitSettings:
+        c = cfg.calibration
+        return cls(c.loop_threshold_mrad, c.max_iterations, c.after_frames, c.spot_method, c.settle_timeout_s)
+
+
+@dataclass
+class VisitContext:
+    """Everything one visit touches. ``sun(t_s) -> (vector_enu (3,), azimuth_deg, elevation_deg, rising)``."""
+
+    campaign_id: int
+    visit_id: int
+    heliostat_id: str
+    index: int
+    target: object
+    camera_config: object
+    camera: Camera
+    plant: Plant
+    now: Callable[[], float]
+    sun: Callable[[float], tuple[np.ndarray, float, float, bool]]
+    model: HeliostatModel
+    settings: VisitSettings
+    record: Callable[..., int]
+    on_valid: Callable[[Observation], HeliostatModel] | None = None
+    corrections: Callable[[HeliostatModel], np.ndarray | None] | None = None
+    """Tracking stroke corrections [mm] to write when the visit ends (None: keep the plant's)."""
+
+
+@dataclass
+class VisitOutcome:
+    status: str                       # converged | not_converged | invalid | refused | fault
+    reason: str
+    iterations: int = 0
+    valid_points: int = 0
+    first_error_mrad: float | None = None
+    final_error_mrad: float | None = None
+    observations: list[Observation] = field(default_factory=list)
+    model: HeliostatModel | None = None
+
+
+class VisitAborted(HelicalibError):
+    """A visit cannot go on (fault, refused command, timeout); the reason code is ``code``."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+def _in_range(ctx: VisitContext, strokes_mm: np.ndarray) -> bool:
+    s = np.asarray(strokes_mm, dtype=float).reshape(1, 2)
+    return bool(np.all(np.isfinite(s)) and np.all(strokes_in_range(ctx.model.drives, s)))
+
+
+def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray) -> Generator[float, None, tuple[float, float]]:
+    """Command strokes (after the range check) and wait for "holding"; returns the read-back strokes."""
+    if not _in_range(ctx, strokes_mm):
+        raise VisitAborted("stroke_out_of_range",
+                           f"{ctx.heliostat_id}: strokes {np.round(strokes_mm, 1).tolist()} mm lie outside the drive's range; not sent")
+    seq = ctx.plant.move_to(ctx.index, np.asarray(strokes_mm, dtype=float))
+    waited = 0.0
+    while True:
+        st = ctx.plant.status(ctx.index)
+        if st.sequence_done == seq and st.state == HeliostatState.HOLDING:
+            return st.strokes_mm
+        if st.sequence_done == seq and st.state == HeliostatState.FAULT:
+            raise VisitAborted("plant_fault", f"{ctx.heliostat_id}: plant fault code {st.fault} on a move command")
+        if st.state in (HeliostatState.STOWED, HeliostatState.OFFLINE) and st.sequence_done == seq:
+            raise VisitAborted("plant_refused", f"{ctx.heliostat_id}: heliostat is {st.state.name.lower()}")
+        if waited >= ctx.settings.settle_timeout_s:
+            raise VisitAborted("settle_timeout", f"{ctx.heliostat_id}: not holding after {waited:.0f} s")
+        yield POLL_S
+        waited += POLL_S
+
+
+def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float) -> np.ndarray:
+    sun_vec = ctx.sun(t_s)[0]
+    sol = ctx.model.strokes_for_aim(sun_vec, aim_enu)
+    if not bool(sol.in_range[0]):
+        raise VisitAborted("aim_out_of_range", f"{ctx.heliostat_id}: the strokes for this aim point lie outside the drive's range now")
+    return sol.strokes_mm[0]
+
+
+def _grab(ctx: VisitContext):
+    frame = ctx.camera.grab()
+    return frame, decode_frame(frame.data, expected_shape=None)
+
+
+def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
+    """The visit as a generator of plant-second waits; returns its :class:`VisitOutcome`."""
+    out = VisitOutcome(status="invalid", reason="not started", model=ctx.model)
+    target = ctx.target
+    centre = np.asarray(target.center_enu_m, dtype=float)
+    standby = target.uvw_to_enu(np.asarray(target.standby_uvw_m))
+    try:
+        yield from move_and_hold(ctx, _aim_strokes(ctx, standby, ctx.now()))
+        before_frame, before = _grab(ctx)
+        marks = find_marks(before, target, ctx.camera_config)
+        aim = centre.copy()
+        strokes = _aim_strokes(ctx, aim, ctx.now())
+        search = _search_aims(target, ctx.settings.search_steps)
+        iteration = 0
+        while iteration <= ctx.settings.max_iterations:
+            read = yield from move_and_hold(ctx, strokes)
+            obs = yield from _measure(ctx, before_frame, before, marks, strokes, read, aim, iteration)
+            out.observations.append(obs)
+            iteration += 1
+            if not obs.valid:
+                if obs.reason not in ("no_spot", "clipped", "low_contrast") or not search:
+                    out.status, out.reason = "invalid", obs.reason
+                    break
+                aim = _next_search_aim(target, obs, search)
+                strokes = _aim_strokes(ctx, aim, ctx.now())
+                continue
+            out.valid_points += 1
+            if out.first_error_mrad is None:
+                out.first_error_mrad = obs.error_mrad
+            out.final_error_mrad = obs.error_mrad
+            if ctx.on_valid is not None:
+                ctx.model = ctx.on_valid(obs)
+                out.model = ctx.model
+            if obs.error_mrad < ctx.settings.loop_threshold_mrad:
+                out.status, out.reason = "converged", "ok"
+                break
+            if iteration > ctx.settings.max_iterations:
+                out.status, out.reason = "not_converged", f"still {obs.error_mrad:.2f} mrad after {iteration} placements"
+                break
+            # the paper's inverse model: observed normal error carried into the strokes for the board centre
+            aim = centre.copy()
+            t_next = ctx.now()
+            corr = stroke_correction(ctx.model, np.asarray([read]), ctx.sun(obs.capture_time_s)[0],
+                                     np.asarray([obs.spot_enu_m]), aim, ctx.sun(t_next)[0])
+            if not bool(corr.in_range[0]):
+                out.status, out.reason = "refused", "the corrected strokes lie outside the drive's range"
+                break
+            strokes = corr.strokes_mm[0]
+        out.iterations = iteration
+    except VisitAborted as err:
+        out.status, out.reason = ("refused" if "range" in err.code else "fault"), err.code
+        _record_failure(ctx, err.code, str(err))
+    except (PlantError, MeasurementError) as err:
+        code = "plant_error" if isinstance(err, PlantError) else "camera_error"
+        out.status, out.reason = "fault", code
+        _record_failure(ctx, code, str(err))
+    yield from _leave(ctx)
+    return out
+
+
+def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, iteration):
+    """One "after" measurement at the held strokes; always returns an Observation (recorded)."""
+    frames, images, reason, message = [], [], None, ""
+    for _ in range(ctx.settings.after_frames):
+        try:
+            f, img = _grab(ctx)
+            frames.append(f)
+            images.append(img)
+        except MeasurementError as err:
+            reason, message = "bad_frame", str(err)
+            break
+        if ctx.settings.after_frames > 1:
+            yield 1.0
+    capture_s = frames[-1].capture_time_s if frames else ctx.now()
+    sun_vec, az, el, rising = ctx.sun(capture_s)
+    weather = _safe(ctx.plant.weather)
+    status = _safe(lambda: ctx.plant.status(ctx.index))
+    base = dict(
+        campaign_id=ctx.campaign_id, heliostat_id=ctx.heliostat_id, target_id=ctx.target.id,
+        visit_id=ctx.visit_id, iteration=iteration, capture_time_s=float(capture_s),
+        strokes_cmd_mm=tuple(float(x) for x in strokes_cmd),
+        strokes_read_mm=None if strokes_read is None else tuple(float(x) for x in strokes_read),
+        sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az), sun_elevation_deg=float(el),
+        sun_rising=bool(rising),
+        wind_ms=getattr(weather, "wind_ms", None), wind_direction_deg=getattr(weather, "wind_direction_deg", None),
+        dni_wm2=getattr(weather, "dni_wm2", None), temperature_c=getattr(weather, "temperature_c", None),
+        cleanliness=getattr(status, "cleanliness", None),
+    )
+    if reason is not None:
+        obs = Observation(valid=False, reason=reason, message=message, **base)
+        obs_id = ctx.record(obs, before_frame=before_frame.data, after_frames=[f.data for f in frames])
+        return _with_id(obs, obs_id)
+    spot = measure_spot(before, images, ctx.target, ctx.camera_config, method=ctx.settings.spot_method, marks=marks)
+    extra = {}
+    if spot.spot_center_px is not None:
+        extra.update(spot_x_px=float(spot.spot_center_px[0]), spot_y_px=float(spot.spot_center_px[1]))
+    extra.update(spot_area_px=_f(spot.spot_area_px), threshold=_f(spot.threshold))
+    if spot.offset_m is not None:
+        spot_enu = ctx.target.uvw_to_enu(np.asarray(spot.offset_m, dtype=float))
+        aim_uvw = ctx.target.enu_to_uvw(aim)
+        extra.update(offset_u_m=float(spot.offset_m[0] - aim_uvw[0]), offset_v_m=float(spot.offset_m[1] - aim_uvw[1]),
+                     spot_enu_m=tuple(float(x) for x in spot_enu))
+    if spot.valid:
+        held = np.asarray([strokes_read if strokes_read is not None else strokes_cmd], dtype=float)
+        predicted_uv = ctx.model.spot_on_target(held, sun_vec, ctx.target)[0]
+        predicted = ctx.target.uvw_to_enu(predicted_uv)
+        err = float(optics.tracking_error_mrad(np.asarray(extra["spot_enu_m"]), predicted,
+                                               ctx.model.pivots_enu[0]))
+        extra["error_mrad"] = err
+    obs = Observation(valid=bool(spot.valid), reason=spot.reason, message=spot.message, **base, **extra)
+    obs_id = ctx.record(obs, before_frame=before_frame.data, after_frames=[f.data for f in frames])
+    return _with_id(obs, obs_id)
+
+
+def _with_id(obs: Observation, obs_id: int) -> Observation:
+    from dataclasses import replace
+
+    return replace(obs, id=obs_id)
+
+
+def _f(x) -> float | None:
+    return None if x is None else float(x)
+
+
+def _safe(fn):
+    try:
+        return fn()
+    except HelicalibError:
+        return None
+
+
+def _search_aims(target, steps: int) -> list[np.ndarray]:
+    """Aim points (target frame u, v) on a ring inside the board, to find a beam that missed it."""
+    w, h = target.size_m
+    r = 0.35 * min(w, h)
+    angles = np.linspace(0, 2 * np.pi, steps, endpoint=False)
+    return [np.array([r * np.cos(a), r * np.sin(a)]) for a in angles]
+
+
+def _next_search_aim(target, obs: Observation, search: list[np.ndarray]) -> np.ndarray:
+    """Led by the part of the spot it sees: aim opposite to a clipped spot; else the next ring point."""
+    w, h = target.size_m
+    if obs.reason == "clipped" and obs.offset_u_m is not None:
+        seen = np.array([obs.offset_u_m, obs.offset_v_m])
+        uv = np.clip(-seen, [-0.4 * w, -0.4 * h], [0.4 * w, 0.4 * h])
+    else:
+        uv = search.pop(0)
+    return target.uvw_to_enu(uv)
+
+
+def _record_failure(ctx: VisitContext, code: str, message: str) -> None:
+    t = ctx.now()
+    sun_vec, az, el, rising = ctx.sun(t)
+    obs = Observation(campaign_id=ctx.campaign_id, heliostat_id=ctx.heliostat_id, target_id=ctx.target.id,
+                      visit_id=ctx.visit_id, iteration=-1, capture_time_s=float(t), strokes_cmd_mm=(float("nan"),) * 2,
+                      strokes_read_mm=None, sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az),
+                      sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message)
+    try:
+        ctx.record(obs)
+    except HelicalibError:
+        pass
+
+
+def _leave(ctx: VisitContext) -> Generator[float, None, None]:
+    """Back to standby (beam off the board, never across the receiver), then to tracking."""
+    try:
+        standby = ctx.target.uvw_to_enu(np.asarray(ctx.target.standby_uvw_m))
+        sol = ctx.model.strokes_for_aim(ctx.sun(ctx.now())[0], standby)
+        if bool(sol.in_range[0]):
+            yield from move_and_hold(ctx, sol.strokes_mm[0])
+    except (VisitAborted, PlantError):
+        pass
+    corrections = None
+    if ctx.corrections is not None:
+        try:
+            corrections = ctx.corrections(ctx.model)
+        except HelicalibError:
+            corrections = None
+    try:  # None: the plant keeps the corrections it has
+        ctx.plant.track(ctx.index, None if corrections is None else np.asarray(corrections, dtype=float))
+    except PlantError:
+        pass

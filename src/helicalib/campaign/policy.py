@@ -1,0 +1,254 @@
+"""Campaign bookkeeping and the policy calls of the runner.
+
+:class:`Book` holds what the runner knows of each heliostat (valid points, visits, verdict,
+cool-down); the functions here turn it into the inputs of the pure policy modules
+(:mod:`.gating`, :mod:`.planner`, :mod:`helicalib.calibration.acceptance`) and of the error-model
+fit, and back.
+
+Acceptance points and their errors (our reading of the paper's section 2.4, see docs/campaign.md):
+a *point* is a valid visit (its last valid measurement: the heliostat's beam after the loop);
+its *error* is how far the heliostat's model, fitted **without that visit**, puts the beam from
+where it was seen (leave-one-visit-out): an honest, out-of-sample tracking error. In-sample
+residuals of a 12-parameter fit to a handful of points would flatter every heliostat.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from helicalib.calibration import acceptance
+from helicalib.calibration.fit import fit_error_model
+from helicalib.calibration.sun_days import sun_days
+from helicalib.campaign import gating as gating_mod
+from helicalib.campaign import planner as planner_mod
+from helicalib.geometry import errors as em
+from helicalib.geometry import optics
+from helicalib.geometry.heliostat import HeliostatModel
+
+COOLDOWN_INVALID_S = 1800.0
+"""After a visit without a valid point a heliostat waits this long [plant s] before its next try."""
+COOLDOWN_VALID_S = 1200.0
+"""After a valid visit the heliostat waits this long (the next point should see another sun)."""
+FIT_LOSS = "soft_l1"
+
+
+@dataclass
+class HeliostatBook:
+    points: list = field(default_factory=list)          # valid observations (all iterations)
+    visits: int = 0
+    cooldown_until_s: float = 0.0
+    last_first_error_mrad: float | None = None
+    verdict: acceptance.AcceptanceVerdict | None = None
+    fit_rms_mrad: float | None = None
+
+
+class Book:
+    """Per-heliostat campaign state, rebuilt from the store on resume."""
+
+    def __init__(self, cfg, heliostat_ids):
+        self.cfg = cfg
+        self.h = {hid: HeliostatBook() for hid in heliostat_ids}
+        self.cursor: dict[str, str | None] = {}
+        self._days: tuple = ()
+        self._days_span = (math.inf, -math.inf)
+
+    def add(self, obs) -> None:
+        if obs.valid and obs.spot_enu_m is not None and all(map(math.isfinite, obs.spot_enu_m)):
+            self.h[obs.heliostat_id].points.append(obs)
+
+    def points(self, hid: str) -> list:
+        return self.h[hid].points
+
+    def visiting(self, hid: str, now_s: float) -> None:
+        self.h[hid].visits += 1
+        self.cursor[self.cfg.heliostat(hid).target] = hid
+
+    def visited(self, hid: str, now_s: float, outcome) -> None:
+        b = self.h[hid]
+        b.cooldown_until_s = now_s + (COOLDOWN_VALID_S if outcome.valid_points else COOLDOWN_INVALID_S)
+        if outcome.first_error_mrad is not None and outcome.observations and outcome.observations[0].valid:
+            b.last_first_error_mrad = outcome.first_error_mrad
+
+    def set_verdict(self, hid: str, verdict) -> None:
+        self.h[hid].verdict = verdict
+
+    def accepted(self, hid: str) -> bool:
+        v = self.h[hid].verdict
+        return bool(v is not None and v.accepted)
+
+    def days(self, now_s: float):
+        """Solar days around ``now_s`` (cached; extended as the campaign goes on)."""
+        lo, hi = self._days_span
+        if not (lo + 86400.0 <= now_s <= hi - 2 * 86400.0):
+            a = self.first_time(now_s) - 86400.0
+            b = now_s + 5 * 86400.0
+            acc = self.cfg.acceptance
+            self._days = sun_days(self.cfg.site, a, b, acc.low_band_deg, acc.high_elevation_deg, step_s=120.0)
+            self._days_span = (a, b)
+        return self._days
+
+    def first_time(self, default: float) -> float:
+        times = [p.capture_time_s for b in self.h.values() for p in b.points]
+        return min(times + [default])
+
+
+# ---------------------------------------------------------------------------------- gate
+@dataclass(frozen=True)
+class Gate:
+    open: bool
+    night: bool
+    stow: bool
+    reason: str
+    next_open_s: float
+
+
+def field_gate(cfg, weather, elevation_deg: float, now_s: float, sun, stowed: bool = False) -> Gate:
+    """Whether visits may start now: the sun above the low band's lower edge, wind and DNI allow."""
+    lo = cfg.acceptance.low_band_deg[0]
+    if elevation_deg < lo:
+        return Gate(False, True, False, f"sun {elevation_deg:.1f}° below {lo:g}°", _next_sun_above(sun, now_s, lo))
+    if weather is None:
+        return Gate(False, False, False, "no weather reading yet", now_s)
+    g = gating_mod.gate_field(weather.wind_ms, weather.dni_wm2, cfg.gating, stowed=stowed)
+    return Gate(g.calibrate, False, g.stow, g.reason, now_s)
+
+
+def _next_sun_above(sun, now_s: float, level_deg: float) -> float:
+    for k in range(1, 24 * 6 + 1):
+        t = now_s + 600.0 * k
+        if sun(t)[2] >= level_deg:
+            return t - 600.0
+    return now_s + 86400.0
+
+
+# ---------------------------------------------------------------------------------- planning
+def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *, planner: str = "gaps",
+                recheck: bool = False, busy_heliostats=()) -> str | None:
+    """The heliostat to send to the (one) target of ``candidates`` now, or None."""
+    days = book.days(now_s)
+    cands = []
+    for hid in candidates:
+        b = book.h[hid]
+        verdict = b.verdict or _verdict_of(cfg, book, hid, None, now_s)
+        gaps = acceptance.gaps(verdict, cfg.acceptance, days, now_s)
+        c = cleanliness.get(hid)
+        cands.append(planner_mod.Candidate(
+            heliostat_id=hid, target_id=cfg.heliostat(hid).target, accepted=bool(verdict.accepted) and not recheck,
+            gaps=gaps, predicted_error_mrad=b.last_first_error_mrad,
+            cleanliness=float("nan") if c is None else float(c), visits=b.visits, cooldown_until_s=b.cooldown_until_s))
+    if recheck:
+        cands = [c for c in cands if book.h[c.heliostat_id].visits == 0]
+    if planner == "round-robin":
+        out = planner_mod.round_robin(cands, now_s, cfg.gating, cursor=book.cursor, busy_heliostats=busy_heliostats)
+    else:
+        out = planner_mod.plan(cands, now_s, cfg.gating, busy_heliostats=busy_heliostats, include_accepted=recheck)
+    return out[0].heliostat_id if out else None
+
+
+# ---------------------------------------------------------------------------------- fit
+def refit(nominal: HeliostatModel, points: list, current: HeliostatModel):
+    """Refit one heliostat's error model to its valid points; returns (model, FitResult or None)."""
+    if not points:
+        return current, None
+    strokes, sun, spot = _arrays(points)
+    fit = fit_error_model(nominal, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0)
+    if not np.all(np.isfinite(fit.params)):
+        return current, None
+    return nominal.with_params(fit.params[None, :]), fit
+
+
+def _arrays(points):
+    strokes = np.array([p.strokes_read_mm or p.strokes_cmd_mm for p in points], dtype=float)
+    sun = np.array([p.sun_enu for p in points], dtype=float)
+    spot = np.array([p.spot_enu_m for p in points], dtype=float)
+    return strokes, sun, spot
+
+
+def fit_record(fit) -> dict:
+    return dict(model="geometric-v1", params=em.as_dict(fit.params), sigma=em.as_dict(fit.sigma),
+                rms_mrad=float(fit.rms_mrad), n_points=int(len(fit.residual_mrad)))
+
+
+def model_from_fit(model: HeliostatModel, fit_row) -> HeliostatModel:
+    return model.with_params(em.from_dict(fit_row.params)[None, :])
+
+
+# ---------------------------------------------------------------------------------- acceptance
+def _visit_points(points: list) -> list:
+    """One acceptance point per valid visit: its last valid measurement."""
+    last: dict = {}
+    for p in points:
+        last[p.visit_id] = p
+    return list(last.values())
+
+
+def loo_errors_mrad(nominal: HeliostatModel, points: list, visit_points: list) -> np.ndarray:
+    """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 at the pivot)."""
+    out = []
+    for vp in visit_points:
+        rest = [p for p in points if p.visit_id != vp.visit_id]
+        model, _fit = refit(nominal, rest, nominal)
+        out.append(prediction_error_mrad(model, vp))
+    return np.asarray(out, dtype=float)
+
+
+def prediction_error_mrad(model: HeliostatModel, obs) -> float:
+    """How far ``model`` puts the beam from where ``obs`` saw it [mrad], T/GRLM formula (1)."""
+    strokes, sun, spot = _arrays([obs])
+    origin, direction = model.beam(strokes, sun[0])
+    # point on the observed spot's plane: the ray's closest approach to the observed spot
+    d = direction[0]
+    k = float(np.dot(spot[0] - origin[0], d))
+    predicted = origin[0] + k * d
+    return float(optics.tracking_error_mrad(spot[0], predicted, model.pivots_enu[0]))
+
+
+def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s: float):
+    points = book.points(hid)
+    vps = _visit_points(points)
+    days = book.days(now_s)
+    first = np.array([p.error_mrad if p.error_mrad is not None else np.nan for p in vps], dtype=float)
+    base = acceptance.evaluate_observations(vps, cfg.acceptance, days, now_s=now_s, errors_mrad=first)
+    coverage_ok = all(r.startswith("RMS") for r in base.reasons)
+    if nominal is None or not coverage_ok:
+        return base
+    # coverage met: judge the accuracy honestly, out of sample
+    errs = loo_errors_mrad(nominal, points, vps)
+    return acceptance.evaluate_observations(vps, cfg.acceptance, days, now_s=now_s, errors_mrad=errs)
+
+
+def verdict(cfg, book: Book, hid: str, nominal: HeliostatModel, now_s: float):
+    return _verdict_of(cfg, book, hid, nominal, now_s)
+
+
+# ---------------------------------------------------------------------------------- tracking
+def tracking_corrections(cfg, nominal: HeliostatModel, model: HeliostatModel, now_s: float, sun,
+                         hours: float = 6.0) -> np.ndarray | None:
+    """Constant stroke corrections [mm] for the plant's tracking (nominal model + offsets).
+
+    The plant adds one constant offset per actuator to its nominal tracking; the best constant is
+    the mean difference between the calibrated and the nominal strokes for the receiver aim over
+    the next ``hours`` of sun above the low band. None when that would leave the stroke range.
+    """
+    aim = np.asarray(cfg.tower.receiver_aim_enu_m, dtype=float)
+    diffs, nominal_strokes = [], []
+    for k in range(int(hours * 2) + 1):
+        vec, _az, el, _r = sun(now_s + 1800.0 * k)
+        if el < cfg.acceptance.low_band_deg[0]:
+            continue
+        cal = model.strokes_for_aim(vec, aim)
+        nom = nominal.strokes_for_aim(vec, aim)
+        if bool(cal.in_range[0]) and bool(nom.in_range[0]):
+            diffs.append(cal.strokes_mm[0] - nom.strokes_mm[0])
+            nominal_strokes.append(nom.strokes_mm[0])
+    if not diffs:
+        return None
+    corr = np.mean(diffs, axis=0)
+    d = nominal.drives
+    tracked = np.asarray(nominal_strokes) + corr
+    if np.any(tracked < d.stroke_min_mm[0]) or np.any(tracked > d.stroke_max_mm[0]):
+        return None
+    return corr

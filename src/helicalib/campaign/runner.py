@@ -1,0 +1,289 @@
+"""The campaign runner: weather polling, stow, gating, planning and visits on the plant clock.
+
+One :class:`CampaignRunner` drives the same campaign core in every place it runs:
+
+* in-process on a virtual clock (``helicalib simulate``): :meth:`run_until` jumps plant time
+  from event to event, so days pass in seconds;
+* against a plant over Modbus TCP + HTTP (``helicalib simulate --over-network``, ``helicalib run``):
+  the same :meth:`tick` is called by APScheduler jobs on the plant clock (see :mod:`.live`).
+
+Visits are generators (:func:`~helicalib.campaign.controller.run_visit`) that yield the plant
+seconds they want to wait; the runner keeps at most one visit per target and steps each when its
+wake-up time comes. Every observation goes to the store as soon as it is made.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from helicalib.campaign import gating as gating_mod
+from helicalib.campaign import policy
+from helicalib.campaign.controller import VisitContext, VisitOutcome, VisitSettings, run_visit
+from helicalib.devices.registers import FieldCommand
+from helicalib.errors import HelicalibError, PlantError
+from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.geometry.sun import SunTable
+
+WEATHER_POLL_S = 60.0
+"""Plant seconds between weather polls (a stow follows within one poll)."""
+PLANNER_TICK_S = 30.0
+"""Plant seconds between planner ticks while a target is free."""
+
+
+@dataclass
+class RunnerStats:
+    visits: int = 0
+    valid_visits: int = 0
+    gated_s: float = 0.0
+    stowed_s: float = 0.0
+    night_s: float = 0.0
+    iterations: list[int] = field(default_factory=list)
+    first_errors: list[tuple[float, float]] = field(default_factory=list)  # (time, mrad)
+    outcomes: dict[str, int] = field(default_factory=dict)
+
+
+class CampaignRunner:
+    """Run a calibration campaign on a plant.
+
+    Parameters
+    ----------
+    cfg : FieldConfig
+    plant : Plant protocol implementation
+    cameras : dict target id → Camera protocol implementation
+    clock : Clock protocol (``now_s``, ``sleep``)
+    store : helicalib.store.Store
+    campaign_id : int
+        The campaign (new or resumed) in ``store``.
+    heliostat_ids : list of str, optional
+        Heliostats to calibrate (default all).
+    planner : str
+        ``"gaps"`` (fill acceptance gaps fastest) or ``"round-robin"`` (the paper's "in turn").
+    recheck : bool
+        Visit every heliostat once regardless of acceptance (operators' re-check).
+    """
+
+    def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
+                 recheck=False, model=None):
+        self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
+        self.campaign_id = campaign_id
+        self.ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
+        self.planner_kind = planner
+        self.recheck = recheck
+        self.settings = VisitSettings.from_config(cfg)
+        self.sun_table = SunTable(cfg.site)
+        base = model if model is not None else HeliostatModel.from_config(cfg, self.ids)
+        self.nominal = HeliostatModel.from_config(cfg, self.ids)
+        self.models: dict[str, HeliostatModel] = {hid: base.subset([i]) for i, hid in enumerate(self.ids)}
+        self.book = policy.Book(cfg, self.ids)
+        self.stats = RunnerStats()
+        self.active: dict[str, tuple[float, str, object, VisitContext]] = {}
+        self.stowed = False
+        self.last_weather = None
+        self.last_poll_s = -math.inf
+        self._gate_reason = None
+        self.corrections: dict[str, np.ndarray | None] = {hid: None for hid in self.ids}
+        self._resume_from_store()
+
+    # ------------------------------------------------------------------ state from the store
+    def _resume_from_store(self) -> None:
+        for hid in self.ids:
+            for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid, valid=True):
+                self.book.add(obs)
+            fit = self.store.latest_fit(hid, campaign_id=self.campaign_id)
+            if fit is not None:
+                self.models[hid] = policy.model_from_fit(self.models[hid], fit)
+        self.store.close_interrupted_visits(self.campaign_id, self.clock.now_s())
+
+    # ------------------------------------------------------------------ sun
+    def sun(self, t_s: float):
+        """(vector_enu, azimuth_deg, elevation_deg, rising) at plant time ``t_s`` (SPA, tabulated)."""
+        return self.sun_table.position(t_s)
+
+    # ------------------------------------------------------------------ the loop
+    def run_until(self, end_s: float, progress=None) -> None:
+        """Advance plant time to ``end_s`` (virtual or real clock), running the campaign."""
+        while True:
+            now = self.clock.now_s()
+            if now >= end_s:
+                break
+            wake = self.tick(now)
+            if progress is not None:
+                progress(now)
+            nxt = min(wake, end_s)
+            if nxt > now:
+                self.clock.sleep(nxt - now)
+
+    def tick(self, now: float) -> float:
+        """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
+        if now - self.last_poll_s >= WEATHER_POLL_S:
+            self._poll_weather(now)
+        due = [tid for tid, (wake, *_rest) in self.active.items() if wake <= now]
+        for tid in due:
+            self._step(tid, now)
+        free = [t.id for t in self.cfg.targets if t.id not in self.active]
+        gate = None
+        if free and not self.stowed:
+            gate = self._gate(now)
+            if gate.open:
+                for tid in free:
+                    self._start_visit(tid, now)
+        wakes = [w for (w, *_r) in self.active.values()]
+        wakes.append(self.last_poll_s + WEATHER_POLL_S)
+        if [t for t in self.cfg.targets if t.id not in self.active] and not self.stowed:
+            if gate is not None and not gate.open and gate.night:
+                wakes.append(max(now + PLANNER_TICK_S, gate.next_open_s))
+            else:
+                wakes.append(now + PLANNER_TICK_S)
+        nxt = min(wakes)
+        self._account(now, nxt, gate)
+        return max(nxt, now + 1e-3)
+
+    def _account(self, now: float, nxt: float, gate) -> None:
+        dt = max(0.0, nxt - now)
+        if self.stowed:
+            self.stats.stowed_s += dt
+        elif gate is not None and not gate.open and not self.active:
+            if gate.night:
+                self.stats.night_s += dt
+            else:
+                self.stats.gated_s += dt
+
+    def _poll_weather(self, now: float) -> None:
+        self.last_poll_s = now
+        try:
+            w = self.plant.weather()
+        except PlantError as err:
+            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault", reason=f"weather: {err}")
+            return
+        self.last_weather = w
+        g = gating_mod.gate_field(w.wind_ms, w.dni_wm2, self.cfg.gating, stowed=self.stowed)
+        if g.stow and not self.stowed:
+            self._stow(now, g.reason)
+        elif self.stowed and not g.stow:
+            try:
+                self.plant.field_command(FieldCommand.RESUME_TRACKING)
+                self.stowed = False
+                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="resume", reason=g.reason)
+            except PlantError as err:
+                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault", reason=f"resume: {err}")
+
+    def _stow(self, now: float, reason: str) -> None:
+        try:
+            self.plant.field_command(FieldCommand.STOW_ALL)
+        except PlantError as err:
+            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault", reason=f"stow: {err}")
+            return
+        self.stowed = True
+        self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="stow", reason=reason)
+        for tid in list(self.active):
+            _wake, _hid, gen, ctx = self.active.pop(tid)
+            gen.close()
+            self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="field stowed for wind")
+
+    def _gate(self, now: float):
+        _vec, _az, el, _rising = self.sun(now)
+        gate = policy.field_gate(self.cfg, self.last_weather, el, now, self.sun, stowed=self.stowed)
+        if self._gate_reason != (gate.open, gate.night):
+            if not gate.night:
+                self.store.record_event(campaign_id=self.campaign_id, time_s=now,
+                                        kind="ungated" if gate.open else "gated", reason=gate.reason)
+            self._gate_reason = (gate.open, gate.night)
+        return gate
+
+    # ------------------------------------------------------------------ visits
+    def _start_visit(self, target_id: str, now: float) -> None:
+        cands = [hid for hid in self.ids if self.cfg.heliostat(hid).target == target_id]
+        cleanliness = {}
+        for hid in cands:
+            try:
+                cleanliness[hid] = self.plant.status(self.cfg.heliostat_index(hid)).cleanliness
+            except PlantError:
+                cleanliness[hid] = None
+        busy = [h for (_w, h, _g, _c) in self.active.values()]
+        choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
+                                    recheck=self.recheck, busy_heliostats=busy)
+        if choice is None:
+            return
+        hid = choice
+        visit_id = self.store.begin_visit(self.campaign_id, hid, target_id, now)
+        cams = self.cfg.cameras_for(target_id)
+        ctx = VisitContext(
+            campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
+            index=self.cfg.heliostat_index(hid), target=self.cfg.target(target_id), camera_config=cams[0],
+            camera=self.cameras[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
+            model=self.models[hid], settings=self.settings, record=self.store.record_observation,
+            on_valid=lambda obs, hid=hid: self._refit(hid, obs),
+            corrections=lambda model, hid=hid: self._corrections(hid, model),
+        )
+        self.book.visiting(hid, now)
+        gen = run_visit(ctx)
+        self.active[target_id] = (now, hid, gen, ctx)
+        self.stats.visits += 1
+
+    def nominal_of(self, hid: str) -> HeliostatModel:
+        return self.nominal.subset([self.ids.index(hid)])
+
+    def _step(self, target_id: str, now: float) -> None:
+        _wake, hid, gen, ctx = self.active[target_id]
+        try:
+            wait = next(gen)
+        except StopIteration as stop:
+            self._finish(target_id, stop.value, now)
+            return
+        except HelicalibError as err:  # a visit must never take the campaign down
+            self._finish(target_id, VisitOutcome(status="fault", reason=type(err).__name__), now)
+            return
+        self.active[target_id] = (now + float(wait), hid, gen, ctx)
+
+    def _finish(self, target_id: str, out: VisitOutcome, now: float) -> None:
+        _wake, hid, _gen, ctx = self.active.pop(target_id)
+        self.stats.outcomes[out.status] = self.stats.outcomes.get(out.status, 0) + 1
+        if out.valid_points:
+            self.stats.valid_visits += 1
+            self.stats.iterations.append(out.iterations)
+        first = next((o for o in out.observations if o.valid and o.iteration == 0), None)
+        if first is not None:
+            self.stats.first_errors.append((first.capture_time_s, first.error_mrad))
+        self.store.end_visit(ctx.visit_id, ended_s=now, outcome=out.status, reason=out.reason,
+                             iterations=out.iterations, first_error_mrad=out.first_error_mrad,
+                             final_error_mrad=out.final_error_mrad)
+        self.book.visited(hid, now, out)
+        verdict = policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now)
+        self.store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
+                                  accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
+                                  reasons=list(verdict.reasons),
+                                  details={"rising_ok": verdict.rising_ok, "setting_ok": verdict.setting_ok,
+                                           "window_counts": list(verdict.window_counts)})
+        self.book.set_verdict(hid, verdict)
+
+    def _corrections(self, hid: str, model: HeliostatModel) -> np.ndarray | None:
+        """Tracking corrections to write as the visit ends; None keeps what the plant has."""
+        now = self.clock.now_s()
+        corr = policy.tracking_corrections(self.cfg, self.nominal_of(hid), model, now, self.sun)
+        if corr is None:
+            return self.corrections[hid]
+        self.corrections[hid] = corr
+        self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="tracking_written",
+                                reason=f"{hid}: tracking corrections {corr[0]:+.2f}, {corr[1]:+.2f} mm")
+        return corr
+
+    def _refit(self, hid: str, obs) -> HeliostatModel:
+        self.book.add(obs)
+        model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
+        self.models[hid] = model
+        if fit is not None:
+            self.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
+                                  **policy.fit_record(fit))
+        return model
+
+    # ------------------------------------------------------------------ summary
+    def accepted(self) -> list[str]:
+        return [hid for hid in self.ids if self.book.accepted(hid)]
+
+    def calibrated_model(self) -> HeliostatModel:
+        params = np.vstack([self.models[hid].params for hid in self.ids])
+        return self.nominal.with_params(params)
