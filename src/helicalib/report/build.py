@@ -143,7 +143,12 @@ def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool) -> lis
     empty = obs.iloc[0:0]
     targets = {h.heliostat_id: h.target_id for h in data.heliostats}
     summaries = []
-    with SheetPlotter(rep["acceptance"], F.loop_threshold_mrad(data)) as plotter:
+    valid = obs[obs["valid"] & obs["error_mrad"].notna()] if len(obs) else obs
+    max_error = float(valid["error_mrad"].max()) if len(valid) else 0.0
+    max_placements = int(valid["iteration"].max()) + 1 if len(valid) else 1
+    t0 = data.campaign.started_s if data.campaign is not None else 0.0
+    with SheetPlotter(rep["acceptance"], F.loop_threshold_mrad(data), (t0, data.end_s), max_error,
+                      max_placements) as plotter:
         for hid in ids:
             stem = names[hid]
             g = groups.get(hid, empty)

@@ -5,8 +5,8 @@ and :func:`helicalib.vision.spot.measure_spot` (the same functions the visit use
 is the measurement): the four L marks and their corners (green), the board centre (cyan cross), the
 annex A window (yellow square) and the spot centre (red cross). The centre stored in the database
 is drawn as a magenta circle; the two agree unless the frames were measured with other settings.
-Without the field config only the stored centre can be drawn. Before and after are put side by
-side and scaled to ``width_px``; drawing uses OpenCV only (a few ms per heliostat).
+Without the field config only the stored centre can be drawn. Both are cropped to the board (when
+its marks are found), put side by side and scaled to ``width_px``; drawing uses OpenCV only (a few ms per heliostat).
 """
 
 from __future__ import annotations
@@ -44,23 +44,44 @@ def measure(before, afters, target, camera, method: str = "grlm-centroid"):
     return marks, spot
 
 
-def draw(gray: np.ndarray, marks, spot, stored_px, scale: float, label: str) -> np.ndarray:
-    """A BGR copy of ``gray`` (H, W) resized by ``scale`` with the marks, window and centres drawn."""
+def crop_box(shape: tuple[int, int], marks, margin: float = 0.25) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) [px]: the board (its marks' corners) with ``margin`` of its size around, or the whole frame."""
+    h, w = shape[:2]
+    if marks is None or not marks.found or not np.all(np.isfinite(marks.corners_px)):
+        return 0, 0, w, h
+    lo, hi = marks.corners_px.min(axis=0), marks.corners_px.max(axis=0)
+    pad = margin * (hi - lo)
+    x0, y0 = np.maximum(np.floor(lo - pad), 0).astype(int)
+    x1, y1 = np.minimum(np.ceil(hi + pad), [w, h]).astype(int)
+    return (int(x0), int(y0), int(x1), int(y1)) if x1 - x0 > 16 and y1 - y0 > 16 else (0, 0, w, h)
+
+
+def draw(gray: np.ndarray, marks, spot, stored_px, box, scale: float, label: str) -> np.ndarray:
+    """A BGR copy of ``gray[box]`` resized by ``scale`` with the marks, window and centres drawn."""
     import cv2
 
-    img = cv2.cvtColor(cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
+    x0, y0, x1, y1 = box
+    img = cv2.resize(gray[y0:y1, x0:x1], None, fx=scale, fy=scale,
+                     interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    off = np.array([x0, y0], dtype=float)
+
+    def px(p):
+        return (np.asarray(p, dtype=float) - off) * scale
+
     thick = 2
     if marks is not None and marks.found:
         for k in range(4):
-            _poly(img, marks.corners_px.reshape(4, 6, 2)[k] * scale, GREEN, thick)
-        _cross(img, marks.center_px * scale, CYAN, 14, thick)
+            _poly(img, px(marks.corners_px.reshape(4, 6, 2)[k]), GREEN, thick)
+        _cross(img, px(marks.center_px), CYAN, 14, thick)
     if spot is not None:
         if spot.window_px is not None:
-            _poly(img, np.asarray(spot.window_px) * scale, YELLOW, thick)
+            _poly(img, px(spot.window_px), YELLOW, thick)
         if spot.spot_center_px is not None:
-            _cross(img, np.asarray(spot.spot_center_px) * scale, RED, 12, thick)
+            _cross(img, px(spot.spot_center_px), RED, 12, thick)
     if stored_px is not None:
-        cv2.circle(img, (int(round(stored_px[0] * scale)), int(round(stored_px[1] * scale))), 9, MAGENTA, 1, cv2.LINE_AA)
+        c = px(stored_px)
+        cv2.circle(img, (int(round(c[0])), int(round(c[1]))), 9, MAGENTA, 1, cv2.LINE_AA)
     cv2.rectangle(img, (0, 0), (img.shape[1], 24), (0, 0, 0), -1)
     cv2.putText(img, label, (6, 17), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
     return img
@@ -97,15 +118,16 @@ def overlay_latest(images_dir: Path, latest: dict, cfg, out_path: Path, width_px
             note = f"the frames could not be measured again ({type(err).__name__}: {err})"
     else:
         note = "no field config: only the stored spot centre is drawn"
-    scale = min(1.0, (width_px / 2) / before.shape[1])
-    left = draw(before, marks, None, None, scale, f"before  (visit {latest['visit_id']})")
-    right = draw(afters[-1], marks, spot, latest["spot_px"], scale,
+    box = crop_box(before.shape, marks)
+    scale = min(2.0, (width_px / 2) / (box[2] - box[0]))
+    left = draw(before, marks, None, None, box, scale, f"before  (visit {latest['visit_id']})")
+    right = draw(afters[-1], marks, spot, latest["spot_px"], box, scale,
                  f"after, placement {latest['iteration']}: {latest['reason']}"
                  + (f", {latest['error_mrad']:.2f} mrad" if latest["error_mrad"] is not None else ""))
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     gap = np.full((left.shape[0], 6, 3), 255, np.uint8)
-    if not cv2.imwrite(str(out_path), np.hstack([left, gap, right])):
+    if not cv2.imwrite(str(out_path), np.hstack([left, gap, right]), [cv2.IMWRITE_PNG_COMPRESSION, 1]):
         return {"png": None, "note": f"could not write {out_path}", "remeasured": None}
     remeasured = None
     if spot is not None:

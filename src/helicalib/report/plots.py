@@ -113,7 +113,7 @@ def plot_progress(pr: dict, path: Path) -> Path:
 
 def plot_pass_rate(fig_data: dict, path: Path, number: int) -> Path:
     """Correction pass rate [%] against one condition, as the paper's figure ``number`` (6, 7 or 8)."""
-    fig, ax = plt.subplots(figsize=(7, 4.2), layout="constrained")
+    fig, ax = plt.subplots(figsize=(7, 4.6), layout="constrained")
     edges = np.asarray(fig_data["edges"], dtype=float)
     mid = (edges[:-1] + edges[1:]) / 2
     width = np.diff(edges)
@@ -123,15 +123,15 @@ def plot_pass_rate(fig_data: dict, path: Path, number: int) -> Path:
     if np.isfinite(rate_good).any():
         ax.plot(mid, rate_good, "o-", color="#c0392b", label=f"other conditions good ({fig_data['good_other']['condition']})")
     ax.axhline(100 * fig_data["paper_rate"], color="k", ls="--", lw=1, label="paper: 60 % in good conditions")
-    for x, n in zip(mid, fig_data["all"]["n"]):
+    for x, n, k in zip(mid, fig_data["all"]["n"], fig_data["all"]["passed"]):
         if n:
-            ax.text(x, 101, str(n), ha="center", va="bottom", fontsize=7, color="#555")
+            ax.text(x, 101, f"{k}/{n}", ha="center", va="bottom", fontsize=7, color="#555")
     ax.set_ylim(0, 112)
     ax.set_xlim(edges[0], edges[-1])
     ax.set_xlabel(f"{fig_data['label']} [{fig_data['unit']}]")
     ax.set_ylabel("correction pass rate [%]")
-    ax.set_title(f"pass rate against {fig_data['label']} (cf. paper fig. {number}; numbers: visits per bin)", fontsize=10)
-    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title(f"pass rate against {fig_data['label']} (cf. paper fig. {number}; passed/visits per bin)", fontsize=10)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     ax.grid(alpha=0.3)
     if not any(fig_data["all"]["n"]):
         _empty(ax, f"no visit with a recorded {fig_data['label']}")
@@ -141,14 +141,14 @@ def plot_pass_rate(fig_data: dict, path: Path, number: int) -> Path:
 def plot_figure_3(tt: dict, path: Path) -> Path:
     """T/GRLM figure 3: fraction of tracking errors within 3.5 mrad per wind bin, with the clause 8.2 limits."""
     f3, field, spec = tt["figure_3"], tt["field"], tt["spec"]
-    fig, ax = plt.subplots(figsize=(7.5, 4.4), layout="constrained")
+    fig, ax = plt.subplots(figsize=(7.5, 4.8), layout="constrained")
     edges = np.asarray(f3["edges_ms"], dtype=float)
     mid = (edges[:-1] + edges[1:]) / 2
     frac = np.array([np.nan if f is None else 100 * f for f in f3["fraction"]])
     ax.bar(mid, np.nan_to_num(frac), width=0.85 * np.diff(edges), color="#7fa7c9", label="measured")
-    for x, n in zip(mid, f3["n"]):
+    for x, n, k in zip(mid, f3["n"], f3["within"]):
         if n:
-            ax.text(x, 101, str(n), ha="center", va="bottom", fontsize=7, color="#555")
+            ax.text(x, 101, f"{k}/{n}", ha="center", va="bottom", fontsize=7, color="#555")
     for b in field["bins"]:
         colour = {True: "#2a9d3a", False: "#d1495b", None: "#999"}[b["ok"]]
         ax.hlines(100 * b["min_fraction"], b["lo_ms"], b["hi_ms"], colors=colour, lw=3)
@@ -160,9 +160,9 @@ def plot_figure_3(tt: dict, path: Path) -> Path:
     ax.set_ylim(0, 112)
     ax.set_xlabel("wind speed [m/s]")
     ax.set_ylabel(f"errors within {spec['threshold_mrad']:g} mrad [%]")
-    ax.set_title(f"T/GRLM 02-2014 fig. 3 — clause 8.2: {field['verdict'].upper()} ({field['n']} first placements)",
-                 fontsize=10)
-    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title(f"T/GRLM 02-2014 fig. 3 — clause 8.2: {field['verdict'].upper()} ({field['n']} first placements; "
+                 "within/points per bin)", fontsize=10)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=3)
     ax.grid(alpha=0.3)
     if not field["n"]:
         _empty(ax, "no valid first placement with a recorded wind")
