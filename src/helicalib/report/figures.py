@@ -9,7 +9,8 @@ Every dictionary here is written unchanged into ``report.json`` and drawn by
   recorded them (failure records carry none; such visits are counted as ``n_unknown``);
 * a heliostat's **present tracking error** is the error of its newest valid observation;
 * **stowed** time runs from each ``stow`` event to the next ``resume``, **gated** time from each
-  ``gated`` event to the next ``ungated`` (an interval still open ends at the campaign's end).
+  ``gated`` event to the next ``ungated``, in daylight only (sun above the low band's lower edge,
+  as the runner gates); an interval still open ends at the campaign's end.
 """
 
 from __future__ import annotations
@@ -106,6 +107,33 @@ def intervals(events, start_kind: str, end_kind: str, end_s: float) -> list[tupl
     return out
 
 
+def clip_spans(spans, windows) -> list[tuple[float, float]]:
+    """The parts of ``spans`` inside any of ``windows`` (both lists of (start, end) [s])."""
+    out = []
+    for a, b in spans:
+        for wa, wb in windows:
+            lo, hi = max(a, wa), min(b, wb)
+            if hi > lo:
+                out.append((lo, hi))
+    return out
+
+
+def stowed_spans(data: CampaignData, end_s: float) -> list[tuple[float, float]]:
+    """From each ``stow`` event to the next ``resume`` (or ``end_s``)."""
+    return intervals(data.events, "stow", "resume", end_s)
+
+
+def gated_spans(data: CampaignData, end_s: float) -> list[tuple[float, float]]:
+    """From each ``gated`` event to the next ``ungated`` (or ``end_s``), daytime only when the days are known.
+
+    The runner gates by weather only while the sun is above the low band's lower edge (the night
+    is not "gated"), so with the field config the spans are clipped to each day's daylight.
+    """
+    spans = intervals(data.events, "gated", "ungated", end_s)
+    daylight = [d.daylight for d in data.days if d.daylight is not None]
+    return clip_spans(spans, daylight) if data.days else spans
+
+
 def _hours_until(spans, t: np.ndarray) -> np.ndarray:
     total = np.zeros_like(t, dtype=float)
     for a, b in spans:
@@ -120,8 +148,8 @@ def summary(data: CampaignData, visits: pd.DataFrame) -> dict:
     n_h = len(data.heliostats)
     accepted = sum(1 for h in data.heliostat_ids if (v := data.verdicts.get(h)) is not None and v.accepted)
     end = data.end_s
-    stowed = intervals(data.events, "stow", "resume", end)
-    gated = intervals(data.events, "gated", "ungated", end)
+    stowed = stowed_spans(data, end)
+    gated = gated_spans(data, end)
     attempted = visits[visits["n_obs"] > 0] if len(visits) else visits
     invalid = obs[~obs["valid"]] if len(obs) else obs
     return {
@@ -233,8 +261,8 @@ def progress(data: CampaignData, visits: pd.DataFrame, step_s: float = 3600.0) -
     started = np.sort(visits["started_s"].to_numpy(float)) if len(visits) else np.zeros(0)
     ok = visits[visits["n_valid"] > 0] if len(visits) else visits
     ok_t = np.sort(ok["ended_s"].fillna(ok["started_s"]).to_numpy(float)) if len(ok) else np.zeros(0)
-    stowed = intervals(data.events, "stow", "resume", t1)
-    gated = intervals(data.events, "gated", "ungated", t1)
+    stowed = stowed_spans(data, t1)
+    gated = gated_spans(data, t1)
     return {
         "times_s": [num(x, 1) for x in t],
         "accepted": accepted.tolist(),
@@ -298,7 +326,13 @@ def pass_rates(data: CampaignData, visits: pd.DataFrame) -> dict:
             **{k: pass_rate_figure(visits, k) for k in BINS}}
 
 
-def events_log(data: CampaignData, limit: int = 500) -> list[dict]:
-    """The campaign's events (newest ``limit``), for the report's event log."""
-    return [{"time_utc": iso(e.time_s), "time_s": num(e.time_s, 1), "kind": e.kind, "heliostat": e.heliostat_id,
-             "reason": e.reason} for e in data.events[-limit:]]
+ROUTINE_EVENTS = ("tracking_written",)
+"""Event kinds counted in the summary but left out of the event log (one per visit)."""
+
+
+def events_log(data: CampaignData, limit: int = 500) -> dict:
+    """The campaign's events but the routine ones, newest ``limit``, for the report's event log."""
+    shown = [ev for ev in data.events if ev.kind not in ROUTINE_EVENTS]
+    rows = [{"time_utc": iso(ev.time_s), "time_s": num(ev.time_s, 1), "kind": ev.kind, "heliostat": ev.heliostat_id,
+             "reason": ev.reason} for ev in shown[-limit:]]
+    return {"rows": rows, "omitted_routine": len(data.events) - len(shown), "omitted_old": max(0, len(shown) - limit)}

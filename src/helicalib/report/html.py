@@ -10,6 +10,8 @@ from __future__ import annotations
 from html import escape
 from typing import Any
 
+from helicalib.report.figures import ROUTINE_EVENTS as F_ROUTINE
+
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:1.5em auto;max-width:1250px;
  color:#222;padding:0 1em}
@@ -128,8 +130,11 @@ def index_page(rep: dict, images: dict, sheets: list[dict]) -> str:
                      e(h["present_error_mrad"]), verdict_span(tt), e("; ".join(v.get("reasons", [])))])
     out.append(table(["heliostat", "target", "status", "visits", "valid obs.", "obs.", "RMS [mrad]",
                       "present error [mrad]", "clause 8.2", "reasons"], rows, sortable=True, numeric=(3, 4, 5, 6, 7)))
-    ev = rep["events"]
+    ev = rep["events"]["rows"]
     out.append(f"<h2>Event log ({len(ev)})</h2>")
+    if rep["events"]["omitted_routine"] or rep["events"]["omitted_old"]:
+        out.append(f'<p class="small">Not listed: {rep["events"]["omitted_routine"]} routine events '
+                   f'({", ".join(escape(k) for k in F_ROUTINE)}), {rep["events"]["omitted_old"]} older events.</p>')
     out.append(table(["time", "kind", "heliostat", "reason"],
                      [[e(x["time_utc"]), e(x["kind"]), e(x["heliostat"]), e(x["reason"])] for x in ev])
                if ev else "<p>No event recorded.</p>")
