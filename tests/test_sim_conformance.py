@@ -212,7 +212,10 @@ def test_field_stow_refuses_commands_then_resume(served):
 
 def test_wind_stow(served):
     cfg, plant, _, client, source = served
-    source.t += (float(to_unix_seconds("2026-03-21T05:10:00Z")) - START) / RATE
+    goal = (float(to_unix_seconds("2026-03-21T05:10:00Z")) - START) / RATE + source.t
+    while source.t < goal:                 # a day of plant time in 2-hour requests (each well within the timeout)
+        source.t = min(goal, source.t + 7200.0 / RATE)
+        read(client, 0, 1)
     wind = f32(read(client, 100, 2))
     assert wind == pytest.approx(20.0)
     assert read(client, 4, 1)[0] in (1, 2)

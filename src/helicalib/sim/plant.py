@@ -23,7 +23,7 @@ from helicalib.sim.weather import WeatherModel
 
 S = HeliostatState
 MODE_IDLE, MODE_TRACK, MODE_HOLD, MODE_STOW = 0, 1, 3, 4
-MAX_STEP_S = 120.0
+MAX_STEP_S = 300.0
 """Longest internal step of :meth:`SimulatedPlant.advance_to` (tracking goals follow the sun)."""
 WIND_RELEASE_MS = 3.0
 """A wind stow ends when the wind falls this far below ``gating.stow_wind_ms``."""
