@@ -239,6 +239,7 @@ def test_tracking_test_uses_first_placements(built):
     bins = {b["wind_ms"]: b for b in rep["tracking_test"]["field"]["bins"]}
     at4 = [e for e, w in first if 3.0 <= w <= 5.0]
     assert bins[4.0]["n"] == len(at4) and bins[4.0]["within"] == sum(e <= 3.5 for e in at4)
+    assert bins[4.0]["pass"] == (sum(e <= 3.5 for e in at4) / len(at4) > 0.99)
     assert rep["tracking_test"]["field"]["verdict"] in ("fail", "incomplete")
 
 

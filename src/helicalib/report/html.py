@@ -73,7 +73,7 @@ def verdict_span(verdict: str | None) -> str:
 
 
 def banner_html(b: dict) -> str:
-    head = {"ok": "Campaign complete: no failure recorded.", "partly_failed": "Partly failed campaign.",
+    head = {"ok": "No failure recorded.", "partly_failed": "Partly failed campaign.",
             "empty": "Empty campaign."}[b["level"]]
     items = "".join(f"<li>{escape(m)}</li>" for m in b["messages"])
     return f'<div class="banner {b["level"]}"><strong>{escape(head)}</strong><ul>{items}</ul></div>'
@@ -115,8 +115,8 @@ def index_page(rep: dict, images: dict, sheets: list[dict]) -> str:
                                             for k in ("wind", "dni", "cleanliness")) + "</div>"]
     t = rep["tracking_test"]["field"]
     out += ["<h2>Tracking accuracy, T/GRLM 02-2014 (figure 3, clause 8.2)</h2>",
-            f"<p>Clause 8.2 verdict of the field: {verdict_span(t['verdict'])}"
-            + (" — " + "; ".join(escape(r) for r in t["reasons"]) if t["reasons"] else "") + "</p>",
+            f"<p>Clause 8.2 verdict of the field's pooled first placements: {verdict_span(t['verdict'])} — "
+            f"{escape(t['message'])}</p>",
             f'<p class="small">Points: {e(rep["tracking_test"]["points"])}.</p>',
             img(images.get("figure_3"), "T/GRLM figure 3")]
     out.append(f"<h2>Heliostats ({len(sheets)})</h2><p class=\"small\">Click a column to sort; a heliostat's id "
@@ -155,8 +155,8 @@ def sheet_page(sh: dict, plot_src: str | None, frames: dict | None, json_src: st
         if v["reasons"]:
             out.append("<ul>" + "".join(f"<li>{escape(r)}</li>" for r in v["reasons"]) + "</ul>")
     tt = sh.get("tracking_test")
-    out.append("<p>T/GRLM clause 8.2 on its first placements: " + (verdict_span(tt["verdict"]) + (
-        " — " + "; ".join(escape(r) for r in tt["reasons"]) if tt["reasons"] else "") if tt else "no point") + "</p>")
+    out.append("<p>T/GRLM clause 8.2 on its first placements: " + (
+        f"{verdict_span(tt['verdict'])} — {escape(tt['message'])}" if tt else "no point") + "</p>")
     out.append(table(["visits", "observations", "valid", "RMS of valid [mrad]", "present error [mrad]"],
                      [[e(sh["visits"]), e(sh["observations"]), e(sh["valid_observations"]), e(sh["valid_rms_mrad"]),
                        e(sh["present_error_mrad"])]], numeric=range(5)))

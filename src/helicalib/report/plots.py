@@ -150,8 +150,8 @@ def plot_figure_3(tt: dict, path: Path) -> Path:
         if n:
             ax.text(x, 101, f"{k}/{n}", ha="center", va="bottom", fontsize=7, color="#555")
     for b in field["bins"]:
-        colour = {True: "#2a9d3a", False: "#d1495b", None: "#999"}[b["ok"]]
-        ax.hlines(100 * b["min_fraction"], b["lo_ms"], b["hi_ms"], colors=colour, lw=3)
+        colour = {True: "#2a9d3a", False: "#d1495b", None: "#999"}[b["pass"]]
+        ax.hlines(100 * b["required"], b["low_ms"], b["high_ms"], colors=colour, lw=3)
         if b["fraction"] is not None:
             ax.plot(b["wind_ms"], 100 * b["fraction"], "D", color=colour, ms=7)
     ax.plot([], [], color="#555", lw=3, label="clause 8.2 minimum (bin ± half width)")
