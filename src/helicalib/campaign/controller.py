@@ -36,6 +36,8 @@ from helicalib.vision.frames import decode_frame
 from helicalib.vision.marks import find_marks
 from helicalib.vision.spot import measure_spot
 
+SEARCHABLE = frozenset({"no_spot", "clipped"})
+"""Spot results after which the visit searches for the beam instead of giving up."""
 POLL_S = 2.0
 """Plant seconds between status polls while waiting for a heliostat to settle."""
 
@@ -77,6 +79,7 @@ class VisitContext:
     on_valid: Callable[[Observation], HeliostatModel] | None = None
     corrections: Callable[[HeliostatModel], np.ndarray | None] | None = None
     """Tracking stroke corrections [mm] to write when the visit ends (None: keep the plant's)."""
+    last_strokes_mm: np.ndarray | None = None
 
 
 @dataclass
@@ -109,6 +112,7 @@ def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray) -> Generator[float,
     if not _in_range(ctx, strokes_mm):
         raise VisitAborted("stroke_out_of_range",
                            f"{ctx.heliostat_id}: strokes {np.round(strokes_mm, 1).tolist()} mm lie outside the drive's range; not sent")
+    ctx.last_strokes_mm = np.asarray(strokes_mm, dtype=float)
     seq = ctx.plant.move_to(ctx.index, np.asarray(strokes_mm, dtype=float))
     waited = 0.0
     while True:
@@ -151,19 +155,22 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         aim = centre.copy()
         strokes = _aim_strokes(ctx, aim, ctx.now())
         search = _search_aims(target, ctx.settings.search_steps)
-        iteration = 0
-        while iteration <= ctx.settings.max_iterations:
+        attempt, placements, searches = 0, 0, 0
+        while True:
             read = yield from move_and_hold(ctx, strokes)
-            obs = yield from _measure(ctx, before_frame, before, marks, strokes, read, aim, iteration)
+            obs = yield from _measure(ctx, before_frame, before, marks, strokes, read, aim, attempt)
             out.observations.append(obs)
-            iteration += 1
+            attempt += 1
             if not obs.valid:
-                if obs.reason not in ("no_spot", "clipped", "low_contrast") or not search:
-                    out.status, out.reason = "invalid", obs.reason
-                    break
-                aim = _next_search_aim(target, obs, search)
-                strokes = _aim_strokes(ctx, aim, ctx.now())
-                continue
+                if obs.reason in SEARCHABLE and search:
+                    searches += 1
+                    aim = _next_search_aim(target, obs, search)
+                    strokes = _aim_strokes(ctx, aim, ctx.now())
+                    continue
+                out.status = "invalid"
+                out.reason = obs.reason if not searches else f"{obs.reason} (after {searches} search placements)"
+                break
+            placements += 1
             out.valid_points += 1
             if out.first_error_mrad is None:
                 out.first_error_mrad = obs.error_mrad
@@ -174,19 +181,18 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
             if obs.error_mrad < ctx.settings.loop_threshold_mrad:
                 out.status, out.reason = "converged", "ok"
                 break
-            if iteration > ctx.settings.max_iterations:
-                out.status, out.reason = "not_converged", f"still {obs.error_mrad:.2f} mrad after {iteration} placements"
+            if placements >= ctx.settings.max_iterations:
+                out.status, out.reason = "not_converged", f"still {obs.error_mrad:.2f} mrad after {placements} placements"
                 break
             # the paper's inverse model: observed normal error carried into the strokes for the board centre
             aim = centre.copy()
-            t_next = ctx.now()
             corr = stroke_correction(ctx.model, np.asarray([read]), ctx.sun(obs.capture_time_s)[0],
-                                     np.asarray([obs.spot_enu_m]), aim, ctx.sun(t_next)[0])
+                                     np.asarray([obs.spot_enu_m]), aim, ctx.sun(ctx.now())[0])
             if not bool(corr.in_range[0]):
                 out.status, out.reason = "refused", "the corrected strokes lie outside the drive's range"
                 break
             strokes = corr.strokes_mm[0]
-        out.iterations = iteration
+        out.iterations = placements
     except VisitAborted as err:
         out.status, out.reason = ("refused" if "range" in err.code else "fault"), err.code
         _record_failure(ctx, err.code, str(err))
@@ -292,7 +298,9 @@ def _record_failure(ctx: VisitContext, code: str, message: str) -> None:
     t = ctx.now()
     sun_vec, az, el, rising = ctx.sun(t)
     obs = Observation(campaign_id=ctx.campaign_id, heliostat_id=ctx.heliostat_id, target_id=ctx.target.id,
-                      visit_id=ctx.visit_id, iteration=-1, capture_time_s=float(t), strokes_cmd_mm=(float("nan"),) * 2,
+                      visit_id=ctx.visit_id, iteration=-1, capture_time_s=float(t),
+                      strokes_cmd_mm=tuple(float(x) for x in (ctx.last_strokes_mm if ctx.last_strokes_mm is not None
+                                                              else (float("nan"),) * 2)),
                       strokes_read_mm=None, sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az),
                       sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message)
     try:

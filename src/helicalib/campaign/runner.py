@@ -64,15 +64,18 @@ class CampaignRunner:
         ``"gaps"`` (fill acceptance gaps fastest) or ``"round-robin"`` (the paper's "in turn").
     recheck : bool
         Visit every heliostat once regardless of acceptance (operators' re-check).
+    armed : bool
+        False: read the plant and plan, but write nothing (each decision is recorded as an event).
     """
 
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
-                 recheck=False, model=None):
+                 recheck=False, model=None, armed=True):
         self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
         self.campaign_id = campaign_id
         self.ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
         self.planner_kind = planner
         self.recheck = recheck
+        self.armed = armed
         self.settings = VisitSettings.from_config(cfg)
         self.sun_table = SunTable(cfg.site)
         base = model if model is not None else HeliostatModel.from_config(cfg, self.ids)
@@ -209,6 +212,12 @@ class CampaignRunner:
         if choice is None:
             return
         hid = choice
+        if not self.armed:
+            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="note",
+                                    reason=f"not armed: would send {hid} to {target_id}")
+            self.book.visiting(hid, now)
+            self.book.h[hid].cooldown_until_s = now + policy.COOLDOWN_VALID_S
+            return
         visit_id = self.store.begin_visit(self.campaign_id, hid, target_id, now)
         cams = self.cfg.cameras_for(target_id)
         ctx = VisitContext(
@@ -279,6 +288,22 @@ class CampaignRunner:
             self.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
                                   **policy.fit_record(fit))
         return model
+
+    def rechecked(self) -> bool:
+        """Re-check mode: every heliostat has been visited and no visit is under way."""
+        return not self.active and all(self.book.h[hid].visits > 0 for hid in self.ids)
+
+    def shutdown(self, now: float) -> None:
+        """Stop every visit under way and hand its heliostat back to tracking."""
+        for tid in list(self.active):
+            _wake, hid, gen, ctx = self.active.pop(tid)
+            gen.close()
+            self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
+            try:
+                self.plant.track(ctx.index, None if self.corrections[hid] is None else self.corrections[hid])
+            except PlantError as err:
+                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
+                                        reason=f"{hid}: back to tracking failed: {err}")
 
     # ------------------------------------------------------------------ summary
     def accepted(self) -> list[str]:

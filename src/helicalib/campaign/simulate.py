@@ -106,10 +106,11 @@ def _network_plant(cfg, scenario, start_s, rate, stack):
     from helicalib.devices.modbus import ModbusPlant
     from helicalib.sim.clock import RateClock
     from helicalib.sim.plant import SimulatedPlant
-    from helicalib.sim.server import PlantServer
+    from helicalib.sim.server import FaultInjector, PlantServer
 
     sim = SimulatedPlant(cfg, scenario, start_s=start_s, rate=rate)
-    server = PlantServer(sim, RateClock(start_s, rate, time.monotonic, time.sleep), modbus_port=0, camera_port=0)
+    server = PlantServer(sim, RateClock(start_s, rate, time.monotonic, time.sleep), modbus_port=0, camera_port=0,
+                         faults=FaultInjector.from_scenario(scenario.faults, seed=scenario.seed))
     stack.enter_context(server)
     endpoint = cfg.plant.scs.model_copy(update={"host": "127.0.0.1", "port": server.modbus_port})
     plant = ModbusPlant(endpoint, endpoint, heliostat_count=len(cfg.heliostats), armed=True,

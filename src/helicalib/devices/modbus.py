@@ -311,7 +311,13 @@ class ModbusPlant:
                              [(R.OFF_STROKE_CMD_1, R.encode_f32(s[0]) + R.encode_f32(s[1]), "stroke command")])
 
     def track(self, index: int, corrections_mm) -> int:
-        """Return to tracking with these stroke corrections (actuator 1, 2) [mm]; returns the sequence number."""
+        """Return to tracking with these stroke corrections (actuator 1, 2) [mm]; returns the sequence number.
+
+        ``corrections_mm=None`` leaves the correction registers as they are: the plant tracks with
+        the corrections it already has (never wipe a plant's corrections by accident).
+        """
+        if corrections_mm is None:
+            return self._command(index, R.HeliostatCommand.TRACK, [])
         c = np.asarray(corrections_mm, dtype=float).reshape(2)
         if not np.all(np.isfinite(c)):
             raise PlantError(f"refusing to send non-finite tracking corrections {c.tolist()} to {self._label(index)}")

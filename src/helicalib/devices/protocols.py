@@ -77,8 +77,8 @@ class Plant(Protocol):
         """Command strokes (mm, actuator 1 and 2) and hold; returns the sequence number sent."""
         ...
 
-    def track(self, index: int, corrections_mm: np.ndarray) -> int:
-        """Return to tracking with these stroke corrections; returns the sequence number sent."""
+    def track(self, index: int, corrections_mm: np.ndarray | None) -> int:
+        """Return to tracking with these stroke corrections [mm] (None: keep the plant's); returns the sequence number."""
         ...
 
     def stow(self, index: int) -> int: ...

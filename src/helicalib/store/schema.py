@@ -59,8 +59,8 @@ CREATE TABLE IF NOT EXISTS observations (
     visit_id INTEGER REFERENCES visits(id),
     iteration INTEGER NOT NULL,
     capture_time_s REAL NOT NULL,
-    stroke_cmd_1_mm REAL NOT NULL,
-    stroke_cmd_2_mm REAL NOT NULL,
+    stroke_cmd_1_mm REAL,            -- NULL: no stroke was commanded (a failure before any move)
+    stroke_cmd_2_mm REAL,
     stroke_read_1_mm REAL,
     stroke_read_2_mm REAL,
     sun_e REAL NOT NULL,

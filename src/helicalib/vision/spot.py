@@ -85,6 +85,9 @@ class FrameSpot:
 class SpotResult:
     """A spot measurement. Pixel values are frame pixels; ``offset_m`` is (u, v) on the board from its centre.
 
+    An invalid result has no ``offset_m``, except a "clipped" one: there it is the centroid of the
+    visible part (biased toward the board centre), so a search can head for the beam.
+
     ``spot_area_px`` is the annex A spot area ``S`` counted on the board grid (cells of
     ``1/cells_per_m`` metres; ``spot_area_m2`` is the same in square metres). ``window_px`` holds the
     corners (4, 2) of the square A.2 window in the frame; ``window_side_m`` its side.
@@ -211,19 +214,48 @@ def intensity_centroid(I: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- one frame
+def _lowest_mode(r: np.ndarray, min_share: float = 0.1) -> float:
+    """The lowest well-populated mode of after/before light ratios.
+
+    A beam only ever adds light, so the spot-free board is the cluster of the LOWEST ratios; the
+    spot's cells spread above it (and a flat-topped spot can form a larger cluster of its own, so
+    the highest peak is not the answer). Histogram in 0.5 % bins, lightly smoothed; the first local
+    maximum holding at least ``min_share`` of the cells within ±4 % of it.
+    """
+    lo, hi = np.percentile(r, [0.5, 99.5])
+    if not hi > lo:
+        return float(np.median(r))
+    bins = int(np.clip((hi - lo) / 0.005, 20, 2000))
+    hist, edges = np.histogram(r, bins=bins, range=(lo, hi))
+    smooth = np.convolve(hist, np.array([1.0, 2.0, 3.0, 2.0, 1.0]) / 9.0, mode="same")
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    peaks = [i for i in range(bins) if smooth[i] > 0 and smooth[i] >= smooth[max(i - 1, 0)]
+             and smooth[i] >= smooth[min(i + 1, bins - 1)]]
+    for i in peaks:
+        c = centres[i]
+        if np.count_nonzero(np.abs(r - c) <= 0.04 * c) >= min_share * r.size:
+            near = r[np.abs(r - c) <= 0.04 * c]
+            return float(np.median(near))
+    return float(np.median(r))
+
+
 def _ambient_ratio(a_s: np.ndarray, b_s: np.ndarray, lit: np.ndarray) -> tuple[float, np.ndarray]:
     """Light ratio after/before on the board, away from the spot, and a spot-free sample of the difference.
 
-    Pass 1: median ratio over the lit board. Pass 2: the cells clearly lit by the spot (more than
-    3 noise sigmas) are grown by their own extent (the faint tails of a real spot reach far) and left
-    out; the median ratio of the rest is ``k``. Works on a sub-sampled grid (2-D arrays).
+    Pass 1: the lowest well-populated mode of the after/before ratio over the lit board
+    (:func:`_lowest_mode`: robust even when the spot covers most of the board). Pass 2: the cells
+    clearly lit by the spot (more than 3 noise sigmas, the noise taken from the cells at the ambient
+    level) are grown by their own extent (the faint tails of a real spot reach far) and left out;
+    the median ratio of the rest is ``k``. Works on a sub-sampled grid (2-D arrays).
     """
     import cv2
 
-    k = float(np.median(a_s[lit] / b_s[lit]))
+    ratio = np.divide(a_s, b_s, out=np.zeros_like(a_s), where=b_s > 0)
+    k = _lowest_mode(ratio[lit])
     d = a_s - k * b_s
-    dl = d[lit]
-    noise = max(0.5, 1.4826 * float(np.median(np.abs(dl - np.median(dl)))))
+    near = lit & (np.abs(ratio - k) <= 0.04 * k)
+    ref = d[near] if np.count_nonzero(near) >= 16 else d[lit]
+    noise = max(0.5, 1.4826 * float(np.median(np.abs(ref - np.median(ref)))))
     spot = ((d > 3.0 * noise) & lit).astype(np.uint8)
     n_spot = int(np.count_nonzero(spot))
     if n_spot:
@@ -231,9 +263,9 @@ def _ambient_ratio(a_s: np.ndarray, b_s: np.ndarray, lit: np.ndarray) -> tuple[f
         grown = cv2.dilate(spot, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))).astype(bool)
         rest = lit & ~grown
         if np.count_nonzero(rest) >= max(16, 0.05 * np.count_nonzero(lit)):
-            k = float(np.median(a_s[rest] / b_s[rest]))
+            k = float(np.median(ratio[rest]))
             return k, a_s[rest] - k * b_s[rest]
-    return k, d[lit]
+    return k, ref
 
 
 def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limits: SpotLimits) -> FrameSpot:
@@ -283,6 +315,10 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
         raise _Invalid("no_spot", f"no spot: only {S} cells of the board lie above the threshold {T:.0f}.", partial)
     side = math.sqrt(S)
     if clipped > limits.max_clipped_cells or side >= min(grid.shape):
+        # the visible part's centroid (biased toward the board): tells a search which way the beam lies
+        seen = intensity_centroid(Dm * mask)
+        partial = FrameSpot(seen, grid.cell_to_board(seen), T, S, side, np.full(2, np.nan), k, peak, noise, sat,
+                            clipped)
         raise _Invalid("clipped", f"the spot runs over the edge of the board or the frame ({clipped} cells of it "
                        "on the rim); its centre would be biased.", partial)
     if sat > limits.max_saturated_fraction:
@@ -388,6 +424,9 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
             if bad.partial is not None and bad.partial.area_cells:
                 extra = dict(threshold=bad.partial.threshold, spot_area_px=float(bad.partial.area_cells),
                              spot_area_m2=bad.partial.area_cells / grid.cells_per_m**2)
+            if bad.reason == "clipped" and bad.partial is not None and np.all(np.isfinite(bad.partial.offset_m)):
+                # invalid, but where the visible part of the spot lies (a search is led by it)
+                extra["offset_m"] = np.asarray(bad.partial.offset_m, dtype=float)
             where = f" (after frame {i + 1})" if len(afters) > 1 else ""
             return SpotResult(False, bad.reason, bad.message.rstrip(".") + where + ".", failed_frame=i,
                               frames=tuple(frames) + ((bad.partial,) if bad.partial else ()), **extra, **base)

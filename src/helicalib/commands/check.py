@@ -1,0 +1,25 @@
+"""``helicalib check FIELD --heliostat H0007 [--arm]``: re-check drifted mirrors now."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("check", help="re-check one or more heliostats now and report their present error",
+                       description="Visit each named heliostat once (whatever its acceptance) and report its present "
+                                   "first-placement tracking error. Without --arm nothing is written to the plant.")
+    p.add_argument("field", help="field config YAML")
+    p.add_argument("--heliostat", required=True, help="heliostat id, or several separated by commas")
+    p.add_argument("--arm", action="store_true", help="allow writes to the plant")
+    p.add_argument("--hours", type=float, default=2.0, help="give up after this many plant hours (default 2)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from helicalib.campaign.session import live_session
+
+    args.heliostats = args.heliostat
+    args.until, args.days, args.planner, args.recheck = None, args.hours / 24.0, "gaps", True
+    return live_session(args, mode="check")

@@ -1,0 +1,27 @@
+"""``helicalib run FIELD [--arm]``: a live campaign against the plant in the field config."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run (or resume) a live calibration campaign against the plant",
+                       description="A live campaign against the plant the field config names (Modbus TCP + HTTP "
+                                   "cameras), driven by APScheduler on the plant clock. Without --arm it reads and "
+                                   "plans but writes nothing to the plant. Re-running on the same database resumes "
+                                   "the unfinished campaign.")
+    p.add_argument("field", help="field config YAML")
+    p.add_argument("--arm", action="store_true", help="allow writes to the plant (commands, strokes, corrections)")
+    p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--until", default=None, help="stop at this plant time (ISO 8601 with offset)")
+    g.add_argument("--days", type=float, default=None, help="stop after this many plant days (default 7)")
+    p.add_argument("--planner", choices=("gaps", "round-robin"), default="gaps", help="who goes next (default gaps)")
+    p.set_defaults(func=run, recheck=False)
+
+
+def run(args) -> int:
+    from helicalib.campaign.session import live_session
+
+    return live_session(args, mode="live")
