@@ -107,7 +107,7 @@ class Actuators(_Model):
 
 
 class CameraSpec(_Model):
-    gain_counts_per_wm2: float = Field(default=0.3, gt=0)   # counts per W/m² on a white (albedo 1) surface
+    gain_counts_per_wm2: float = Field(default=0.2, gt=0)   # counts per W/m² on a white (albedo 1) surface: a 20 m² mirror at normal incidence peaks near 180 of 255
     noise_counts: float = Field(default=1.5, ge=0)          # std of the sensor noise
     ambient_fraction: float = Field(default=0.12, ge=0)     # diffuse light on the board per unit DNI
     ambient_offset_wm2: float = Field(default=30.0, ge=0)
