@@ -113,7 +113,9 @@ def test_normal_angles_normal_round_trip_custom_axes(a1, a2, n0, t1, t2):
     normal = angles_to_normal(d, np.array([[t1, t2]]))
     back, _ = normal_to_angles(d, normal)
     assert np.all(np.isfinite(back))  # the normal came from the drive, so a solution exists
-    np.testing.assert_allclose(angles_to_normal(d, back), normal, atol=1e-9)
+    # where the two cones touch (the edge of the reachable set) the closed form loses half the digits
+    # (sqrt of a rounding error): 1e-8 rad = 1e-5 mrad, still 1000× inside the 0.01 mrad contract
+    np.testing.assert_allclose(angles_to_normal(d, back), normal, atol=1e-8)
 
 
 def test_azimuth_elevation_preset_means_normal_azimuth_and_elevation():
