@@ -319,3 +319,16 @@ def test_cli_report(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["summary"]["visits"] == len(VISITS) and Path(out["index"]).is_file()
     assert main(["report", str(tmp_path / "missing.db"), "--out", str(tmp_path / "x")]) == 1
+
+
+def test_parallel_sheets_equal_serial(built, tmp_path, monkeypatch):
+    from helicalib.report import build
+
+    db, index, rep = built
+    monkeypatch.setattr(build, "PARALLEL_MIN_HELIOSTATS", 2)
+    index2 = build.build_report(db, tmp_path / "par", jobs=2)
+    rep2 = json.loads((index2.parent / "report.json").read_text())
+    assert [h["id"] for h in rep2["heliostats"]] == IDS
+    for a, b in zip(rep["heliostats"], rep2["heliostats"]):
+        assert a == b
+    check_links(index2)

@@ -16,6 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--field", default=None, help="field config to use instead of the one the campaign recorded")
     p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
     p.add_argument("--no-frames", action="store_true", help="do not draw each heliostat's latest frames (faster)")
+    p.add_argument("--jobs", type=int, default=None, help="processes drawing the heliostat sheets (default: CPUs, max 4)")
     p.add_argument("--json", action="store_true", help="print report.json's summary and status on stdout")
     p.set_defaults(func=run)
 
@@ -28,7 +29,7 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     index = build_report(args.database, args.out, args.campaign, field_config=args.field, images_dir=args.images,
-                         frames=not args.no_frames)
+                         frames=not args.no_frames, jobs=args.jobs)
     rep = json.loads((index.parent / "report.json").read_text())
     if args.json:
         print(json.dumps({"index": str(index), "status": rep["status"], "summary": rep["summary"],

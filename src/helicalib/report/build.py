@@ -74,7 +74,7 @@ def compute(data: CampaignData) -> dict:
 
 
 def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_config=None, images_dir=None,
-                 frames: bool = True) -> Path:
+                 frames: bool = True, jobs: int | None = None) -> Path:
     """Write the report of one campaign (default: the newest) into ``out_dir``; returns ``index.html``.
 
     Parameters
@@ -91,6 +91,8 @@ def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_conf
         Frames directory when not ``images`` beside the database.
     frames : bool
         Draw each heliostat's latest before/after frames (the slowest part on big fields).
+    jobs : int, optional
+        Processes drawing the heliostat sheets (default: the CPU count, at most 4; 1 = serial).
     """
     t_start = time.perf_counter()
     out = Path(out_dir)
@@ -108,10 +110,11 @@ def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_conf
     images = {k: v.relative_to(out).as_posix() for k, v in images.items()}
     t_plots = time.perf_counter()
 
-    rep["heliostats"] = _write_sheets(data, rep, out, frames)
+    rep["heliostats"] = _write_sheets(data, rep, out, frames, jobs)
     t_sheets = time.perf_counter()
     rep["timing_s"] = {"figures": round(t_figures - t_start, 3), "campaign_plots": round(t_plots - t_figures, 3),
-                       "sheets": round(t_sheets - t_plots, 3), "heliostats": len(rep["heliostats"])}
+                       "sheets": round(t_sheets - t_plots, 3), "heliostats": len(rep["heliostats"]),
+                       "total": round(time.perf_counter() - t_start, 3)}
     (out / "report.json").write_text(json.dumps(rep, indent=1, ensure_ascii=False, default=_json_default))
     index = out / "index.html"
     index.write_text(html.index_page(rep, images, rep["heliostats"]), encoding="utf-8")
@@ -128,41 +131,75 @@ def _json_default(value):
     raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
-def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool) -> list[dict]:
-    """Each heliostat's plot, frames, JSON and page; returns the sheet summaries for ``report.json``."""
+PARALLEL_MIN_HELIOSTATS = 40
+"""Fields at least this big draw their sheets in several processes (``jobs``)."""
+
+_JOB: dict = {}
+"""The sheet job a forked worker inherits (set just before the pool forks)."""
+
+
+def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: int | None = None) -> list[dict]:
+    """Each heliostat's plot, frames, JSON and page; returns the sheet summaries for ``report.json``.
+
+    With ``jobs`` > 1 (default: the CPU count, at most 4) and a field of at least
+    :data:`PARALLEL_MIN_HELIOSTATS`, the heliostats are split into chunks drawn by forked worker
+    processes (each with its own figure); the summaries come back in field order.
+    """
+    import multiprocessing
+    import os
+
+    obs = data.observations
+    valid = obs[obs["valid"] & obs["error_mrad"].notna()] if len(obs) else obs
+    visits_of: dict[str, dict] = {}
+    for v in data.visits:
+        visits_of.setdefault(v.heliostat_id, {})[v.id] = v
+    _JOB.clear()
+    _JOB.update(
+        data=data, rep=rep, out=out, frames=frames, names=_file_names(data.heliostat_ids),
+        errors=F.present_errors(data), visits_of=visits_of,
+        groups={str(k): g for k, g in obs.groupby("heliostat_id")} if len(obs) else {}, empty=obs.iloc[0:0],
+        targets={h.heliostat_id: h.target_id for h in data.heliostats},
+        max_error=float(valid["error_mrad"].max()) if len(valid) else 0.0,
+        max_placements=int(valid["iteration"].max()) + 1 if len(valid) else 1,
+    )
+    ids = data.heliostat_ids
+    jobs = min(4, os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
+    methods = multiprocessing.get_all_start_methods()
+    try:
+        if jobs > 1 and len(ids) >= PARALLEL_MIN_HELIOSTATS and "fork" in methods:
+            chunks = [ids[k::jobs] for k in range(jobs)]
+            with multiprocessing.get_context("fork").Pool(jobs) as pool:
+                parts = pool.map(_sheet_chunk, chunks)
+            by_id = {s["id"]: s for part in parts for s in part}
+            return [by_id[h] for h in ids]
+        return _sheet_chunk(ids)
+    finally:
+        _JOB.clear()
+
+
+def _sheet_chunk(ids: list[str]) -> list[dict]:
+    """Draw and write the sheets of ``ids`` (in this process) from :data:`_JOB`."""
     from helicalib.report.overlay import overlay_latest
     from helicalib.report.sheet_plots import SheetPlotter
 
-    ids = data.heliostat_ids
-    names = _file_names(ids)
-    errors = F.present_errors(data)
+    j = _JOB
+    data, rep, out = j["data"], j["rep"], j["out"]
     per_tt = rep["tracking_test"]["per_heliostat"]
-    visits_by_id = {v.id: v for v in data.visits}
-    obs = data.observations
-    groups = {str(k): g for k, g in obs.groupby("heliostat_id")} if len(obs) else {}
-    empty = obs.iloc[0:0]
-    targets = {h.heliostat_id: h.target_id for h in data.heliostats}
-    summaries = []
-    valid = obs[obs["valid"] & obs["error_mrad"].notna()] if len(obs) else obs
-    max_error = float(valid["error_mrad"].max()) if len(valid) else 0.0
-    max_placements = int(valid["iteration"].max()) + 1 if len(valid) else 1
     t0 = data.campaign.started_s if data.campaign is not None else 0.0
-    with SheetPlotter(rep["acceptance"], F.loop_threshold_mrad(data), (t0, data.end_s), max_error,
-                      max_placements) as plotter:
+    summaries = []
+    with SheetPlotter(rep["acceptance"], F.loop_threshold_mrad(data), (t0, data.end_s), j["max_error"],
+                      j["max_placements"]) as plotter:
         for hid in ids:
-            stem = names[hid]
-            g = groups.get(hid, empty)
-            own_visits = {k: v for k, v in visits_by_id.items() if v.heliostat_id == hid}
-            sheet = heliostat_sheet(data, hid, targets[hid], g, errors.get(hid), per_tt.get(hid), own_visits)
+            stem = j["names"][hid]
+            sheet = heliostat_sheet(data, hid, j["targets"][hid], j["groups"].get(hid, j["empty"]), j["errors"].get(hid),
+                                    per_tt.get(hid), j["visits_of"].get(hid, {}))
             plot = plotter.draw(sheet, out / "heliostats" / f"{stem}.png")
-            drawn = None
-            if frames and sheet["latest_frames"] is not None:
+            frames_info = None
+            if j["frames"] and sheet["latest_frames"] is not None:
                 drawn = overlay_latest(data.images_dir, sheet["latest_frames"], data.cfg,
                                        out / "heliostats" / f"{stem}_frames.png")
                 sheet["latest_frames"]["remeasured"] = drawn["remeasured"]
                 sheet["latest_frames"]["note"] = drawn["note"]
-            frames_info = None
-            if drawn is not None:
                 frames_info = {"src": drawn["png"].name if drawn["png"] is not None else None, "note": drawn["note"]}
             (out / "heliostats" / f"{stem}.json").write_text(
                 json.dumps(sheet, indent=1, ensure_ascii=False, default=_json_default))

@@ -42,7 +42,10 @@ def _save(fig, path: Path) -> Path:
 
 
 def _empty(ax, text: str) -> None:
-    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="#666")
+    import textwrap
+
+    ax.text(0.5, 0.5, "\n".join(textwrap.wrap(text, 48)), ha="center", va="center", transform=ax.transAxes,
+            color="#666", fontsize=9)
 
 
 def plot_field_map(fm: dict, path: Path) -> Path:
@@ -52,7 +55,8 @@ def plot_field_map(fm: dict, path: Path) -> Path:
     for ax in (a1, a2):
         ax.set_xlabel("east [m]")
         ax.set_ylabel("north [m]")
-        ax.set_aspect("equal", adjustable="datalim")
+        if rows:
+            ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
         if fm.get("tower"):
             ax.plot(fm["tower"]["tower_east_m"], fm["tower"]["tower_north_m"], "k^", ms=10, label="tower")

@@ -55,15 +55,20 @@ def corrections(obs: pd.DataFrame, visits_by_id: dict) -> list[dict]:
     out = []
     if not len(obs):
         return out
-    for vid, g in obs[obs["visit_id"].notna()].groupby("visit_id", sort=True):
-        g = g.sort_values("id")
-        valid = g[g["valid"] & g["error_mrad"].notna()]
-        v = visits_by_id.get(int(vid))
-        out.append({"visit_id": int(vid), "started_utc": iso(v.started_s) if v else None,
+    o = obs[obs["visit_id"].notna()].sort_values("id")
+    vid = o["visit_id"].to_numpy(dtype=float).astype(int)
+    ok = (o["valid"].to_numpy(dtype=bool) & o["error_mrad"].notna().to_numpy())
+    it = o["iteration"].to_numpy(dtype=int)
+    err = o["error_mrad"].to_numpy(dtype=float)
+    reason = o["reason"].to_numpy(dtype=object)
+    for v_id in sorted(set(vid.tolist())):
+        sel = vid == v_id
+        good = sel & ok
+        v = visits_by_id.get(v_id)
+        out.append({"visit_id": v_id, "started_utc": iso(v.started_s) if v else None,
                     "outcome": v.outcome if v else None, "reason": v.reason if v else None,
-                    "iterations": valid["iteration"].astype(int).tolist(),
-                    "errors_mrad": [num(x) for x in valid["error_mrad"]],
-                    "invalid_reasons": g.loc[~g["valid"], "reason"].tolist()})
+                    "iterations": it[good].tolist(), "errors_mrad": [num(x) for x in err[good]],
+                    "invalid_reasons": [str(r) for r in reason[sel & ~ok]]})
     return out
 
 
@@ -111,7 +116,7 @@ def heliostat_sheet(data: CampaignData, hid: str, target_id: str, obs: pd.DataFr
     """One heliostat's sheet: status, verdict with reasons, fit, corrections, observations, frames."""
     v = data.verdicts.get(hid)
     valid = obs[obs["valid"] & obs["error_mrad"].notna()] if len(obs) else obs
-    n_visits = sum(1 for x in visits_by_id.values() if x.heliostat_id == hid)
+    n_visits = sum(1 for x in visits_by_id.values() if x.heliostat_id == hid)  # visits_by_id: this heliostat's
     return {
         "id": hid, "target": target_id, "status": heliostat_status(data, hid),
         "verdict": None if v is None else {"accepted": v.accepted, "time_utc": iso(v.time_s), "n_points": v.n_points,
