@@ -142,6 +142,18 @@ def index_page(rep: dict, images: dict, sheets: list[dict]) -> str:
     return page(f"helicalib report — {c.get('name') if c else 'empty'}", "\n".join(out), sortable=True)
 
 
+def coverage_html(details: dict) -> str:
+    """The paper-2.4 coverage the verdict recorded (bands and windows with their point counts), if any."""
+    parts = []
+    for key, label in (("rising_ok", "rising band"), ("setting_ok", "setting band")):
+        if key in details:
+            parts.append(f"{label} {'✓' if details[key] else '✗'}")
+    counts = details.get("window_counts")
+    if isinstance(counts, list) and counts:
+        parts.append("high windows: " + " ".join(f"{k + 1}:{'✓' if c else '✗'}({c})" for k, c in enumerate(counts)))
+    return f'<p class="small">Coverage: {escape("; ".join(parts))}</p>' if parts else ""
+
+
 def sheet_page(sh: dict, plot_src: str | None, frames: dict | None, json_src: str) -> str:
     """One heliostat's page: verdict with reasons, plots, frames, fit, corrections, observations."""
     out = ['<p><a href="../index.html">← campaign report</a></p>',
@@ -154,6 +166,7 @@ def sheet_page(sh: dict, plot_src: str | None, frames: dict | None, json_src: st
                    f"{e(v['n_points'])} valid points, RMS {e(v['rms_mrad'])} mrad.</p>")
         if v["reasons"]:
             out.append("<ul>" + "".join(f"<li>{escape(r)}</li>" for r in v["reasons"]) + "</ul>")
+        out.append(coverage_html(v.get("details") or {}))
     tt = sh.get("tracking_test")
     out.append("<p>T/GRLM clause 8.2 on its first placements: " + (
         f"{verdict_span(tt['verdict'])} — {escape(tt['message'])}" if tt else "no point") + "</p>")

@@ -120,7 +120,8 @@ def heliostat_sheet(data: CampaignData, hid: str, target_id: str, obs: pd.DataFr
     return {
         "id": hid, "target": target_id, "status": heliostat_status(data, hid),
         "verdict": None if v is None else {"accepted": v.accepted, "time_utc": iso(v.time_s), "n_points": v.n_points,
-                                           "rms_mrad": num(v.rms_mrad), "reasons": list(v.reasons)},
+                                           "rms_mrad": num(v.rms_mrad), "reasons": list(v.reasons),
+                                           "details": v.details},
         "visits": n_visits, "observations": int(len(obs)), "valid_observations": int(len(valid)),
         "present_error_mrad": num(present_error),
         "valid_rms_mrad": num(float((valid["error_mrad"] ** 2).mean() ** 0.5)) if len(valid) else None,
