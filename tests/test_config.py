@@ -34,12 +34,14 @@ def test_config_objects_are_frozen(demo_field_path):
 
 
 def test_target_frame_follows_the_convention(demo_field_path):
-    # FIELD_CONFIG.md: u = unit(z_up × normal), v = normal × u, for a north-facing board u = west
+    # FIELD_CONFIG.md: u = unit(z_up × normal), v = normal × u. The demo boards face north, tilted
+    # 35° down toward the field: n = (0, cos 35°, -sin 35°), so u = west and v = (0, sin 35°, cos 35°)
     t = load_field_config(demo_field_path).target("T1")
     u, v, w = t.frame_enu
-    np.testing.assert_allclose(u, [-1, 0, 0], atol=1e-12)
-    np.testing.assert_allclose(v, [0, 0, 1], atol=1e-12)
-    np.testing.assert_allclose(w, t.normal_enu, atol=1e-12)
+    c, s = np.cos(np.radians(35.0)), np.sin(np.radians(35.0))
+    np.testing.assert_allclose(u, [-1, 0, 0], atol=1e-4)
+    np.testing.assert_allclose(v, [0, s, c], atol=1e-4)
+    np.testing.assert_allclose(w, [0, c, -s], atol=1e-4)
     pts = np.array([[1.0, 2.0, 0.5], [-3.0, 0.0, 0.0]])
     np.testing.assert_allclose(t.enu_to_uvw(t.uvw_to_enu(pts)), pts, atol=1e-12)
 
@@ -61,7 +63,8 @@ def test_target_frame_follows_the_convention(demo_field_path):
         (lambda d: d["targets"][1].update(id="T1"), "targets[1].id", "duplicate target id"),
         (lambda d: d["cameras"][0].update(target="T7"), "cameras[0].target", "unknown target 'T7'"),
         (lambda d: d["targets"][0].update(standby_offset_m=[1.0, 1.0]), "targets[0].standby_offset_m", "on the board"),
-        (lambda d: d["drives"]["tr20"]["actuators"][0].update(gamma0_deg=190), "drives.tr20.actuators[0].gamma0_deg", "180"),
+        (lambda d: d["drives"]["tr20"]["actuators"][0].update(gamma0_deg="wide"), "drives.tr20.actuators[0].gamma0_deg", "number"),
+        (lambda d: d["drives"]["tr20"]["actuators"][0].update(sign=2), "drives.tr20.actuators[0].sign", "1"),
         (lambda d: d["storage"].update(database="postgres://x"), "storage.database", "sqlite:///"),
     ],
 )

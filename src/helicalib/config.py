@@ -206,7 +206,7 @@ def _distortion(value: Any) -> tuple[float, ...]:
 class Actuator(_Model):
     arm_fixed_m: PositiveFloat
     arm_moving_m: PositiveFloat
-    gamma0_deg: float = Field(gt=0, lt=180)
+    gamma0_deg: float  # γ at θ = 0; may lie outside (0, 180) as long as the operating γ stays inside
     sign: Literal[1, -1]
     length_at_zero_stroke_m: PositiveFloat
     stroke_range_mm: Annotated[tuple[float, float], _numbers(2)]

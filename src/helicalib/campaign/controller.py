@@ -76,10 +76,13 @@ class VisitContext:
     model: HeliostatModel
     settings: VisitSettings
     record: Callable[..., int]
+    save_frame: Callable[..., str] | None = None
+    """Save one frame, returns its stored path (the before frame is saved once per visit)."""
     on_valid: Callable[[Observation], HeliostatModel] | None = None
     corrections: Callable[[HeliostatModel], np.ndarray | None] | None = None
     """Tracking stroke corrections [mm] to write when the visit ends (None: keep the plant's)."""
     last_strokes_mm: np.ndarray | None = None
+    before_path: str | None = None
 
 
 @dataclass
@@ -151,6 +154,10 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     try:
         yield from move_and_hold(ctx, _aim_strokes(ctx, standby, ctx.now()))
         before_frame, before = _grab(ctx)
+        if ctx.save_frame is not None:
+            ctx.before_path = ctx.save_frame(before_frame.data, campaign_id=ctx.campaign_id,
+                                             heliostat_id=ctx.heliostat_id, visit_id=ctx.visit_id, iteration=0,
+                                             capture_time_s=before_frame.capture_time_s, kind="before")
         marks = find_marks(before, target, ctx.camera_config)
         aim = centre.copy()
         strokes = _aim_strokes(ctx, aim, ctx.now())
@@ -227,14 +234,14 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
         strokes_cmd_mm=tuple(float(x) for x in strokes_cmd),
         strokes_read_mm=None if strokes_read is None else tuple(float(x) for x in strokes_read),
         sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az), sun_elevation_deg=float(el),
-        sun_rising=bool(rising),
+        sun_rising=bool(rising), before_frame_path=ctx.before_path,
         wind_ms=getattr(weather, "wind_ms", None), wind_direction_deg=getattr(weather, "wind_direction_deg", None),
         dni_wm2=getattr(weather, "dni_wm2", None), temperature_c=getattr(weather, "temperature_c", None),
         cleanliness=getattr(status, "cleanliness", None),
     )
     if reason is not None:
         obs = Observation(valid=False, reason=reason, message=message, **base)
-        obs_id = ctx.record(obs, before_frame=before_frame.data, after_frames=[f.data for f in frames])
+        obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame), after_frames=[f.data for f in frames])
         return _with_id(obs, obs_id)
     spot = measure_spot(before, images, ctx.target, ctx.camera_config, method=ctx.settings.spot_method, marks=marks)
     extra = {}
@@ -254,8 +261,13 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
                                                ctx.model.pivots_enu[0]))
         extra["error_mrad"] = err
     obs = Observation(valid=bool(spot.valid), reason=spot.reason, message=spot.message, **base, **extra)
-    obs_id = ctx.record(obs, before_frame=before_frame.data, after_frames=[f.data for f in frames])
+    obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame), after_frames=[f.data for f in frames])
     return _with_id(obs, obs_id)
+
+
+def _before_data(ctx: VisitContext, before_frame):
+    """The before frame's bytes, unless it was saved already (then its path is in the observation)."""
+    return None if ctx.before_path is not None else before_frame.data
 
 
 def _with_id(obs: Observation, obs_id: int) -> Observation:

@@ -144,7 +144,9 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
     if planner == "round-robin":
         out = planner_mod.round_robin(cands, now_s, cfg.gating, cursor=book.cursor, busy_heliostats=busy_heliostats)
     else:
-        out = planner_mod.plan(cands, now_s, cfg.gating, busy_heliostats=busy_heliostats, include_accepted=recheck)
+        # a target stays idle rather than spend time on points no acceptance gap asks for
+        out = planner_mod.plan(cands, now_s, cfg.gating, busy_heliostats=busy_heliostats, include_accepted=recheck,
+                               skip_extra=not recheck)
     return out[0].heliostat_id if out else None
 
 

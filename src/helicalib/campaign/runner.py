@@ -42,7 +42,7 @@ class RunnerStats:
     stowed_s: float = 0.0
     night_s: float = 0.0
     iterations: list[int] = field(default_factory=list)
-    first_errors: list[tuple[float, float]] = field(default_factory=list)  # (time, mrad)
+    first_errors: list[tuple[float, float, bool]] = field(default_factory=list)  # (time, mrad, had a model)
     outcomes: dict[str, int] = field(default_factory=dict)
 
 
@@ -225,6 +225,7 @@ class CampaignRunner:
             index=self.cfg.heliostat_index(hid), target=self.cfg.target(target_id), camera_config=cams[0],
             camera=self.cameras[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
             model=self.models[hid], settings=self.settings, record=self.store.record_observation,
+            save_frame=self.store.save_frame,
             on_valid=lambda obs, hid=hid: self._refit(hid, obs),
             corrections=lambda model, hid=hid: self._corrections(hid, model),
         )
@@ -256,7 +257,9 @@ class CampaignRunner:
             self.stats.iterations.append(out.iterations)
         first = next((o for o in out.observations if o.valid and o.iteration == 0), None)
         if first is not None:
-            self.stats.first_errors.append((first.capture_time_s, first.error_mrad))
+            # a placement is judged as the model's only if earlier visits gave the model valid points
+            modelled = any(p.visit_id != ctx.visit_id for p in self.book.points(hid))
+            self.stats.first_errors.append((first.capture_time_s, first.error_mrad, modelled))
         self.store.end_visit(ctx.visit_id, ended_s=now, outcome=out.status, reason=out.reason,
                              iterations=out.iterations, first_error_mrad=out.first_error_mrad,
                              final_error_mrad=out.final_error_mrad)
