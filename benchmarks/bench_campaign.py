@@ -1,0 +1,296 @@
+"""Campaign benchmark (issue 7): the gaps planner against a plain round robin on a 500-heliostat field.
+
+For a simulated field (default ``simulations/fields/bench500.yaml``, made by ``helicalib sim-field
+--n 500 --targets 4`` at the demo site) and the standard weather scenario
+(``simulations/scenarios/benchmark.yaml``), runs :func:`helicalib.campaign.simulate.simulate_campaign`
+in-process with ``planner="gaps"`` and ``planner="round-robin"`` and reports, per planner:
+
+* days to accept 90 % and 95 % of the field (from the store's verdict timeline: the newest
+  verdict of each heliostat as time goes on; ``null`` if not reached within ``--days``);
+* visits per target-hour, mean loop iterations, first-shot RMS (the model's first placement,
+  last simulated day), true sky-wide RMS (simulator truth, a year of sun positions), acceptance
+  rate at the end; the wall and CPU time of the run;
+
+and the speed ratio: round robin's days to 90 % over the gaps planner's (≥ 2 is the goal; when
+round robin does not get there, the ratio is a lower bound, ``--days`` over the gaps planner's
+days, and marked so). Goals (issue 7): ≥ 95 % accepted, true sky RMS ≤ 0.8 mrad, ratio ≥ 2.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_campaign.py                  # 500 heliostats, up to 8 days each
+    .venv/bin/python benchmarks/bench_campaign.py --quick          # 60 heliostats, 3 days: a few minutes
+    .venv/bin/python benchmarks/bench_campaign.py --heliostats 200 --days 5 --planners gaps
+
+A subset (``--heliostats N`` below the field's size) takes every k-th heliostat of the field, so
+every target keeps its share; the simulated plant still has the whole field. Prints a table and
+writes ``benchmarks/out/bench_campaign.json`` (git-ignored). Frames are deleted every plant hour
+unless ``--keep-frames`` (a 500-heliostat day writes about 5 GB of PNG; the database keeps every
+observation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import shutil
+import sqlite3
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+FIELD = ROOT / "simulations" / "fields" / "bench500.yaml"
+SCENARIO = ROOT / "simulations" / "scenarios" / "benchmark.yaml"
+OUT = ROOT / "benchmarks" / "out"
+SITE = (40.063, 94.426, 1267.0)
+GOALS = {"acceptance_rate": 0.95, "true_sky_rms_mrad": 0.8, "speed_ratio": 2.0}
+
+
+def ensure_field(path: Path, n: int = 500) -> Path:
+    """The benchmark field; generated (sim-field, radial-staggered, 4 targets) if missing."""
+    if not path.exists():
+        from helicalib.sim.field import generate_field, write_field
+
+        data, rows = generate_field(n, *SITE, targets=4, name=f"Benchmark {n} (Dunhuang)")
+        write_field(data, rows, path)
+    return path
+
+
+def pick_heliostats(cfg, n: int | None) -> list[str] | None:
+    """Every k-th heliostat of the field (``n`` of them), or None for the whole field."""
+    ids = [h.id for h in cfg.heliostats]
+    if n is None or n >= len(ids):
+        return None
+    idx = np.round(np.linspace(0, len(ids) - 1, n)).astype(int)
+    return [ids[i] for i in idx]
+
+
+def acceptance_timeline(db: Path, heliostats: int) -> tuple[float, list[tuple[float, int]]]:
+    """(campaign start [s], [(time [s], heliostats accepted by their newest verdict)]) from the store."""
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        cid, start = con.execute("SELECT id, started_s FROM campaigns ORDER BY id DESC LIMIT 1").fetchone()
+        rows = con.execute("SELECT heliostat_id, time_s, accepted FROM verdicts WHERE campaign_id = ? ORDER BY id",
+                           (cid,)).fetchall()
+    finally:
+        con.close()
+    state: dict[str, bool] = {}
+    count, out = 0, []
+    for hid, t, acc in rows:
+        before = state.get(hid, False)
+        state[hid] = bool(acc)
+        count += int(bool(acc)) - int(before)
+        out.append((float(t), count))
+    return float(start), out
+
+
+def days_to(start_s: float, timeline, n: int, fraction: float) -> float | None:
+    need = math.ceil(fraction * n - 1e-9)
+    for t, count in timeline:
+        if count >= need:
+            return round((t - start_s) / 86400.0, 3)
+    return None
+
+
+def daily_accepted(start_s: float, timeline, days: float) -> list[int]:
+    """Accepted heliostats at the end of each simulated day."""
+    out, k, count = [], 0, 0
+    for d in range(1, int(math.ceil(days)) + 1):
+        end = start_s + d * 86400.0
+        while k < len(timeline) and timeline[k][0] <= end:
+            count = timeline[k][1]
+            k += 1
+        out.append(count)
+    return out
+
+
+def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: Path, keep_frames: bool) -> dict:
+    from helicalib.campaign.simulate import simulate_campaign
+
+    shutil.rmtree(out_dir, ignore_errors=True)
+    n = len(ids) if ids else len(cfg.heliostats)
+    cpu0 = time.process_time()
+    state = {"day": -1, "wall0": time.perf_counter(), "t0": None, "hour": 0, "frame_bytes": 0}
+    frames = out_dir / "images"
+
+    def prune_frames() -> None:  # frames are written for the record only; the visits keep theirs in memory
+        for f in list(frames.rglob("*.png")) if frames.exists() else []:
+            try:
+                state["frame_bytes"] += f.stat().st_size
+                f.unlink()
+            except FileNotFoundError:
+                pass
+
+    def progress(now_s: float) -> None:
+        if state["t0"] is None:
+            state["t0"] = now_s
+        hour = int((now_s - state["t0"]) // 3600.0)
+        if hour != state["hour"]:
+            state["hour"] = hour
+            if not keep_frames:
+                prune_frames()
+        day = int((now_s - state["t0"]) // 86400.0)
+        if day != state["day"]:
+            state["day"] = day
+            db = out_dir / "helicalib.db"
+            accepted = acceptance_timeline(db, n)[1][-1:] if db.exists() else []
+            print(f"  [{planner}] day {day} at {time.perf_counter() - state['wall0']:.0f} s wall, "
+                  f"{time.process_time() - cpu0:.0f} s CPU: {accepted[0][1] if accepted else 0}/{n} accepted",
+                  file=sys.stderr, flush=True)
+
+    wall0 = time.perf_counter()
+    result = simulate_campaign(cfg, out_dir, days, seed=seed, scenario=scenario, planner=planner, heliostat_ids=ids,
+                               progress=progress)
+    cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+    s = result.summary
+    start_s, timeline = acceptance_timeline(result.database, n)
+    if keep_frames:
+        frame_bytes = sum(f.stat().st_size for f in frames.rglob("*.png")) if frames.exists() else 0
+    else:
+        prune_frames()
+        frame_bytes = state["frame_bytes"]
+    return {
+        "planner": planner, "heliostats": s["heliostats"], "days_simulated": s["days"],
+        "days_to_90": days_to(start_s, timeline, n, 0.90), "days_to_95": days_to(start_s, timeline, n, 0.95),
+        "accepted_by_day": daily_accepted(start_s, timeline, days),
+        "acceptance_rate": s["acceptance_rate"], "accepted": s["accepted"],
+        "visits": s["visits"], "valid_visits": s["valid_visits"], "visits_per_target_hour": s["visits_per_target_hour"],
+        "mean_iterations": s["mean_iterations"], "first_shot_rms_mrad": s["first_shot_rms_mrad"],
+        "true_sky_rms_mrad": s["true_sky_rms_mrad"], "true_sky_p95_mrad": s["true_sky_p95_mrad"],
+        "gated_hours": s["gated_hours"], "stowed_hours": s["stowed_hours"], "outcomes": s["outcomes"],
+        "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
+        "cpu_s_per_visit": round(cpu / max(s["visits"], 1), 3), "frames_mb": round(frame_bytes / 1e6, 1),
+        "database": str(result.database),
+    }
+
+
+def _run_job(field: str, scenario_path: str, job) -> dict:
+    """One planner's run in a worker process."""
+    from helicalib.config import load_field_config
+    from helicalib.sim.scenario import load_scenario
+
+    planner, days, seed, ids, out_dir, keep = job
+    return run_one(load_field_config(field), planner, days, seed, load_scenario(scenario_path), ids, out_dir, keep)
+
+
+def speed_ratio(results: dict, days: float) -> dict:
+    g, r = results.get("gaps"), results.get("round-robin")
+    if not g or not r or g["days_to_90"] is None:
+        return {"ratio": None, "lower_bound": False, "basis": "time to 90 %"}
+    if r["days_to_90"] is None:
+        return {"ratio": round(days / g["days_to_90"], 2), "lower_bound": True, "basis": "time to 90 %"}
+    return {"ratio": round(r["days_to_90"] / g["days_to_90"], 2), "lower_bound": False, "basis": "time to 90 %"}
+
+
+def table(results: dict, ratio: dict) -> str:
+    rows = [("days to 90 %", "days_to_90"), ("days to 95 %", "days_to_95"), ("accepted at end", "acceptance_rate"),
+            ("visits", "visits"), ("valid visits", "valid_visits"), ("visits / target-hour", "visits_per_target_hour"),
+            ("mean iterations", "mean_iterations"), ("first-shot RMS [mrad]", "first_shot_rms_mrad"),
+            ("true sky RMS [mrad]", "true_sky_rms_mrad"), ("true sky p95 [mrad]", "true_sky_p95_mrad"),
+            ("gated / stowed [h]", None), ("wall / CPU [s]", None), ("CPU per visit [s]", "cpu_s_per_visit")]
+    names = list(results)
+    lines = [f"{'':24s}" + "".join(f"{n:>16s}" for n in names)]
+    for label, key in rows:
+        cells = []
+        for n in names:
+            r = results[n]
+            if label.startswith("gated"):
+                v = f"{r['gated_hours']:g} / {r['stowed_hours']:g}"
+            elif label.startswith("wall"):
+                v = f"{r['wall_s']:.0f} / {r['cpu_s']:.0f}"
+            else:
+                x = r[key]
+                v = "not reached" if x is None and key.startswith("days") else (
+                    f"{100 * x:.1f} %" if key == "acceptance_rate" else str(x))
+            cells.append(f"{v:>16s}")
+        lines.append(f"{label:24s}" + "".join(cells))
+    if ratio["ratio"] is not None:
+        lines.append(f"speed ratio (round robin / gaps, {ratio['basis']}): "
+                     f"{'≥ ' if ratio['lower_bound'] else ''}{ratio['ratio']}")
+    for n in names:
+        lines.append(f"accepted by day [{n}]: {results[n]['accepted_by_day']}")
+    return "\n".join(lines)
+
+
+def goals(results: dict, ratio: dict) -> dict:
+    g = results.get("gaps")
+    if not g:
+        return {}
+    return {
+        "acceptance_rate >= 0.95": g["acceptance_rate"] >= GOALS["acceptance_rate"],
+        "true_sky_rms_mrad <= 0.8": g["true_sky_rms_mrad"] <= GOALS["true_sky_rms_mrad"],
+        "speed_ratio >= 2": None if ratio["ratio"] is None else ratio["ratio"] >= GOALS["speed_ratio"],
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--heliostats", type=int, default=None, help="heliostats to calibrate (default the whole field)")
+    ap.add_argument("--days", type=float, default=None, help="plant days per planner (default 8; --quick 3)")
+    ap.add_argument("--quick", action="store_true", help="60 heliostats, 3 days: a few minutes")
+    ap.add_argument("--planners", default="gaps,round-robin", help="comma-separated (default gaps,round-robin)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--field", type=Path, default=FIELD, help="field config (default the 500-heliostat bench field)")
+    ap.add_argument("--scenario", type=Path, default=SCENARIO)
+    ap.add_argument("--out", type=Path, default=OUT / "bench_campaign.json")
+    ap.add_argument("--work", type=Path, default=OUT / "campaign", help="run folders (databases)")
+    ap.add_argument("--jobs", type=int, default=1, help="run the planners in parallel processes (default 1; "
+                    "CPU times stay comparable, wall times do not)")
+    ap.add_argument("--keep-frames", action="store_true", help="keep the PNG frames of each run")
+    args = ap.parse_args(argv)
+
+    from helicalib.config import load_field_config
+    from helicalib.sim.scenario import load_scenario
+
+    n = args.heliostats if args.heliostats is not None else (60 if args.quick else None)
+    days = args.days if args.days is not None else (3.0 if args.quick else 8.0)
+    cfg = load_field_config(ensure_field(args.field))
+    scenario = load_scenario(str(args.scenario))
+    ids = pick_heliostats(cfg, n)
+    count = len(ids) if ids else len(cfg.heliostats)
+    per_target: dict[str, int] = {}
+    for hid in ids or [h.id for h in cfg.heliostats]:
+        t = cfg.heliostat(hid).target
+        per_target[t] = per_target.get(t, 0) + 1
+    print(f"bench_campaign: {count} heliostats of {args.field.name} ({per_target}), scenario {scenario.name}, "
+          f"{days:g} days, seed {args.seed}", flush=True)
+    planners = [p.strip() for p in args.planners.split(",") if p.strip()]
+    jobs = [(planner, days, args.seed, ids, args.work / planner, args.keep_frames) for planner in planners]
+    results = {}
+    if args.jobs > 1 and len(jobs) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
+            futures = {job[0]: pool.submit(_run_job, str(args.field), str(args.scenario), job) for job in jobs}
+            for planner, fut in futures.items():
+                results[planner] = fut.result()
+    else:
+        for job in jobs:
+            results[job[0]] = run_one(cfg, job[0], *job[1:3], scenario, *job[3:])
+    for planner, r in results.items():
+        print(f"  {planner}: {json.dumps({k: v for k, v in r.items() if k not in ('outcomes', 'database')})}",
+              flush=True)
+    ratio = speed_ratio(results, days)
+    print(table(results, ratio))
+    verdict = goals(results, ratio)
+    for k, v in verdict.items():
+        print(f"goal {k}: {'met' if v else ('n/a' if v is None else 'NOT met')}")
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
+    doc = {"benchmark": "campaign", "field": str(args.field), "heliostats": count, "per_target": per_target,
+           "scenario": scenario.name, "days": days, "seed": args.seed, "quick": bool(args.quick),
+           "results": results, "speed_ratio": ratio, "goals": GOALS, "goals_met": verdict,
+           "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
+                       "load_avg_at_end": None if load is None else [round(x, 2) for x in load]}}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(doc, indent=2))
+    print(f"written {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
