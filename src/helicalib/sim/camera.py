@@ -24,6 +24,21 @@ from helicalib.geometry import optics
 from helicalib.sim.scenario import CameraSpec, Optics
 
 UP = np.array([0.0, 0.0, 1.0])
+FLUX_FLOOR_WM2 = 1e-5
+"""Spot irradiance below this [W/m²] is not rastered (2e-6 counts at the default gain: below the
+float32 resolution of the lit board)."""
+
+
+def simulated_fe(scenario) -> float:
+    """Fe [W/m² per grey] of the simulated cameras of ``scenario``: what a FLUX.yaml would hold.
+
+    The renderer turns irradiance E on the white board into ``grey = board_albedo · gain · E``
+    (plus ambient light and noise, which the after − before difference removes), so
+    ``Fe = 1 / (board_albedo · gain_counts_per_wm2)``. Only the white board obeys it: the L marks
+    (``mark_albedo``) are darker.
+    """
+    spec = scenario.camera
+    return 1.0 / (float(spec.board_albedo) * float(spec.gain_counts_per_wm2))
 
 
 def camera_pose(position_enu: np.ndarray, look_at_enu: np.ndarray) -> np.ndarray:
@@ -109,8 +124,18 @@ class BoardRenderer:
     def spot_flux_wm2(self, uv_m: np.ndarray, power_w: np.ndarray, width_m: np.ndarray,
                       sigma_m: np.ndarray) -> np.ndarray:
         """Irradiance raster (nv, nu) [W/m²] of K spots: box (K, 2) ⊗ Gaussian σ (K, 2), total power (K,)."""
+        out = np.zeros((self.nv, self.nu), dtype=np.float32)
+        win = self.spot_flux_window(uv_m, power_w, width_m, sigma_m)
+        if win is not None:
+            rows, cols, flux = win
+            out[rows, cols] = flux
+        return out
+
+    def spot_flux_window(self, uv_m, power_w, width_m, sigma_m):
+        """``(rows, cols, flux)``: the raster window (two slices) outside which the K spots add less
+        than ``FLUX_FLOOR_WM2`` anywhere, and the irradiance (float32) inside it; None if no spot."""
         if len(power_w) == 0:
-            return np.zeros((self.nv, self.nu), dtype=np.float32)
+            return None
 
         def profile(grid, centre, width, sigma):  # (K, n), integrates to 1 over the axis
             g = grid[None, :] - centre[:, None]
@@ -120,7 +145,20 @@ class BoardRenderer:
 
         pu = profile(self.u_m, uv_m[:, 0], width_m[:, 0], sigma_m[:, 0])
         pv = profile(self.v_m, uv_m[:, 1], width_m[:, 1], sigma_m[:, 1])
-        return ((pv.T * power_w[None, :]) @ pu).astype(np.float32)
+        # upper bounds of the flux along each column / row: Σ_k P_k · max(pv_k) · pu_k(u), and alike
+        col = (power_w * pv.max(axis=1)) @ pu
+        row = (power_w * pu.max(axis=1)) @ pv
+        c = np.flatnonzero(col >= FLUX_FLOOR_WM2)
+        r = np.flatnonzero(row >= FLUX_FLOOR_WM2)
+        if c.size == 0 or r.size == 0:
+            return None
+        rows, cols = slice(int(r[0]), int(r[-1]) + 1), slice(int(c[0]), int(c[-1]) + 1)
+        if len(power_w) == 1:  # the usual case: an outer product (same values as the matrix product, no BLAS call)
+            flux = np.empty((rows.stop - rows.start, cols.stop - cols.start), dtype=np.float32)
+            np.multiply.outer(pv[0, rows] * power_w[0], pu[0, cols], out=flux, casting="same_kind")
+        else:
+            flux = ((pv[:, rows].T * power_w[None, :]) @ pu[:, cols]).astype(np.float32)
+        return rows, cols, flux
 
     def spots_from_beams(self, origin_enu, direction_enu, sun_enu, normal_enu, mirror_size_m, dni_wm2,
                          cleanliness):
@@ -146,9 +184,15 @@ class BoardRenderer:
     def render(self, spots, dni_wm2: float, daylight: bool) -> np.ndarray:
         """The frame (height, width) uint8 for spots ``(uv, power, width, sigma)`` and the ambient light."""
         s = self.spec
-        ambient = (s.ambient_fraction * dni_wm2 + s.ambient_offset_wm2) if daylight else 0.0
-        flux = self.spot_flux_wm2(*spots) if spots is not None else 0.0
-        radiance = (self.albedo * (np.float32(ambient) + flux)) * np.float32(s.gain_counts_per_wm2)
+        ambient = np.float32((s.ambient_fraction * dni_wm2 + s.ambient_offset_wm2) if daylight else 0.0)
+        # the board lit by the ambient light, then the spots only inside their window (the flux
+        # elsewhere is below FLUX_FLOOR_WM2, far under the 8-bit resolution)
+        radiance = self.albedo * ambient
+        win = self.spot_flux_window(*spots) if spots is not None else None
+        if win is not None:
+            rows, cols, flux = win
+            radiance[rows, cols] = self.albedo[rows, cols] * (ambient + flux)
+        radiance *= np.float32(s.gain_counts_per_wm2)
         background = s.background_counts * (dni_wm2 / 1000.0 + 0.2) if daylight else 0.0
         w, h = self.size_px
         img = cv2.warpPerspective(radiance, self.h_raster, (w, h), flags=cv2.INTER_LINEAR,
@@ -179,7 +223,13 @@ class SimCamera:
 
     ``grab()`` renders the board at the plant's current time and returns PNG bytes with the
     capture time in plant time. ``render()`` gives the uint8 array without encoding.
+
+    Flux hooks (read with ``getattr`` by the campaign, absent on cameras that have none):
+    ``fe_wm2_per_grey`` is :func:`simulated_fe` of the plant's scenario; ``atmosphere`` is None
+    because the simulated plant renders no atmospheric attenuation between mirror and board.
     """
+
+    atmosphere = None
 
     def __init__(self, plant, camera_id: str):
         self.plant = plant
@@ -192,6 +242,7 @@ class SimCamera:
         seed = (sc.seed * 1000 + list(cams).index(camera_id)) & 0xFFFFFFFF
         self.renderer = BoardRenderer(self.config, self.target, sc.camera, sc.optics, seed=seed)
         self.source = self.config.url
+        self.fe_wm2_per_grey = simulated_fe(sc)
 
     def render(self) -> tuple[np.ndarray, float]:
         """(frame (height, width) uint8, capture time [UTC s, plant time])."""
