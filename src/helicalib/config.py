@@ -180,6 +180,9 @@ class Camera(_Model):
     # plant renders from them; a real camera's frames say their own size)
     position_enu_m: Vec3 | None = None
     resolution_px: Annotated[tuple[int, int], _numbers(2), BeforeValidator(lambda v: v)] = (1280, 1024)
+    # helicalib's own optional key: the camera's FLUX.yaml (docs/flux.md), relative to the field
+    # config; its Fe turns the camera into a flux meter (cleanliness measured at every valid visit)
+    flux_calibration: str | None = None
 
     @field_validator("resolution_px")
     @classmethod
@@ -279,6 +282,7 @@ class Calibration(_Model):
     after_frames: int = Field(default=1, ge=1, le=50)
     spot_method: Literal["grlm", "grlm-centroid", "centroid"] = "grlm-centroid"
     settle_timeout_s: PositiveFloat = 300.0
+    reflectivity_clean: float = Field(default=0.93, gt=0, le=1)  # clean mirror, for the measured cleanliness
 
 
 class Gating(_Model):
@@ -368,6 +372,10 @@ class FieldConfig(_Model):
     @property
     def images_path(self) -> Path:
         return self.resolve_path(self.storage.images_dir)
+
+    def flux_calibration_path(self, camera: Camera) -> Path | None:
+        """The camera's FLUX.yaml (``cameras[].flux_calibration``) resolved next to the config, or None."""
+        return None if camera.flux_calibration is None else self.resolve_path(camera.flux_calibration)
 
     def target(self, target_id: str) -> Target:
         for t in self.targets:
@@ -518,6 +526,11 @@ def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConf
                 lines.append(line)
         raise ConfigError("\n".join(lines), problems=lines) from None
     problems = [f"{where}{p}" for p in _cross_check(cfg, heliostat_loc)]
+    for i, cam in enumerate(cfg.cameras):
+        if cam.flux_calibration is not None:
+            p = Path(cam.flux_calibration)
+            if not (p if p.is_absolute() else base / p).is_file():
+                problems.append(f"{where}cameras[{i}].flux_calibration: file not found: {base / p}")
     if problems:
         raise ConfigError("\n".join(problems), problems=problems)
     if source is not None:
