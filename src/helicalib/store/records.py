@@ -97,7 +97,11 @@ class Observation:
     sun_rising : bool or None
         True before solar noon (elevation increasing), False after, None if unknown.
     wind_ms, wind_direction_deg, dni_wm2, temperature_c, cleanliness : float or None
-        Conditions at the capture [m/s, deg from north, W/m², °C, 0..1].
+        Conditions at the capture [m/s, deg from north, W/m², °C, 0..1]; ``cleanliness`` is the
+        plant's register.
+    cleanliness_measured : float or None
+        The mirror's cleanliness measured from this observation's spot (measured against expected
+        power, :func:`helicalib.flux.visit.cleanliness_from_visit`) [-]; None when not estimated.
     valid : bool
         Whether the spot gave a usable tracking error.
     reason : str
@@ -139,6 +143,7 @@ class Observation:
     dni_wm2: float | None = None
     temperature_c: float | None = None
     cleanliness: float | None = None
+    cleanliness_measured: float | None = None
     offset_u_m: float | None = None
     offset_v_m: float | None = None
     spot_x_px: float | None = None

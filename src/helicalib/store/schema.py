@@ -73,7 +73,8 @@ CREATE TABLE IF NOT EXISTS observations (
     wind_direction_deg REAL,
     dni_wm2 REAL,
     temperature_c REAL,
-    cleanliness REAL,
+    cleanliness REAL,                -- the plant's register (PLANT_INTERFACE), NULL if it gave none
+    cleanliness_measured REAL,       -- measured from the spot's power (flux.visit), NULL if not estimated
     valid INTEGER NOT NULL,
     reason TEXT NOT NULL,
     message TEXT NOT NULL,
