@@ -69,6 +69,7 @@ def compute(data: CampaignData) -> dict:
         "pass_rate": F.pass_rates(data, visits),
         "tracking_test": tracking_test(data.observations, data.cfg),
         "acceptance": acceptance_spans(data),
+        "washing": F.washing(data),
         "events": F.events_log(data),
     }
 

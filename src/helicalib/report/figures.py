@@ -241,6 +241,71 @@ def field_map(data: CampaignData) -> dict:
             "heliostats": rows, "tower": towers}
 
 
+# ---------------------------------------------------------------------------------------- washing
+DEFAULT_CLEANLINESS_PREFERRED = 0.7
+"""Washing threshold when the campaign's field config cannot be read (the paper's good mirror: > 0.7)."""
+
+
+def _latest(obs: pd.DataFrame, column: str) -> dict[str, tuple[float, float, int]]:
+    """Per heliostat: (value, capture time, row id) of its newest observation with ``column`` recorded."""
+    if not len(obs) or column not in obs:
+        return {}
+    have = obs[obs[column].notna()].sort_values(["capture_time_s", "id"])
+    out = {}
+    for hid, g in have.groupby("heliostat_id"):
+        r = g.iloc[-1]
+        out[str(hid)] = (float(r[column]), float(r["capture_time_s"]), int(r["id"]))
+    return out
+
+
+def present_cleanliness(data: CampaignData) -> dict[str, dict]:
+    """Each heliostat's present cleanliness: its newest *measured* value (``cleanliness_measured``,
+    from the spot's power), else the newest value of the plant's register (``cleanliness``).
+
+    Returns heliostat id → ``{"cleanliness", "source" ("measured"|"plant"), "time_s", "observation_id",
+    "plant_cleanliness", "n_measured"}``; heliostats with neither are absent.
+    """
+    obs = data.observations
+    measured = _latest(obs, "cleanliness_measured")
+    plant = _latest(obs, "cleanliness")
+    counts = (obs[obs["cleanliness_measured"].notna()].groupby("heliostat_id").size().to_dict()
+              if len(obs) and "cleanliness_measured" in obs else {})
+    out = {}
+    for hid in data.heliostat_ids:
+        src = measured.get(hid)
+        kind = "measured"
+        if src is None:
+            src, kind = plant.get(hid), "plant"
+        if src is None:
+            continue
+        p = plant.get(hid)
+        out[hid] = {"cleanliness": src[0], "source": kind, "time_s": src[1], "observation_id": src[2],
+                    "plant_cleanliness": None if p is None else p[0], "n_measured": int(counts.get(hid, 0))}
+    return out
+
+
+def washing(data: CampaignData) -> dict:
+    """Mirrors that need washing: present cleanliness (:func:`present_cleanliness`) below
+    ``gating.cleanliness_preferred``, dirtiest first (ties by heliostat id)."""
+    if data.cfg is not None:
+        limit, source = float(data.cfg.gating.cleanliness_preferred), "gating.cleanliness_preferred"
+    else:
+        limit, source = DEFAULT_CLEANLINESS_PREFERRED, f"default ({data.config_note})"
+    present = present_cleanliness(data)
+    targets = {h.heliostat_id: h.target_id for h in data.heliostats}
+    rows = [{"heliostat": hid, "target": targets.get(hid), "cleanliness": num(p["cleanliness"]),
+             "source": p["source"], "time_s": num(p["time_s"], 1), "time_utc": iso(p["time_s"]),
+             "plant_cleanliness": num(p["plant_cleanliness"]), "n_measured": p["n_measured"]}
+            for hid, p in present.items() if p["cleanliness"] < limit]
+    rows.sort(key=lambda r: (r["cleanliness"], r["heliostat"]))
+    return {"threshold": limit, "threshold_source": source,
+            "definition": "present cleanliness (newest measured from the spot's power, else the plant's register) "
+                          "below the threshold",
+            "heliostats_with_value": len(present),
+            "heliostats_measured": sum(1 for p in present.values() if p["source"] == "measured"),
+            "rows": rows}
+
+
 # ---------------------------------------------------------------------------------------- progress
 def progress(data: CampaignData, visits: pd.DataFrame, step_s: float = 3600.0) -> dict:
     """Cumulative accepted heliostats, visits, valid visits, gated and stowed hours on an hourly grid."""

@@ -130,6 +130,7 @@ def index_page(rep: dict, images: dict, sheets: list[dict]) -> str:
                      e(h["present_error_mrad"]), verdict_span(tt), e("; ".join(v.get("reasons", [])))])
     out.append(table(["heliostat", "target", "status", "visits", "valid obs.", "obs.", "RMS [mrad]",
                       "present error [mrad]", "clause 8.2", "reasons"], rows, sortable=True, numeric=(3, 4, 5, 6, 7)))
+    out.append(washing_html(rep.get("washing"), {h["id"]: h["href"] for h in sheets}))
     ev = rep["events"]["rows"]
     out.append(f"<h2>Event log ({len(ev)})</h2>")
     if rep["events"]["omitted_routine"] or rep["events"]["omitted_old"]:
@@ -140,6 +141,82 @@ def index_page(rep: dict, images: dict, sheets: list[dict]) -> str:
                if ev else "<p>No event recorded.</p>")
     out.append(f'<p class="small">Generated {e(rep["generated_utc"])} by helicalib {e(rep["helicalib"])}.</p>')
     return page(f"helicalib report — {c.get('name') if c else 'empty'}", "\n".join(out), sortable=True)
+
+
+def washing_html(w: dict | None, hrefs: dict) -> str:
+    """The campaign page's list of mirrors that need washing (``report.json`` ``washing``)."""
+    if w is None:
+        return ""
+    rows = w["rows"]
+    out = [f"<h2>Mirrors to wash ({len(rows)})</h2>",
+           f'<p class="small">Present cleanliness below {e(w["threshold"])} ({e(w["threshold_source"])}): the newest '
+           "value measured from the spot's power (measured against expected power), else the plant's register; "
+           f"dirtiest first. {e(w['heliostats_with_value'])} heliostats have a value, "
+           f"{e(w['heliostats_measured'])} of them measured.</p>"]
+    if not rows:
+        out.append("<p>No mirror needs washing.</p>")
+        return "\n".join(out)
+    cells = []
+    for r in rows:
+        link = hrefs.get(r["heliostat"])
+        name = f'<a href="{escape(link)}">{e(r["heliostat"])}</a>' if link else e(r["heliostat"])
+        cells.append([name, e(r["target"]), f'<span data-v="{e(r["cleanliness"])}">{e(r["cleanliness"])}</span>',
+                      e(r["source"]), e(r["time_utc"]), e(r["plant_cleanliness"]), e(r["n_measured"])])
+    out.append(table(["heliostat", "target", "cleanliness", "source", "date", "plant's value", "measurements"],
+                     cells, sortable=True, numeric=(2, 5, 6)))
+    return "\n".join(out)
+
+
+def cleanliness_svg(points: list[tuple[float, float]], limit: float | None, width: int = 640, height: int = 180) -> str:
+    """A small inline SVG of (time [s], cleanliness) points, the washing threshold dashed."""
+    if not points:
+        return ""
+    t = [p[0] for p in points]
+    t0, t1 = min(t), max(t)
+    span = (t1 - t0) or 1.0
+    lo = min([0.0] + [p[1] for p in points])
+    hi = max([1.0] + [p[1] for p in points])
+    pad = 30
+
+    def xy(tt, c):
+        return (pad + (tt - t0) / span * (width - 2 * pad), height - pad - (c - lo) / (hi - lo) * (height - 2 * pad))
+
+    pts = " ".join(f"{x:.1f},{y:.1f}" for x, y in (xy(a, b) for a, b in points))
+    dots = "".join(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3" fill="#1d3557"/>' for x, y in (xy(a, b) for a, b in points))
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" '
+           'aria-label="measured cleanliness over time" style="border:1px solid #eee">',
+           f'<text x="4" y="14" font-size="11" fill="#555">cleanliness {lo:g}–{hi:g}; time →</text>',
+           f'<polyline points="{pts}" fill="none" stroke="#1d3557" stroke-width="1.5"/>', dots]
+    if limit is not None:
+        y = xy(t0, limit)[1]
+        out.append(f'<line x1="{pad}" x2="{width - pad}" y1="{y:.1f}" y2="{y:.1f}" stroke="#d1495b" '
+                   f'stroke-dasharray="5,4"/><text x="{width - pad}" y="{y - 3:.1f}" font-size="11" fill="#d1495b" '
+                   f'text-anchor="end">wash below {limit:g}</text>')
+    out.append("</svg>")
+    return "".join(out)
+
+
+def cleanliness_html(c: dict | None) -> str:
+    """A sheet's cleanliness section: present value, washing verdict, measured values over time."""
+    if c is None:
+        return ""
+    out = ["<h2>Mirror cleanliness</h2>"]
+    if c["present"] is None:
+        out.append("<p>No cleanliness recorded (neither measured nor from the plant).</p>")
+        return "\n".join(out)
+    wash = {True: '<span class="fail">needs washing</span>', False: '<span class="pass">clean enough</span>',
+            None: "—"}[c["needs_washing"]]
+    out.append(f"<p>Present cleanliness {e(c['present'])} ({e(c['source'])}): {wash} "
+               f"(threshold {e(c['threshold'])}).</p>")
+    m = c["measured"]
+    if not m:
+        out.append("<p class=\"small\">No cleanliness was measured from the spot (the value is the plant's).</p>")
+        return "\n".join(out)
+    out.append(cleanliness_svg([(r["time_s"], r["cleanliness_measured"]) for r in m], c["threshold"]))
+    out.append(table(["observation", "visit", "time", "measured", "plant's value"],
+                     [[e(r["id"]), e(r["visit_id"]), e(r["time_utc"]), e(r["cleanliness_measured"]),
+                       e(r["plant_cleanliness"])] for r in m], numeric=(0, 1, 3, 4)))
+    return "\n".join(out)
 
 
 def coverage_html(details: dict) -> str:
@@ -174,6 +251,7 @@ def sheet_page(sh: dict, plot_src: str | None, frames: dict | None, json_src: st
                      [[e(sh["visits"]), e(sh["observations"]), e(sh["valid_observations"]), e(sh["valid_rms_mrad"]),
                        e(sh["present_error_mrad"])]], numeric=range(5)))
     out += ["<h2>Observations and corrections</h2>", img(plot_src, "observation plots")]
+    out.append(cleanliness_html(sh.get("cleanliness")))
     out.append("<h2>Latest visit: before and after frames</h2>")
     lf = sh["latest_frames"]
     if lf is None:
@@ -203,9 +281,9 @@ def sheet_page(sh: dict, plot_src: str | None, frames: dict | None, json_src: st
     out.append(f"<h2>Observations ({len(sh['observation_rows'])})</h2>")
     out.append(f'<p class="small">As JSON: <a href="{escape(json_src)}">{escape(json_src)}</a>.</p>')
     out.append(table(["id", "visit", "placement", "time", "elev. [deg]", "wind [m/s]", "DNI [W/m²]", "clean.",
-                      "valid", "reason", "error [mrad]"],
+                      "clean. measured", "valid", "reason", "error [mrad]"],
                      [[e(r["id"]), e(r["visit_id"]), e(r["iteration"]), e(r["time_utc"]), e(r["sun_elevation_deg"]),
-                       e(r["wind_ms"]), e(r["dni_wm2"]), e(r["cleanliness"]), e(r["valid"]), e(r["reason"]),
-                       e(r["error_mrad"])] for r in sh["observation_rows"]], sortable=True,
-                     numeric=(0, 1, 2, 4, 5, 6, 7, 10)))
+                       e(r["wind_ms"]), e(r["dni_wm2"]), e(r["cleanliness"]), e(r.get("cleanliness_measured")),
+                       e(r["valid"]), e(r["reason"]), e(r["error_mrad"])] for r in sh["observation_rows"]],
+                     sortable=True, numeric=(0, 1, 2, 4, 5, 6, 7, 8, 11)))
     return page(f"helicalib — heliostat {sh['id']}", "\n".join(out), sortable=True)

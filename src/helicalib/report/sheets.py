@@ -10,7 +10,7 @@ from __future__ import annotations
 import pandas as pd
 
 from helicalib.report.data import CampaignData
-from helicalib.report.figures import heliostat_status, iso, num
+from helicalib.report.figures import DEFAULT_CLEANLINESS_PREFERRED, heliostat_status, iso, num
 
 
 def acceptance_spans(data: CampaignData) -> dict:
@@ -76,6 +76,7 @@ def observation_rows(obs: pd.DataFrame) -> list[dict]:
     """Every observation of a heliostat, valid or not, with its reason (the sheet's table and plots)."""
     cols = {"id": 0, "visit_id": 0, "iteration": 0, "capture_time_s": 1, "sun_elevation_deg": 3,
             "sun_azimuth_deg": 3, "sun_rising": None, "wind_ms": 2, "dni_wm2": 1, "cleanliness": 3,
+            "cleanliness_measured": 4,
             "valid": None, "reason": None, "error_mrad": 4, "offset_u_m": 4, "offset_v_m": 4}
     rows = []
     for r in obs.sort_values("id").itertuples(index=False):
@@ -111,6 +112,27 @@ def latest_frame_observation(obs: pd.DataFrame) -> dict | None:
             "error_mrad": num(r["error_mrad"])}
 
 
+def cleanliness_history(obs: pd.DataFrame, limit: float | None) -> dict:
+    """The heliostat's measured cleanliness over time (oldest first), its present value and whether
+    it is below the washing threshold ``limit`` (``gating.cleanliness_preferred``)."""
+    rows = []
+    if len(obs) and "cleanliness_measured" in obs:
+        have = obs[obs["cleanliness_measured"].notna()].sort_values(["capture_time_s", "id"])
+        for r in have.itertuples(index=False):
+            rows.append({"id": int(r.id), "visit_id": None if pd.isna(r.visit_id) else int(r.visit_id),
+                         "time_s": num(r.capture_time_s, 1), "time_utc": iso(r.capture_time_s),
+                         "cleanliness_measured": num(r.cleanliness_measured),
+                         "plant_cleanliness": num(r.cleanliness)})
+    plant = obs[obs["cleanliness"].notna()].sort_values(["capture_time_s", "id"]) if len(obs) else obs
+    present, source = None, None
+    if rows:
+        present, source = rows[-1]["cleanliness_measured"], "measured"
+    elif len(plant):
+        present, source = num(plant["cleanliness"].iloc[-1]), "plant"
+    return {"measured": rows, "present": present, "source": source, "threshold": limit,
+            "needs_washing": None if present is None or limit is None else bool(present < limit)}
+
+
 def heliostat_sheet(data: CampaignData, hid: str, target_id: str, obs: pd.DataFrame, present_error: float | None,
                     tracking: dict | None, visits_by_id: dict) -> dict:
     """One heliostat's sheet: status, verdict with reasons, fit, corrections, observations, frames."""
@@ -129,5 +151,7 @@ def heliostat_sheet(data: CampaignData, hid: str, target_id: str, obs: pd.DataFr
         "fit": fit_table(data.fits.get(hid)),
         "corrections": corrections(obs, visits_by_id),
         "latest_frames": latest_frame_observation(obs),
+        "cleanliness": cleanliness_history(obs, float(data.cfg.gating.cleanliness_preferred)
+                                          if data.cfg is not None else DEFAULT_CLEANLINESS_PREFERRED),
         "observation_rows": observation_rows(obs),
     }
