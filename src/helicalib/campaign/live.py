@@ -81,8 +81,12 @@ def schedule_daylight(runner: CampaignRunner, scheduler, lock) -> None:
 
 def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event | None = None, done=None) -> None:
     """Run ``runner`` on APScheduler until plant time ``until_s``, ``done()`` is true, or SIGINT/SIGTERM/``stop_event``."""
+    import logging
+
     from apscheduler.schedulers.background import BackgroundScheduler
 
+    # a tick still running when the next is due is skipped by design (max_instances=1): not news
+    logging.getLogger("apscheduler").setLevel(logging.ERROR)
     stop = stop_event or threading.Event()
     lock = threading.Lock()
     rate = _rate(runner.clock)
