@@ -145,20 +145,35 @@ class BoardRenderer:
 
         pu = profile(self.u_m, uv_m[:, 0], width_m[:, 0], sigma_m[:, 0])
         pv = profile(self.v_m, uv_m[:, 1], width_m[:, 1], sigma_m[:, 1])
-        # upper bounds of the flux along each column / row: Σ_k P_k · max(pv_k) · pu_k(u), and alike
-        col = (power_w * pv.max(axis=1)) @ pu
-        row = (power_w * pu.max(axis=1)) @ pv
+        # a spot's term P_k · pv_k(v) · pu_k(u) is at most P_k · max(pv_k) · pu_k(u) (and alike): drop
+        # the Gaussian tails whose terms stay below FLUX_FLOOR_WM2 / K everywhere (their products
+        # would underflow to subnormal numbers, which the CPU handles tens of times slower)
+        k = len(power_w)
+        scale_u = (power_w * pv.max(axis=1))[:, None]
+        scale_v = (power_w * pu.max(axis=1))[:, None]
+        pu = np.where(pu * scale_u >= FLUX_FLOOR_WM2 / k, pu, 0.0)
+        pv = np.where(pv * scale_v >= FLUX_FLOOR_WM2 / k, pv, 0.0)
+        # upper bounds of the flux along each column / row
+        col = np.sum(pu * scale_u, axis=0)
+        row = np.sum(pv * scale_v, axis=0)
         c = np.flatnonzero(col >= FLUX_FLOOR_WM2)
         r = np.flatnonzero(row >= FLUX_FLOOR_WM2)
         if c.size == 0 or r.size == 0:
             return None
         rows, cols = slice(int(r[0]), int(r[-1]) + 1), slice(int(c[0]), int(c[-1]) + 1)
-        if len(power_w) == 1:  # the usual case: an outer product (same values as the matrix product, no BLAS call)
-            flux = np.empty((rows.stop - rows.start, cols.stop - cols.start), dtype=np.float32)
+        shape = (rows.stop - rows.start, cols.stop - cols.start)
+        if k == 1:  # the usual case: one outer product (the same values as the matrix product)
+            flux = np.empty(shape, dtype=np.float32)
             np.multiply.outer(pv[0, rows] * power_w[0], pu[0, cols], out=flux, casting="same_kind")
-        else:
-            flux = ((pv[:, rows].T * power_w[None, :]) @ pu[:, cols]).astype(np.float32)
-        return rows, cols, flux
+            return rows, cols, flux
+        acc = np.zeros(shape, dtype=np.float32)
+        for j in range(k):  # each spot over its own extent only, summed in float32 (the raster's type)
+            cu, rv = np.flatnonzero(pu[j, cols]), np.flatnonzero(pv[j, rows])
+            if cu.size and rv.size:
+                rs, cs = slice(rv[0], rv[-1] + 1), slice(cu[0], cu[-1] + 1)
+                a = (pv[j, rows][rs] * power_w[j]).astype(np.float32)
+                acc[rs, cs] += np.multiply.outer(a, pu[j, cols][cs].astype(np.float32))
+        return rows, cols, acc
 
     def spots_from_beams(self, origin_enu, direction_enu, sun_enu, normal_enu, mirror_size_m, dni_wm2,
                          cleanliness):
@@ -191,7 +206,9 @@ class BoardRenderer:
         win = self.spot_flux_window(*spots) if spots is not None else None
         if win is not None:
             rows, cols, flux = win
-            radiance[rows, cols] = self.albedo[rows, cols] * (ambient + flux)
+            flux += ambient
+            flux *= self.albedo[rows, cols]
+            radiance[rows, cols] = flux
         radiance *= np.float32(s.gain_counts_per_wm2)
         background = s.background_counts * (dni_wm2 / 1000.0 + 0.2) if daylight else 0.0
         w, h = self.size_px
