@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.installed-stamp
 FIELD   ?= field_config/demo_north.yaml
 DEMO_OUT ?= demo_out
 
-.PHONY: demo test venv clean bench
+.PHONY: demo test venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -22,9 +22,6 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadfile
-
-bench: $(STAMP)
-	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache build src/*.egg-info
