@@ -65,7 +65,8 @@ def main(root: str) -> dict:
         print(f"  our model vs PAINT/ARTIST kinematics, nominal beam: max {worst:.2e} mrad (goal 0.01)")
 
         # -- fit table
-        print("\nfit (normal error, mean mrad; beam error on target, mean m)  priors: REALDATA_PRIOR_SIGMA")
+        print("\nfit (normal error, mean mrad; beam error on target, mean m)  fitter: calibration.fit.fit_error_model, "
+          "priors: REALDATA_PRIOR_SIGMA")
         print(f"{'heliostat':9s} {'n':>2s} {'nominal':>8s} {'in-sample':>9s} {'LOO':>6s} {'LOO beam m':>10s}   peers")
         fits = {}
         for hid in ("AA39", "AA23", "AA31", "AC43"):
@@ -113,7 +114,7 @@ def main(root: str) -> dict:
     for f in sorted(glob.glob(str(root / "UTIS-HeliostatBeamCharacterization/data/realSamples/*.png"))):
         res = spot_centre_single_frame(cv2.imread(f, cv2.IMREAD_GRAYSCALE), (8.63, 7.22))
         utis_samples.append({"file": Path(f).name, "centre_px": [round(x, 1) for x in res.centre_px],
-                             "regions": res.regions, "score_ratio": res.score_ratio})
+                             "regions": res.regions, "score_ratio": res.as_dict()["score_ratio"]})
     print(f"  UTIS realSamples (no reference centre): {len(utis_samples)} frames, all centred: "
           f"{[s['centre_px'] for s in utis_samples]}")
     out["spots"] = {"aa23": spots, "summary": summary, "utis_real_samples": utis_samples}

@@ -11,7 +11,8 @@ import numpy as np
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fit", help="fit a heliostat's error model to stored observations",
-                       description="MAP fit of the named error model (Gaussian priors) to an observations CSV; "
+                       description="MAP fit of the named error model (Gaussian priors; calibration.fit's "
+                                   "fit_error_model, normal residuals) to an observations CSV; "
                                    "reports the mirror-normal error (mrad) and the beam error on the target (m), "
                                    "nominal, in-sample and, with --loo, leave-one-out.")
     p.add_argument("observations", help="observations CSV (helicalib import-paint or a campaign export)")
@@ -34,31 +35,34 @@ def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas
     from helicalib.calibration.observations import observations_arrays
     from helicalib.geometry import errors as em
     from helicalib.geometry.heliostat import HeliostatModel
-    from helicalib.realdata.fitting import beam_error_m, fit_map, leave_one_out, normal_error_mrad
+    from helicalib.realdata.fitting import beam_error_m, fit, identifiability, leave_one_out, normal_error_mrad
 
     a = observations_arrays(rows)
     targets = [cfg.target(r.target_id) for r in rows]
     model = HeliostatModel.from_config(cfg, [heliostat_id])
     args = (a["strokes_mm"], a["sun_enu"], a["spot_enu"])
     nominal = normal_error_mrad(model, *args)
-    fit = fit_map(model, *args, prior_sigma=priors, sigma_meas_mrad=sigma_meas_mrad)
-    ins_beam = beam_error_m(fit.model, *args, targets)
+    res = fit(model, *args, prior_sigma=priors, sigma_meas_mrad=sigma_meas_mrad)
+    prior_sig = em.prior_sigma(priors)
+    in_sample = normal_error_mrad(res.model, *args)
+    ins_beam = beam_error_m(res.model, *args, targets)
     rep = {
         "heliostat": heliostat_id,
         "records": len(rows),
         "record_ids": [r.record_id for r in rows],
-        "priors": {n: float(s) for n, s in zip(em.NAMES, fit.prior_sigma)},
+        "fitter": "calibration.fit.fit_error_model (residual_kind=normal, loss=linear)",
+        "priors": {n: float(s) for n, s in zip(em.NAMES, prior_sig)},
         "sigma_meas_mrad": sigma_meas_mrad,
         "nominal_normal_mrad_mean": _mean(nominal),
         "nominal_normal_mrad": nominal.tolist(),
         "nominal_beam_m_mean": _mean(beam_error_m(model, *args, targets)),
-        "in_sample_normal_mrad_mean": _mean(fit.normal_error_mrad),
-        "in_sample_normal_mrad": fit.normal_error_mrad.tolist(),
+        "in_sample_normal_mrad_mean": _mean(in_sample),
+        "in_sample_normal_mrad": in_sample.tolist(),
         "in_sample_beam_m_mean": _mean(ins_beam),
         "parameters": {p.name: {"value": float(v), "sigma": float(s), "unit": p.unit, "prior_sigma": float(ps)}
-                       for p, v, s, ps in zip(em.PARAMETERS, fit.params, fit.sigma, fit.prior_sigma)},
-        "identifiability": fit.identifiability(),
-        "converged": fit.success,
+                       for p, v, s, ps in zip(em.PARAMETERS, res.params, res.sigma, prior_sig)},
+        "identifiability": identifiability(res, priors),
+        "converged": res.success,
     }
     if loo:
         lo = leave_one_out(model, *args, targets, prior_sigma=priors, sigma_meas_mrad=sigma_meas_mrad)

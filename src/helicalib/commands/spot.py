@@ -2,6 +2,7 @@
 
     helicalib spot BEFORE.png AFTER.png [AFTER ...] --target TARGET.yaml [--method grlm-centroid] [--json]
     helicalib spot BEFORE.png AFTER.png --field FIELD.yaml --target-id T1 [--camera-id C1] [--overlay OUT.png]
+    helicalib spot FRAME --single-frame --board-size-m W H [--json]      (one rectified board frame, no BEFORE)
 
 Exit status: 0 valid measurement, 3 measured but invalid (the reason is printed), 1 user error.
 
@@ -51,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def load_target_file(path: Path):
+def load_target_file(path: Path, need_marks: bool = True):
     """A Target from a YAML file holding one target entry (bare, in a one-item list, or under ``targets:``)."""
     import yaml
     from pydantic import ValidationError
@@ -81,19 +82,21 @@ def load_target_file(path: Path):
         loc = ".".join(str(x) for x in err["loc"] if not str(x).startswith(("function", "tuple")))
         where = ".".join(x for x in (prefix, loc) if x)
         raise ConfigError(f"{path}: {where}: {err['msg'].removeprefix('Value error, ')}") from None
-    if target.marks is None:
+    if need_marks and target.marks is None:
         raise ConfigError(f"{path}: {prefix + '.' if prefix else ''}marks: the target needs its marks to be measured")
     return target
 
 
-def resolve_target(args):
-    """(target, camera, default_method) from ``--target`` or ``--field/--target-id``."""
+def resolve_target(args, need_marks: bool = True):
+    """(target, camera, default_method) from ``--target`` or ``--field/--target-id``.
+
+    ``need_marks=False`` (single-frame mode) accepts boards without marks (e.g. imported ones)."""
     from helicalib.errors import ConfigError
 
     if (args.target is None) == (args.field is None):
         raise ConfigError("give either --target TARGET.yaml or --field FIELD.yaml --target-id ID")
     if args.target is not None:
-        return load_target_file(args.target), None, "grlm-centroid"
+        return load_target_file(args.target, need_marks), None, "grlm-centroid"
     from helicalib.config import load_field_config
 
     field = load_field_config(args.field)
@@ -101,7 +104,7 @@ def resolve_target(args):
         ids = ", ".join(t.id for t in field.targets)
         raise ConfigError(f"--field needs --target-id (one of {ids})")
     target = field.target(args.target_id)
-    if target.marks is None:
+    if need_marks and target.marks is None:
         raise ConfigError(f"{args.field}: target {target.id} has no marks")
     cams = field.cameras_for(target.id)
     camera = None
@@ -157,10 +160,15 @@ def run(args) -> int:
     from helicalib.errors import ConfigError
     from helicalib.vision.spot import SpotLimits, measure_spot
 
-    target, camera, default_method = resolve_target(args)
     ext = _extension()
     if ext is not None and hasattr(ext, "wants") and ext.wants(args):
+        # single-frame mode: a rectified frame of the board; a target (--target or --field/--target-id) is
+        # optional (it may supply the board size) and needs no marks
+        target = camera = None
+        if args.target is not None or args.field is not None:
+            target, camera, _ = resolve_target(args, need_marks=False)
         return int(ext.run_spot(args, target, camera))
+    target, camera, default_method = resolve_target(args)
     if len(args.frames) < 2:
         raise ConfigError("give a BEFORE frame and at least one AFTER frame")
     method = args.method or default_method

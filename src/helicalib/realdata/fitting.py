@@ -1,65 +1,26 @@
-"""Maximum-a-posteriori fit of the named error model to stored observations, and its out-of-sample check.
+"""Real-data (PAINT) side of ``helicalib fit``: the priors chosen for the PAINT records, the
+leave-one-out driver and the reported error measures. The fitting itself is
+:func:`helicalib.calibration.fit.fit_error_model` (the campaign's fitter), called by :func:`fit` with
+``residual_kind="normal"``, a plain loss and these priors.
 
 Residual of one observation: the mirror normal the model predicts for the recorded strokes minus
-the normal that would have put the beam on the observed spot (``optics.observed_normal_from_spot``,
-from the mirror centre), as two tangent components [mrad] divided by ``sigma_meas_mrad``. Each
-parameter adds the prior residual ``p / prior_sigma``: with 6 records (12 numbers) and 13
-parameters the priors decide what the data cannot, so they are part of the method (see
-``docs/realdata.md`` for the values chosen and why).
-
-Used by ``helicalib fit``; independent of ``calibration.fit`` (which fits the same model for the
-campaign) so that real-data figures can be reproduced with stated priors.
+the normal that would have put the beam on the observed spot (``optics.aim_normal``, from the mirror
+centre), two components [mrad] over the normal scatter ``sigma_meas_mrad``. Each free parameter adds
+the prior residual ``p / prior_sigma``: with 6 records (12 numbers) and 13 parameters the priors decide
+what the data cannot, so they are part of the method (see ``docs/realdata.md`` for the values chosen
+and why).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from helicalib.calibration.fit import FitResult, fit_error_model
 from helicalib.geometry import errors as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
-
-
-@dataclass(frozen=True)
-class MapFit:
-    params: np.ndarray  # (P,)
-    covariance: np.ndarray  # (P, P), in parameter units
-    sigma: np.ndarray  # (P,) posterior standard deviation
-    prior_sigma: np.ndarray  # (P,)
-    free: np.ndarray  # (P,) bool
-    normal_error_mrad: np.ndarray  # (K,) in-sample
-    model: HeliostatModel
-    success: bool
-    message: str
-
-    def identifiability(self) -> list[dict]:
-        """Per parameter: posterior / prior sigma (1 = the data add nothing), and strongest correlation."""
-        sd = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            corr = self.covariance / np.outer(sd, sd)
-        out = []
-        for i, name in enumerate(em.NAMES):
-            if not self.free[i]:
-                out.append({"name": name, "free": False})
-                continue
-            c = corr[i].copy()
-            c[i] = 0.0
-            c[~self.free] = 0.0
-            j = int(np.nanargmax(np.abs(c))) if np.any(np.isfinite(c)) else i
-            out.append({"name": name, "free": True, "posterior_over_prior": float(sd[i] / self.prior_sigma[i]),
-                        "most_correlated_with": em.NAMES[j], "correlation": float(c[j])})
-        return out
-
-
-def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    ref = np.where(np.abs(n[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
-    t1 = optics.unit(np.cross(n, ref))
-    t2 = np.cross(n, t1)
-    return t1, t2
 
 
 def predicted_and_observed_normals(model: HeliostatModel, strokes_mm, sun_enu, spot_enu):
@@ -86,52 +47,46 @@ def beam_error_m(model: HeliostatModel, strokes_mm, sun_enu, spot_enu, targets: 
     return np.linalg.norm(uv_pred - uv_obs, axis=-1)
 
 
-def fit_map(model: HeliostatModel, strokes_mm, sun_enu, spot_enu, prior_sigma: Mapping[str, float] | np.ndarray,
-            free: Sequence[str] | None = None, sigma_meas_mrad: float = 1.0, loss: str = "linear") -> MapFit:
-    """MAP estimate of one heliostat's error parameters (Gaussian priors about 0, Gaussian or robust data)."""
-    strokes = np.asarray(strokes_mm, dtype=float).reshape(-1, 2)
-    sun = optics.unit(np.asarray(sun_enu, dtype=float).reshape(-1, 3))
-    spot = np.asarray(spot_enu, dtype=float).reshape(-1, 3)
-    k = len(strokes)
-    sig = em.prior_sigma(prior_sigma) if isinstance(prior_sigma, Mapping) else np.asarray(prior_sigma, float)
-    free_mask = np.ones(em.P, bool) if free is None else np.isin(np.array(em.NAMES), list(free))
-    free_mask &= sig > 0
-    idx = np.flatnonzero(free_mask)
-    base = model.repeat(k)
-    _, n_obs0 = predicted_and_observed_normals(model, strokes, sun, spot)
-    t1, t2 = _tangents(n_obs0)
+def fit(model: HeliostatModel, strokes_mm, sun_enu, spot_enu, prior_sigma: Mapping[str, float],
+        sigma_meas_mrad: float = 1.0, loss: str = "linear") -> FitResult:
+    """MAP fit of one heliostat with :func:`helicalib.calibration.fit.fit_error_model` (the one fitter).
 
-    def params_of(x):
-        p = np.zeros(em.P)
-        p[idx] = x * sig[idx]
-        return p
+    ``prior_sigma`` by name (units of each parameter; 0 = fixed at the model's value, i.e. left out of
+    ``free``); ``sigma_meas_mrad`` is the scatter of one observation's *normal* error (the fitter's
+    ``sigma_mrad`` is a beam-angle one, twice the normal one, so it is passed as ``2 · sigma_meas_mrad``
+    with ``residual_kind="normal"``, whose residuals are the same as those of the former
+    ``realdata.fitting.fit_map``); a plain (``linear``) loss, as with 6 records there is no outlier to
+    down-weight.
+    """
+    sig = em.prior_sigma(prior_sigma)
+    free = [n for n, s in zip(em.NAMES, sig) if s > 0]
+    return fit_error_model(model, np.asarray(strokes_mm, float).reshape(-1, 2), np.asarray(sun_enu, float).reshape(-1, 3),
+                           np.asarray(spot_enu, float).reshape(-1, 3), prior_sigma=dict(prior_sigma), free=free,
+                           loss=loss, sigma_mrad=2.0 * sigma_meas_mrad, residual_kind="normal", n_suggestions=0)
 
-    def data_res(x):
-        m = base.with_params(params_of(x))
-        n_pred = m.normal(strokes)
-        n_obs = optics.observed_normal_from_spot(m.pivots_eff_enu, sun, spot, m.mirror_offset_m)
-        d = n_pred - n_obs
-        r = 1000.0 * np.concatenate([np.sum(d * t1, -1), np.sum(d * t2, -1)]) / sigma_meas_mrad
-        return np.where(np.isfinite(r), r, 1e3)
 
-    def res(x):
-        return np.concatenate([data_res(x), x])
-
-    x0 = np.zeros(len(idx))
-    sol = least_squares(res, x0, method="trf", loss=loss, x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                        max_nfev=200)
-    p = params_of(sol.x)
-    j = sol.jac
-    try:
-        cov_x = np.linalg.inv(j.T @ j)
-    except np.linalg.LinAlgError:
-        cov_x = np.linalg.pinv(j.T @ j)
-    cov = np.zeros((em.P, em.P))
-    cov[np.ix_(idx, idx)] = cov_x * np.outer(sig[idx], sig[idx])
-    fitted = model.with_params(p)
-    return MapFit(params=p, covariance=cov, sigma=np.sqrt(np.clip(np.diag(cov), 0, None)), prior_sigma=sig,
-                  free=free_mask, normal_error_mrad=normal_error_mrad(fitted, strokes, sun, spot), model=fitted,
-                  success=bool(sol.success), message=str(sol.message))
+def identifiability(result: FitResult, prior_sigma: Mapping[str, float]) -> list[dict]:
+    """Per parameter: posterior / prior sigma (1 = the data add nothing), the data fraction of
+    ``fit_error_model``'s report, and the strongest correlation among the free parameters."""
+    sig = em.prior_sigma(prior_sigma)
+    cov = result.covariance
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    free = np.isin(np.array(em.NAMES), list(result.free))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    out = []
+    for i, name in enumerate(em.NAMES):
+        if not free[i]:
+            out.append({"name": name, "free": False})
+            continue
+        c = np.nan_to_num(corr[i].copy())
+        c[i] = 0.0
+        c[~free] = 0.0
+        j = int(np.argmax(np.abs(c)))
+        out.append({"name": name, "free": True, "posterior_over_prior": float(sd[i] / sig[i]),
+                    "data_fraction": result.identifiability.data_fraction[name],
+                    "most_correlated_with": em.NAMES[j], "correlation": float(c[j])})
+    return out
 
 
 def leave_one_out(model: HeliostatModel, strokes_mm, sun_enu, spot_enu, targets: Sequence, **fit_kwargs) -> dict:
@@ -143,7 +98,7 @@ def leave_one_out(model: HeliostatModel, strokes_mm, sun_enu, spot_enu, targets:
     normal, beam = np.full(k, np.nan), np.full(k, np.nan)
     for i in range(k):
         keep = np.arange(k) != i
-        f = fit_map(model, strokes[keep], sun[keep], spot[keep], **fit_kwargs)
+        f = fit(model, strokes[keep], sun[keep], spot[keep], **fit_kwargs)
         normal[i] = normal_error_mrad(f.model, strokes[i:i + 1], sun[i:i + 1], spot[i:i + 1])[0]
         beam[i] = beam_error_m(f.model, strokes[i:i + 1], sun[i:i + 1], spot[i:i + 1], [targets[i]])[0]
     return {"normal_mrad": normal, "beam_m": beam}
