@@ -413,6 +413,40 @@ class FieldConfig(_Model):
 
 
 # ---------------------------------------------------------------------------- loading
+def read_yaml(path: str | Path) -> Any:
+    """Parse a YAML file; a missing file or bad YAML is a :class:`ConfigError` naming file, line and column."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: file not found")
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise ConfigError(f"{path}: {at}not valid YAML ({getattr(exc, 'problem', exc)})") from None
+
+
+def validation_error(exc: ValidationError, source: str | Path | None = None, rename=None,
+                     prefix: str = "") -> ConfigError:
+    """A pydantic error as a :class:`ConfigError`: one line per problem, ``FILE: key.path[3]: what``.
+
+    ``rename`` maps a key path to the one to show (e.g. rows of a CSV); ``prefix`` is put before
+    every key path (a document validated as part of a larger one).
+    """
+    where = f"{source}: " if source is not None else ""
+    lines: list[str] = []
+    for err in exc.errors():
+        loc = _loc_to_path(_clean_loc(err["loc"]))
+        if prefix:
+            loc = prefix if loc == "(top level)" else f"{prefix}{'' if loc.startswith('[') else '.'}{loc}"
+        if rename is not None:
+            loc = rename(loc)
+        line = f"{where}{loc}: {_message(err)}"
+        if line not in lines:
+            lines.append(line)
+    return ConfigError("\n".join(lines), problems=lines)
+
+
 def _loc_to_path(loc: Sequence[Any]) -> str:
     out = ""
     for part in loc:
@@ -516,15 +550,9 @@ def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConf
     try:
         cfg = FieldConfig.model_validate(data)
     except ValidationError as exc:
-        lines = []
-        for err in exc.errors():
-            loc = _loc_to_path(_clean_loc(err["loc"]))
-            if has_csv and loc.startswith("heliostats["):
-                loc = heliostat_loc + loc[len("heliostats") :]
-            line = f"{where}{loc}: {_message(err)}"
-            if line not in lines:
-                lines.append(line)
-        raise ConfigError("\n".join(lines), problems=lines) from None
+        rename = (lambda loc: heliostat_loc + loc[len("heliostats"):] if loc.startswith("heliostats[") else loc) \
+            if has_csv else None
+        raise validation_error(exc, source, rename) from None
     problems = [f"{where}{p}" for p in _cross_check(cfg, heliostat_loc)]
     for i, cam in enumerate(cfg.cameras):
         if cam.flux_calibration is not None:
@@ -541,15 +569,7 @@ def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConf
 def load_field_config(path: str | Path) -> FieldConfig:
     """Read and validate a field config YAML file (and its heliostat CSV)."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        raise ConfigError(f"{path}: {at}not valid YAML ({getattr(exc, 'problem', exc)})") from None
-    return parse_field_config(data, path)
+    return parse_field_config(read_yaml(path), path)
 
 
 def write_field_config(data: Mapping[str, Any], path: str | Path) -> FieldConfig:

@@ -39,19 +39,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _load_target_file(path: str):
     """TARGET.yaml → (Target, Camera | None); errors name the file and key path."""
-    import yaml
     from pydantic import ValidationError
 
-    from helicalib.config import Camera, Target, _clean_loc, _loc_to_path, _message
+    from helicalib.config import Camera, Target, read_yaml, validation_error
     from helicalib.errors import ConfigError
 
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"{p}: file not found")
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    data = read_yaml(p)
     if not isinstance(data, dict) or not isinstance(data.get("targets"), list) or len(data["targets"]) != 1:
         raise ConfigError(f"{p}: targets: expected a list holding exactly one target")
     extra = set(data) - {"targets", "cameras"}
@@ -64,8 +58,7 @@ def _load_target_file(path: str):
         try:
             return model.model_validate(value)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            raise ConfigError(f"{p}: {section}.{_loc_to_path(_clean_loc(err['loc']))}: {_message(err)}") from None
+            raise validation_error(exc, p, prefix=section) from None
 
     target = validated(Target, data["targets"][0], "targets[0]")
     camera = validated(Camera, cams[0], "cameras[0]") if cams else None

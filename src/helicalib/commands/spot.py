@@ -54,18 +54,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def load_target_file(path: Path, need_marks: bool = True):
     """A Target from a YAML file holding one target entry (bare, in a one-item list, or under ``targets:``)."""
-    import yaml
     from pydantic import ValidationError
 
-    from helicalib.config import Target
+    from helicalib.config import Target, read_yaml, validation_error
     from helicalib.errors import ConfigError
 
-    if not path.is_file():
-        raise ConfigError(f"{path}: file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    data = read_yaml(path)
     prefix = ""
     if isinstance(data, dict) and "targets" in data:
         data, prefix = data["targets"], "targets"
@@ -78,10 +72,7 @@ def load_target_file(path: Path, need_marks: bool = True):
     try:
         target = Target.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in err["loc"] if not str(x).startswith(("function", "tuple")))
-        where = ".".join(x for x in (prefix, loc) if x)
-        raise ConfigError(f"{path}: {where}: {err['msg'].removeprefix('Value error, ')}") from None
+        raise validation_error(exc, path, prefix=prefix) from None
     if need_marks and target.marks is None:
         raise ConfigError(f"{path}: {prefix + '.' if prefix else ''}marks: the target needs its marks to be measured")
     return target

@@ -16,10 +16,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
-from helicalib.config import _clean_loc, _loc_to_path, _message
+from helicalib.config import read_yaml, validation_error
 from helicalib.errors import ConfigError
 from helicalib.flux import calibration as cal
 from helicalib.flux.corrections import ResponseCurve, correct_frame, flat_field_factors, nonuniformity_error, response_curve
@@ -192,12 +191,7 @@ def parse_flux_calibration(data: Any, source: str | Path | None = None) -> FluxC
     try:
         out = FluxCalibration.model_validate(data)
     except ValidationError as exc:
-        lines = []
-        for err in exc.errors():
-            line = f"{where}{_loc_to_path(_clean_loc(err['loc']))}: {_message(err)}"
-            if line not in lines:
-                lines.append(line)
-        raise ConfigError("\n".join(lines), problems=lines) from None
+        raise validation_error(exc, source) from None
     if source is not None:
         out._source = Path(source).resolve()
     return out
@@ -206,15 +200,7 @@ def parse_flux_calibration(data: Any, source: str | Path | None = None) -> FluxC
 def load_flux_calibration(path: str | Path) -> FluxCalibration:
     """Read and validate a FLUX.yaml file."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        raise ConfigError(f"{path}: {at}not valid YAML ({getattr(exc, 'problem', exc)})") from None
-    return parse_flux_calibration(data, path)
+    return parse_flux_calibration(read_yaml(path), path)
 
 
 # ----------------------------------------------------------------------------- correction data

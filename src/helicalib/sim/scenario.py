@@ -11,10 +11,9 @@ from pathlib import Path
 from datetime import datetime, timezone
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator
 
-from helicalib.errors import ConfigError
+from helicalib.config import read_yaml, validation_error
 
 
 def _iso(value: Any) -> Any:
@@ -160,16 +159,10 @@ class Scenario(_Model):
 
 def parse_scenario(data: Any, source: str | Path | None = None) -> Scenario:
     """Validate a scenario mapping (None or {} = all defaults)."""
-    where = f"{source}: " if source is not None else ""
     try:
         return Scenario.model_validate(data or {})
     except ValidationError as exc:
-        lines = []
-        for err in exc.errors():
-            loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in err["loc"]).replace(".[", "[")
-            msg = "unknown key" if err["type"] == "extra_forbidden" else str(err["msg"]).removeprefix("Value error, ")
-            lines.append(f"{where}{loc or '(top level)'}: {msg}")
-        raise ConfigError("\n".join(lines), problems=lines) from None
+        raise validation_error(exc, source) from None
 
 
 def load_scenario(path: str | Path | None) -> Scenario:
@@ -177,10 +170,4 @@ def load_scenario(path: str | Path | None) -> Scenario:
     if path is None:
         return Scenario()
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: scenario file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
-    return parse_scenario(data, path)
+    return parse_scenario(read_yaml(path), path)

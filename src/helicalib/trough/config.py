@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from helicalib.config import read_yaml, validation_error
 from helicalib.errors import ConfigError
 from helicalib.trough.camera import PinholeCamera
 
@@ -150,11 +150,6 @@ class Camera(_Model):
                              rotation_deg=tuple(float(a) for a in self.rotation_deg))
 
 
-def _loc(loc) -> str:
-    out = ""
-    for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else ("." if out else "") + str(part)
-    return out or "(top level)"
 
 
 def parse(model: type[_Model], data: Any, source: str | Path | None = None):
@@ -165,27 +160,12 @@ def parse(model: type[_Model], data: Any, source: str | Path | None = None):
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        lines = []
-        for err in exc.errors():
-            msg = str(err["msg"]).removeprefix("Value error, ")
-            msg = {"extra_forbidden": "unknown key", "missing": "missing required key"}.get(err["type"], msg)
-            line = f"{where}{_loc(err['loc'])}: {msg}"
-            if line not in lines:
-                lines.append(line)
-        raise ConfigError("\n".join(lines), problems=lines) from None
+        raise validation_error(exc, source) from None
 
 
 def _load(model, path: str | Path):
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        raise ConfigError(f"{path}: {at}not valid YAML ({getattr(exc, 'problem', exc)})") from None
-    return parse(model, data, path)
+    return parse(model, read_yaml(path), path)
 
 
 def load_collector(path: str | Path) -> Collector:
