@@ -153,3 +153,21 @@ def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
     store.close()
     assert not res.runner.stowed
     assert res.runner.plant.field_state() == FieldState.TRACKING
+
+
+def test_campaign_measures_mirror_cleanliness_from_the_spot(demo_field_path, tmp_path):
+    """Issue 9: each valid visit records the cleanliness measured from the spot's power; the
+    simulated plant's soiling records (the register) are the independent truth."""
+    from helicalib.campaign.simulate import simulate_campaign
+
+    cfg = load_field_config(demo_field_path)
+    start = default_start_s(cfg) + MORNING_S + 3 * 3600
+    res = simulate_campaign(cfg, tmp_path, days=2.0 / 24, seed=2, start_s=start, heliostat_ids=IDS)
+    store = Store.open(res.database)
+    valid = [o for o in store.observations(valid=True)]
+    store.close()
+    assert valid
+    measured = [(o.cleanliness_measured, o.cleanliness) for o in valid if o.cleanliness_measured is not None]
+    assert len(measured) >= 0.8 * len(valid), "most valid visits should measure the mirror's cleanliness"
+    for got, plant in measured:
+        assert abs(got - plant) < 0.03

@@ -28,6 +28,7 @@ from helicalib.calibration.correction import stroke_correction
 from helicalib.devices.protocols import Camera, Plant
 from helicalib.devices.registers import HeliostatState
 from helicalib.errors import HelicalibError, MeasurementError, PlantError
+from helicalib.flux.visit import cleanliness_from_visit
 from helicalib.geometry import optics
 from helicalib.geometry.drives import strokes_in_range
 from helicalib.geometry.heliostat import HeliostatModel
@@ -52,11 +53,13 @@ class VisitSettings:
     spot_method: str
     settle_timeout_s: float
     search_steps: int = 6
+    reflectivity_clean: float = 0.93
 
     @classmethod
     def from_config(cls, cfg) -> VisitSettings:
         c = cfg.calibration
-        return cls(c.loop_threshold_mrad, c.max_iterations, c.after_frames, c.spot_method, c.settle_timeout_s)
+        return cls(c.loop_threshold_mrad, c.max_iterations, c.after_frames, c.spot_method, c.settle_timeout_s,
+                   reflectivity_clean=c.reflectivity_clean)
 
 
 @dataclass
@@ -260,6 +263,16 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
         err = float(optics.tracking_error_mrad(np.asarray(extra["spot_enu_m"]), predicted,
                                                ctx.model.pivots_enu[0]))
         extra["error_mrad"] = err
+        # the mirror's present cleanliness from the power in the spot (Zhang & Wang; docs/flux.md)
+        est = cleanliness_from_visit(
+            before, images[-1], marks, ctx.target, fe_wm2_per_grey=getattr(ctx.camera, "fe_wm2_per_grey", None),
+            reflectivity_clean=ctx.settings.reflectivity_clean, dni_wm2=getattr(weather, "dni_wm2", None),
+            sun_enu=sun_vec, pivot_enu=ctx.model.pivots_eff_enu[0], normal_enu=ctx.model.normal(held)[0],
+            mirror_offset_m=float(ctx.model.mirror_offset_m[0]),
+            mirror_area_m2=float(np.prod(ctx.model.drives.mirror_size_m[0])),
+            atmosphere=getattr(ctx.camera, "atmosphere", "clear"))
+        if est.value is not None:
+            extra["cleanliness_measured"] = float(est.value)
     obs = Observation(valid=bool(spot.valid), reason=spot.reason, message=spot.message, **base, **extra)
     obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame), after_frames=[f.data for f in frames])
     return _with_id(obs, obs_id)

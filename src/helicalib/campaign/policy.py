@@ -43,6 +43,8 @@ class HeliostatBook:
     last_first_error_mrad: float | None = None
     verdict: acceptance.AcceptanceVerdict | None = None
     fit_rms_mrad: float | None = None
+    measured_cleanliness: float | None = None      # newest cleanliness measured from a spot
+    measured_at_s: float = -math.inf
 
 
 class Book:
@@ -56,8 +58,12 @@ class Book:
         self._days_span = (math.inf, -math.inf)
 
     def add(self, obs) -> None:
+        b = self.h[obs.heliostat_id]
         if obs.valid and obs.spot_enu_m is not None and all(map(math.isfinite, obs.spot_enu_m)):
-            self.h[obs.heliostat_id].points.append(obs)
+            b.points.append(obs)
+        measured = getattr(obs, "cleanliness_measured", None)
+        if measured is not None and obs.capture_time_s >= b.measured_at_s:
+            b.measured_cleanliness, b.measured_at_s = float(measured), obs.capture_time_s
 
     def points(self, hid: str) -> list:
         return self.h[hid].points
@@ -135,6 +141,8 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
         verdict = b.verdict or _verdict_of(cfg, book, hid, None, now_s)
         gaps = acceptance.gaps(verdict, cfg.acceptance, days, now_s)
         c = cleanliness.get(hid)
+        if c is None or not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
+            c = b.measured_cleanliness
         cands.append(planner_mod.Candidate(
             heliostat_id=hid, target_id=cfg.heliostat(hid).target, accepted=bool(verdict.accepted) and not recheck,
             gaps=gaps, predicted_error_mrad=b.last_first_error_mrad,

@@ -118,7 +118,10 @@ def _network_plant(cfg, scenario, start_s, rate, stack):
                         heliostat_ids=[h.id for h in cfg.heliostats])
     if hasattr(plant, "close"):
         stack.callback(plant.close)
-    cameras = {t.id: HttpCamera(server.camera_url(cfg.cameras_for(t.id)[0].id), timeout_s=5.0) for t in cfg.targets}
+    from helicalib.sim.camera import simulated_fe
+
+    cameras = {t.id: HttpCamera(server.camera_url(cfg.cameras_for(t.id)[0].id), timeout_s=5.0,
+                                fe_wm2_per_grey=simulated_fe(scenario), atmosphere=None) for t in cfg.targets}
     clock = PlantClock(plant)
     return plant, cameras, clock, sim
 
