@@ -17,9 +17,14 @@ days, and marked so). Goals (issue 7): ≥ 95 % accepted, true sky RMS ≤ 0.8 m
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_campaign.py                  # 500 heliostats, up to 8 days each
-    .venv/bin/python benchmarks/bench_campaign.py --quick          # 60 heliostats, 3 days: a few minutes
+    .venv/bin/python benchmarks/bench_campaign.py --jobs 2              # 500 heliostats, 8 days each
+    .venv/bin/python benchmarks/bench_campaign.py --quick --jobs 2      # 30 heliostats, 1 day: a few minutes
+    .venv/bin/python benchmarks/bench_campaign.py --targets T2 --heliostats 110 --days 2 --jobs 2
     .venv/bin/python benchmarks/bench_campaign.py --heliostats 200 --days 5 --planners gaps
+
+Cost: about 0.27 CPU s per visit (simulator ≈ 20 %, the rest campaign, vision and fits), and a
+busy board takes about 100 visits per hour of sun, so a 4-board plant day is ≈ 1500 CPU s per
+planner. ``--targets T2`` keeps one board's 219 heliostats (the scarce case) at a quarter of it.
 
 A subset (``--heliostats N`` below the field's size) takes every k-th heliostat of the field, so
 every target keeps its share; the simulated plant still has the whole field. Prints a table and
@@ -61,9 +66,12 @@ def ensure_field(path: Path, n: int = 500) -> Path:
     return path
 
 
-def pick_heliostats(cfg, n: int | None) -> list[str] | None:
-    """Every k-th heliostat of the field (``n`` of them), or None for the whole field."""
-    ids = [h.id for h in cfg.heliostats]
+def pick_heliostats(cfg, n: int | None, targets=None) -> list[str] | None:
+    """Every k-th heliostat of the field (``n`` of them; only those of ``targets`` if given), or
+    None for the whole field."""
+    ids = [h.id for h in cfg.heliostats if not targets or h.target in targets]
+    if targets and (n is None or n >= len(ids)):
+        return ids
     if n is None or n >= len(ids):
         return None
     idx = np.round(np.linspace(0, len(ids) - 1, n)).astype(int)
@@ -149,6 +157,9 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     s = result.summary
     start_s, timeline = acceptance_timeline(result.database, n)
+    # the summary divides by every board of the field; count only the boards this run uses
+    boards = {cfg.heliostat(h).target for h in (ids or [x.id for x in cfg.heliostats])}
+    per_board = round(s["visits_per_target_hour"] * len(cfg.targets) / max(len(boards), 1), 3)
     if keep_frames:
         frame_bytes = sum(f.stat().st_size for f in frames.rglob("*.png")) if frames.exists() else 0
     else:
@@ -159,7 +170,7 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
         "days_to_90": days_to(start_s, timeline, n, 0.90), "days_to_95": days_to(start_s, timeline, n, 0.95),
         "accepted_by_day": daily_accepted(start_s, timeline, days),
         "acceptance_rate": s["acceptance_rate"], "accepted": s["accepted"],
-        "visits": s["visits"], "valid_visits": s["valid_visits"], "visits_per_target_hour": s["visits_per_target_hour"],
+        "visits": s["visits"], "valid_visits": s["valid_visits"], "visits_per_target_hour": per_board,
         "mean_iterations": s["mean_iterations"], "first_shot_rms_mrad": s["first_shot_rms_mrad"],
         "true_sky_rms_mrad": s["true_sky_rms_mrad"], "true_sky_p95_mrad": s["true_sky_p95_mrad"],
         "gated_hours": s["gated_hours"], "stowed_hours": s["stowed_hours"], "outcomes": s["outcomes"],
@@ -231,9 +242,12 @@ def goals(results: dict, ratio: dict) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--heliostats", type=int, default=None, help="heliostats to calibrate (default the whole field)")
-    ap.add_argument("--days", type=float, default=None, help="plant days per planner (default 8; --quick 3)")
-    ap.add_argument("--quick", action="store_true", help="60 heliostats, 3 days: a few minutes")
+    ap.add_argument("--days", type=float, default=None, help="plant days per planner (default 8; --quick 1)")
+    ap.add_argument("--quick", action="store_true", help="30 heliostats, 1 day: a few minutes")
     ap.add_argument("--planners", default="gaps,round-robin", help="comma-separated (default gaps,round-robin)")
+    ap.add_argument("--targets", default=None,
+                    help="only the heliostats of these boards, e.g. T2 (the others stay idle: a cheaper run "
+                         "with as many heliostats per board as the full field)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--field", type=Path, default=FIELD, help="field config (default the 500-heliostat bench field)")
     ap.add_argument("--scenario", type=Path, default=SCENARIO)
@@ -247,11 +261,12 @@ def main(argv=None) -> int:
     from helicalib.config import load_field_config
     from helicalib.sim.scenario import load_scenario
 
-    n = args.heliostats if args.heliostats is not None else (60 if args.quick else None)
-    days = args.days if args.days is not None else (3.0 if args.quick else 8.0)
+    n = args.heliostats if args.heliostats is not None else (30 if args.quick else None)
+    days = args.days if args.days is not None else (1.0 if args.quick else 8.0)
     cfg = load_field_config(ensure_field(args.field))
     scenario = load_scenario(str(args.scenario))
-    ids = pick_heliostats(cfg, n)
+    targets = [t.strip() for t in args.targets.split(",")] if args.targets else None
+    ids = pick_heliostats(cfg, n, targets)
     count = len(ids) if ids else len(cfg.heliostats)
     per_target: dict[str, int] = {}
     for hid in ids or [h.id for h in cfg.heliostats]:
@@ -282,6 +297,7 @@ def main(argv=None) -> int:
         print(f"goal {k}: {'met' if v else ('n/a' if v is None else 'NOT met')}")
     load = os.getloadavg() if hasattr(os, "getloadavg") else None
     doc = {"benchmark": "campaign", "field": str(args.field), "heliostats": count, "per_target": per_target,
+           "targets": targets,
            "scenario": scenario.name, "days": days, "seed": args.seed, "quick": bool(args.quick),
            "results": results, "speed_ratio": ratio, "goals": GOALS, "goals_met": verdict,
            "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
