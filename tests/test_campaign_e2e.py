@@ -44,7 +44,7 @@ class LoggingPlant(SimulatedPlant):
         super().write_command(index, command, sequence, strokes_mm=strokes_mm, corrections_mm=corrections_mm)
 
 
-def _run_network(cfg, tmp_path, hours, scenario=None, rate=2500.0, faults=None):
+def _run_network(cfg, tmp_path, hours, scenario=None, rate=800.0, faults=None):
     scenario = scenario or parse_scenario({"seed": 3})
     start = default_start_s(cfg) + MORNING_S
     sim = LoggingPlant(cfg, scenario, start_s=start, rate=rate)
@@ -111,9 +111,11 @@ def test_no_stroke_outside_the_range_reached_the_plant(network_campaign):
 
 def test_faults_make_visits_invalid_and_the_campaign_goes_on(demo_field_path, tmp_path):
     cfg = load_field_config(demo_field_path)
-    faults = FaultInjector(camera_503_probability=0.25, camera_truncate_probability=0.15,
+    # per grab (one retry) about 1 in 4 fails: over a few hours both failures and valid visits are
+    # certain to occur (P(no failure in 20 grabs) ~ 0.4 %, P(no valid visit in 10) ~ 0.02 %)
+    faults = FaultInjector(camera_503_probability=0.4, camera_truncate_probability=0.15,
                            modbus_drop_probability=0.02)
-    sim, store, cid, runner = _run_network(cfg, tmp_path, hours=3.0, faults=faults)
+    sim, store, cid, runner = _run_network(cfg, tmp_path, hours=4.0, faults=faults)
     obs = store.observations(campaign_id=cid)
     bad = [o for o in obs if not o.valid]
     reasons = {o.reason for o in bad}
