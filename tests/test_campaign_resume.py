@@ -159,6 +159,17 @@ def test_without_arm_nothing_is_written(plant):
     con.close()
     assert visits == 0
     assert any(n.startswith("not armed: would send") for n in notes), notes
+    # the plant's side: no heliostat ever processed a command sequence, the field was never commanded
+    from helicalib.devices.modbus import ModbusPlant
+
+    cfg = load_field_config(field)
+    plant = ModbusPlant.from_config(cfg, armed=False)
+    try:
+        for hid in IDS.split(","):
+            st = plant.status(cfg.heliostat_index(hid))
+            assert st.sequence_done == 0 and st.state == 1, (hid, st)
+    finally:
+        plant.close()
 
 
 def test_check_reports_the_present_error(plant):
@@ -169,7 +180,8 @@ def test_check_reports_the_present_error(plant):
     rows = json.loads(r.stdout)
     assert [row["heliostat"] for row in rows] == ["H0001"]
     assert rows[0]["visits"] >= 1
-    # a first placement by the nominal model: the simulated plant's hidden errors put it mrads off
+    # this database holds no earlier calibration of H0001, so the check places it with the nominal
+    # model, and the simulated plant's hidden errors put it mrads off (a calibrated one would not be)
     assert rows[0]["present_error_mrad"] is not None and rows[0]["present_error_mrad"] > 0.5
     con = sqlite3.connect(tmp / "campaign.db")
     modes = [m for (m,) in con.execute("SELECT mode FROM campaigns")]

@@ -37,8 +37,9 @@ from helicalib.vision.frames import decode_frame
 from helicalib.vision.marks import find_marks
 from helicalib.vision.spot import measure_spot
 
-SEARCHABLE = frozenset({"no_spot", "clipped"})
-"""Spot results after which the visit searches for the beam instead of giving up."""
+SEARCHABLE = frozenset({"no_spot", "clipped", "low_contrast"})
+"""Spot results after which the visit searches for the beam instead of giving up (DNI and cleanliness
+are gated before a visit, so a faint spot most likely means a beam mostly off the board)."""
 POLL_S = 2.0
 """Plant seconds between status polls while waiting for a heliostat to settle."""
 
@@ -172,9 +173,10 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
             out.observations.append(obs)
             attempt += 1
             if not obs.valid:
-                if obs.reason in SEARCHABLE and search:
+                nxt = _next_search_aim(target, obs, aim, search) if obs.reason in SEARCHABLE else None
+                if nxt is not None and searches < ctx.settings.search_steps:
                     searches += 1
-                    aim = _next_search_aim(target, obs, search)
+                    aim = nxt
                     strokes = _aim_strokes(ctx, aim, ctx.now())
                     continue
                 out.status = "invalid"
@@ -207,9 +209,13 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         out.status, out.reason = ("refused" if "range" in err.code else "fault"), err.code
         _record_failure(ctx, err.code, str(err))
     except (PlantError, MeasurementError) as err:
-        code = "plant_error" if isinstance(err, PlantError) else "camera_error"
+        code = "plant_error" if isinstance(err, PlantError) else getattr(err, "reason", "camera_error")
         out.status, out.reason = "fault", code
         _record_failure(ctx, code, str(err))
+    except Exception as err:  # noqa: BLE001 - e.g. a full disk: the beam must still leave the board
+        code = f"error_{type(err).__name__}"
+        out.status, out.reason = "fault", code
+        _record_failure(ctx, code, f"{ctx.heliostat_id}: {type(err).__name__}: {err}")
     yield from _leave(ctx)
     return out
 
@@ -223,7 +229,7 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
             frames.append(f)
             images.append(img)
         except MeasurementError as err:
-            reason, message = "bad_frame", str(err)
+            reason, message = getattr(err, "reason", "bad_frame"), str(err)
             break
         if ctx.settings.after_frames > 1:
             yield 1.0
@@ -308,15 +314,22 @@ def _search_aims(target, steps: int) -> list[np.ndarray]:
     return [np.array([r * np.cos(a), r * np.sin(a)]) for a in angles]
 
 
-def _next_search_aim(target, obs: Observation, search: list[np.ndarray]) -> np.ndarray:
-    """Led by the part of the spot it sees: aim opposite to a clipped spot; else the next ring point."""
+def _next_search_aim(target, obs: Observation, aim_enu: np.ndarray, search: list[np.ndarray]) -> np.ndarray | None:
+    """The next aim point (ENU) of a search, always on the board; None when there is none left.
+
+    Led by the part of the spot it sees: a clipped spot seen ``seen`` metres from the current aim
+    means the beam lands about there, so the next aim is the current one minus ``seen`` (clipped to
+    the inner 80 % of the board). Without a usable centre (no spot, or an aim that would not move),
+    the next point of the ring.
+    """
     w, h = target.size_m
+    lim = np.array([0.4 * w, 0.4 * h])
     if obs.reason == "clipped" and obs.offset_u_m is not None:
-        seen = np.array([obs.offset_u_m, obs.offset_v_m])
-        uv = np.clip(-seen, [-0.4 * w, -0.4 * h], [0.4 * w, 0.4 * h])
-    else:
-        uv = search.pop(0)
-    return target.uvw_to_enu(uv)
+        current = target.enu_to_uvw(aim_enu)[:2]
+        uv = np.clip(current - np.array([obs.offset_u_m, obs.offset_v_m]), -lim, lim)
+        if np.linalg.norm(uv - current) > 0.05 * min(w, h):
+            return target.uvw_to_enu(uv)
+    return target.uvw_to_enu(search.pop(0)) if search else None
 
 
 def _record_failure(ctx: VisitContext, code: str, message: str) -> None:
@@ -330,7 +343,7 @@ def _record_failure(ctx: VisitContext, code: str, message: str) -> None:
                       sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message)
     try:
         ctx.record(obs)
-    except HelicalibError:
+    except Exception:  # noqa: BLE001 - recording the failure must not stop the beam leaving the board
         pass
 
 
@@ -341,13 +354,13 @@ def _leave(ctx: VisitContext) -> Generator[float, None, None]:
         sol = ctx.model.strokes_for_aim(ctx.sun(ctx.now())[0], standby)
         if bool(sol.in_range[0]):
             yield from move_and_hold(ctx, sol.strokes_mm[0])
-    except (VisitAborted, PlantError):
+    except (VisitAborted, PlantError, MeasurementError):
         pass
     corrections = None
     if ctx.corrections is not None:
         try:
             corrections = ctx.corrections(ctx.model)
-        except HelicalibError:
+        except Exception:  # noqa: BLE001 - keep the plant's corrections rather than write doubtful ones
             corrections = None
     try:  # None: the plant keeps the corrections it has
         ctx.plant.track(ctx.index, None if corrections is None else np.asarray(corrections, dtype=float))

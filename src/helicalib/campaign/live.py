@@ -103,12 +103,26 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda *_: stop.set())
     scheduler.start()
+    last = {"now": None}
+
+    def plant_now() -> float | None:
+        """Plant time, or None while the plant does not answer (the jobs retry; nothing stops)."""
+        try:
+            last["now"] = runner.clock.now_s()
+        except HelicalibError:
+            return None
+        return last["now"]
+
     try:
-        while not stop.is_set() and runner.clock.now_s() < until_s and not (done is not None and done()):
+        while not stop.is_set() and not (done is not None and done()):
+            now = plant_now()
+            if now is not None and now >= until_s:
+                break
             stop.wait(min(1.0, max(0.05, 5.0 / rate)))
     finally:
         scheduler.shutdown(wait=True)
         with lock:
-            runner.shutdown(runner.clock.now_s())
+            now = plant_now()
+            runner.shutdown(now if now is not None else (last["now"] or until_s))
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -195,24 +195,21 @@ def _visit_points(points: list) -> list:
     return list(last.values())
 
 
-def loo_errors_mrad(nominal: HeliostatModel, points: list, visit_points: list) -> np.ndarray:
-    """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 at the pivot)."""
+def loo_errors_mrad(cfg, nominal: HeliostatModel, points: list, visit_points: list) -> np.ndarray:
+    """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 on its board)."""
     out = []
     for vp in visit_points:
         rest = [p for p in points if p.visit_id != vp.visit_id]
         model, _fit = refit(nominal, rest, nominal)
-        out.append(prediction_error_mrad(model, vp))
+        out.append(prediction_error_mrad(model, vp, cfg.target(vp.target_id)))
     return np.asarray(out, dtype=float)
 
 
-def prediction_error_mrad(model: HeliostatModel, obs) -> float:
-    """How far ``model`` puts the beam from where ``obs`` saw it [mrad], T/GRLM formula (1)."""
+def prediction_error_mrad(model: HeliostatModel, obs, target) -> float:
+    """How far ``model`` puts the beam from where ``obs`` saw it [mrad]: T/GRLM formula (1) between
+    the observed spot and the model's spot on the same board plane, as the visit loop measures it."""
     strokes, sun, spot = _arrays([obs])
-    origin, direction = model.beam(strokes, sun[0])
-    # point on the observed spot's plane: the ray's closest approach to the observed spot
-    d = direction[0]
-    k = float(np.dot(spot[0] - origin[0], d))
-    predicted = origin[0] + k * d
+    predicted = target.uvw_to_enu(model.spot_on_target(strokes, sun[0], target)[0])
     return float(optics.tracking_error_mrad(spot[0], predicted, model.pivots_enu[0]))
 
 
@@ -226,7 +223,7 @@ def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s
     if nominal is None or not coverage_ok:
         return base
     # coverage met: judge the accuracy honestly, out of sample
-    errs = loo_errors_mrad(nominal, points, vps)
+    errs = loo_errors_mrad(cfg, nominal, points, vps)
     return acceptance.evaluate_observations(vps, cfg.acceptance, days, now_s=now_s, errors_mrad=errs)
 
 
@@ -235,30 +232,29 @@ def verdict(cfg, book: Book, hid: str, nominal: HeliostatModel, now_s: float):
 
 
 # ---------------------------------------------------------------------------------- tracking
-def tracking_corrections(cfg, nominal: HeliostatModel, model: HeliostatModel, now_s: float, sun,
-                         hours: float = 6.0) -> np.ndarray | None:
-    """Constant stroke corrections [mm] for the plant's tracking (nominal model + offsets).
+TRACKING_REFRESH_S = 900.0
+"""Plant seconds between rewrites of the tracking corrections of calibrated heliostats."""
 
-    The plant adds one constant offset per actuator to its nominal tracking; the best constant is
-    the mean difference between the calibrated and the nominal strokes for the receiver aim over
-    the next ``hours`` of sun above the low band. None when that would leave the stroke range.
+
+def tracking_corrections(cfg, nominal: HeliostatModel, calibrated: HeliostatModel, sun_enu) -> np.ndarray:
+    """Stroke corrections [mm] that make the plant's nominal tracking follow the calibrated models.
+
+    The plant tracks the receiver with its nominal model plus one constant offset per actuator
+    (PLANT_INTERFACE). The offset that makes it point like the calibrated model is the stroke
+    difference for the receiver aim at the sun ``sun_enu`` (3,); it drifts slowly with the sun, so
+    the runner rewrites it every :data:`TRACKING_REFRESH_S` for the sun half a period ahead.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        NaN rows where either model's strokes (or nominal + correction) leave the stroke range:
+        write nothing for those heliostats.
     """
     aim = np.asarray(cfg.tower.receiver_aim_enu_m, dtype=float)
-    diffs, nominal_strokes = [], []
-    for k in range(int(hours * 2) + 1):
-        vec, _az, el, _r = sun(now_s + 1800.0 * k)
-        if el < cfg.acceptance.low_band_deg[0]:
-            continue
-        cal = model.strokes_for_aim(vec, aim)
-        nom = nominal.strokes_for_aim(vec, aim)
-        if bool(cal.in_range[0]) and bool(nom.in_range[0]):
-            diffs.append(cal.strokes_mm[0] - nom.strokes_mm[0])
-            nominal_strokes.append(nom.strokes_mm[0])
-    if not diffs:
-        return None
-    corr = np.mean(diffs, axis=0)
+    cal = calibrated.strokes_for_aim(sun_enu, aim)
+    nom = nominal.strokes_for_aim(sun_enu, aim)
+    corr = cal.strokes_mm - nom.strokes_mm
     d = nominal.drives
-    tracked = np.asarray(nominal_strokes) + corr
-    if np.any(tracked < d.stroke_min_mm[0]) or np.any(tracked > d.stroke_max_mm[0]):
-        return None
-    return corr
+    tracked = nom.strokes_mm + corr
+    ok = cal.in_range & nom.in_range & np.all((tracked >= d.stroke_min_mm) & (tracked <= d.stroke_max_mm), axis=1)
+    return np.where(ok[:, None], corr, np.nan)

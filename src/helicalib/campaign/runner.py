@@ -23,8 +23,8 @@ import numpy as np
 from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import policy
 from helicalib.campaign.controller import VisitContext, VisitOutcome, VisitSettings, run_visit
-from helicalib.devices.registers import FieldCommand
-from helicalib.errors import HelicalibError, PlantError
+from helicalib.devices.registers import FieldCommand, FieldState
+from helicalib.errors import PlantError
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable
 
@@ -88,18 +88,43 @@ class CampaignRunner:
         self.last_weather = None
         self.last_poll_s = -math.inf
         self._gate_reason = None
+        self.last_refresh_s = -math.inf
         self.corrections: dict[str, np.ndarray | None] = {hid: None for hid in self.ids}
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
     def _resume_from_store(self) -> None:
+        """Rebuild the campaign's state after a restart (also after kill -9).
+
+        Valid points, visit counts, fits and verdicts come from the store (a heliostat without a fit
+        in this campaign starts from its newest fit of any earlier one); visits a killed process
+        left open are closed as 'interrupted' and their heliostats sent back to tracking; a field
+        the plant reports stowed stays stowed until the wind allows a resume.
+        """
+        now = self.clock.now_s()
+        running = [v for v in self.store.visits(campaign_id=self.campaign_id) if v.outcome == "running"]
         for hid in self.ids:
-            for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid, valid=True):
+            for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid):
                 self.book.add(obs)
-            fit = self.store.latest_fit(hid, campaign_id=self.campaign_id)
+            visits = self.store.visits(campaign_id=self.campaign_id, heliostat_id=hid)
+            self.book.h[hid].visits = len(visits)
+            fit = self.store.latest_fit(hid, campaign_id=self.campaign_id) or self.store.latest_fit(hid)
             if fit is not None:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
-        self.store.close_interrupted_visits(self.campaign_id, self.clock.now_s())
+            if visits:
+                self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now))
+        self.store.close_interrupted_visits(self.campaign_id, now)
+        if self.armed:
+            for v in running:
+                try:
+                    self.plant.track(self.cfg.heliostat_index(v.heliostat_id), None)
+                except PlantError as err:
+                    self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
+                                            reason=f"{v.heliostat_id}: back to tracking after restart failed: {err}")
+        try:
+            self.stowed = self.plant.field_state() != FieldState.TRACKING
+        except PlantError:
+            self.stowed = False
 
     # ------------------------------------------------------------------ sun
     def sun(self, t_s: float):
@@ -124,6 +149,8 @@ class CampaignRunner:
         """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
         if now - self.last_poll_s >= WEATHER_POLL_S:
             self._poll_weather(now)
+        if now - self.last_refresh_s >= policy.TRACKING_REFRESH_S:
+            self._refresh_tracking(now)
         due = [tid for tid, (wake, *_rest) in self.active.items() if wake <= now]
         for tid in due:
             self._step(tid, now)
@@ -244,8 +271,12 @@ class CampaignRunner:
         except StopIteration as stop:
             self._finish(target_id, stop.value, now)
             return
-        except HelicalibError as err:  # a visit must never take the campaign down
-            self._finish(target_id, VisitOutcome(status="fault", reason=type(err).__name__), now)
+        except Exception as err:  # noqa: BLE001 - a visit must never take the campaign down
+            self._finish(target_id, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}"), now)
+            try:  # the visit could not leave by itself: back to tracking, keeping the plant's corrections
+                self.plant.track(ctx.index, None)
+            except PlantError:
+                pass
             return
         self.active[target_id] = (now + float(wait), hid, gen, ctx)
 
@@ -275,16 +306,50 @@ class CampaignRunner:
     def _corrections(self, hid: str, model: HeliostatModel) -> np.ndarray | None:
         """Tracking corrections to write as the visit ends; None keeps what the plant has."""
         now = self.clock.now_s()
-        corr = policy.tracking_corrections(self.cfg, self.nominal_of(hid), model, now, self.sun)
-        if corr is None:
+        if self.recheck or not self.book.points(hid):
+            return self.corrections[hid]  # a re-check, or no fitted model yet: the plant keeps what it has
+        sun_ahead = self.sun(now + policy.TRACKING_REFRESH_S / 2)[0]
+        corr = policy.tracking_corrections(self.cfg, self.nominal_of(hid), model, sun_ahead)[0]
+        if not np.all(np.isfinite(corr)):
             return self.corrections[hid]
         self.corrections[hid] = corr
         self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="tracking_written",
                                 reason=f"{hid}: tracking corrections {corr[0]:+.2f}, {corr[1]:+.2f} mm")
         return corr
 
+    def _refresh_tracking(self, now: float) -> None:
+        """Rewrite the tracking corrections of every calibrated heliostat not in a visit.
+
+        The plant's nominal tracking plus a constant offset follows a calibrated model only near
+        the sun position the offset was computed for, so it is recomputed (vectorised over the
+        field) every :data:`~helicalib.campaign.policy.TRACKING_REFRESH_S` for the sun half a
+        period ahead. Not armed, stowed, at night or in a re-check: nothing is written.
+        """
+        self.last_refresh_s = now
+        vec, _az, el, _r = self.sun(now + policy.TRACKING_REFRESH_S / 2)
+        if not self.armed or self.recheck or self.stowed or el < self.cfg.acceptance.low_band_deg[0]:
+            return
+        busy = {h for (_w, h, _g, _c) in self.active.values()}
+        ids = [hid for hid in self.ids if hid not in busy and self.book.points(hid)]
+        if not ids:
+            return
+        rows = [self.ids.index(hid) for hid in ids]
+        calibrated = self.nominal.subset(rows).with_params(np.vstack([self.models[h].params for h in ids]))
+        corr = policy.tracking_corrections(self.cfg, self.nominal.subset(rows), calibrated, vec)
+        for hid, c in zip(ids, corr):
+            if not np.all(np.isfinite(c)):
+                continue
+            try:
+                self.plant.track(self.cfg.heliostat_index(hid), c)
+                self.corrections[hid] = c
+            except PlantError as err:
+                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
+                                        reason=f"{hid}: tracking corrections not written: {err}")
+
     def _refit(self, hid: str, obs) -> HeliostatModel:
         self.book.add(obs)
+        if self.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
+            return self.models[hid]
         model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
         self.models[hid] = model
         if fit is not None:

@@ -149,6 +149,10 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         flat = errs[np.isfinite(errs)]
     sky = {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
            "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan")}
+    day0 = max(start_s, end_s - 86400.0)
+    tracking = plant_tracking_truth(cfg, sim.truth, params, rows, day0, day0 + 86400.0, runner.sun_table)
+    untracked = plant_tracking_truth(cfg, sim.truth, np.zeros_like(params), rows, day0, day0 + 86400.0,
+                                     runner.sun_table)
     return {
         "heliostats": len(ids),
         "accepted": len(accepted),
@@ -162,6 +166,9 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "first_shot_rms_all_mrad": rms([e for e, _m in window]),
         "true_sky_rms_mrad": round(float(sky["rms_mrad"]), 3),
         "true_sky_p95_mrad": round(float(sky["p95_mrad"]), 3),
+        "true_tracking_rms_mrad": round(tracking["rms_mrad"], 3),
+        "true_tracking_p95_mrad": round(tracking["p95_mrad"], 3),
+        "true_tracking_uncorrected_rms_mrad": round(untracked["rms_mrad"], 3),
         "gated_hours": round(stats.gated_s / 3600.0, 2),
         "stowed_hours": round(stats.stowed_s / 3600.0, 2),
         "days": round((end_s - start_s) / 86400.0, 3),
@@ -178,3 +185,38 @@ def _operating_hours(cfg, start_s: float, end_s: float) -> float:
         return 0.0
     el = sun_at_site(cfg.site, t).elevation_deg
     return float(np.count_nonzero(el >= cfg.acceptance.low_band_deg[0]) * 300.0 / 3600.0)
+
+
+def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s: float, sun_table,
+                         step_s: float = 300.0) -> dict:
+    """True error of the PLANT's own tracking of the receiver over ``[t0_s, t1_s)`` (simulator truth).
+
+    The plant tracks with its nominal model plus the corrections helicalib writes: for each
+    heliostat with calibrated ``params`` (N, P), the offset rewritten every
+    :data:`~helicalib.campaign.policy.TRACKING_REFRESH_S` for the sun half a period ahead (as the
+    runner does); zero params give the uncorrected plant. Error: the angle between the true beam
+    and the direction from the true mirror centre to the receiver aim [mrad], every ``step_s`` with
+    the sun above the low band, over the heliostats ``rows``.
+    """
+    from helicalib.campaign.policy import TRACKING_REFRESH_S, tracking_corrections
+    from helicalib.geometry import optics
+
+    nominal = truth.nominal
+    calibrated = nominal.with_params(params)
+    aim = np.asarray(cfg.tower.receiver_aim_enu_m, dtype=float)
+    errs = []
+    for t in np.arange(t0_s, t1_s, step_s):
+        sun = sun_table.vector_enu(t)
+        if np.degrees(np.arcsin(sun[2])) < cfg.acceptance.low_band_deg[0]:
+            continue
+        t_ref = t0_s + np.floor((t - t0_s) / TRACKING_REFRESH_S) * TRACKING_REFRESH_S + TRACKING_REFRESH_S / 2
+        corr = np.nan_to_num(tracking_corrections(cfg, nominal, calibrated, sun_table.vector_enu(t_ref)))
+        nom = nominal.strokes_for_aim(sun, aim)
+        if not np.all(nom.in_range[rows]):
+            continue
+        beam = truth.beam(np.where(nom.in_range[:, None], nom.strokes_mm + corr, 0.0), sun, t, jitter=False)
+        want = optics.unit(aim - beam.origin_enu)
+        errs.append(1000.0 * optics.angle_between_rad(beam.direction_enu, want)[rows])
+    flat = np.concatenate(errs) if errs else np.array([])
+    return {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
+            "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan")}
