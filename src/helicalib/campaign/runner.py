@@ -174,8 +174,11 @@ class CampaignRunner:
 
     def _account(self, now: float, nxt: float, gate) -> None:
         dt = max(0.0, nxt - now)
-        if self.stowed:
-            self.stats.stowed_s += dt
+        if self.stowed:  # stowed hours count in daylight only (the sun above the low band), as gated ones
+            if self.sun(now)[2] >= self.cfg.acceptance.low_band_deg[0]:
+                self.stats.stowed_s += dt
+            else:
+                self.stats.night_s += dt
         elif gate is not None and not gate.open and not self.active:
             if gate.night:
                 self.stats.night_s += dt

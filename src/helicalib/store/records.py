@@ -56,9 +56,10 @@ class CampaignHeliostat:
 class Visit:
     """One heliostat's stay on one target (paper 2.3.2): one or more loop iterations.
 
-    ``outcome`` is ``'running'`` until :meth:`Store.end_visit`; then ``'valid'`` (at least one
-    valid observation), ``'invalid'``, ``'aborted'`` (fault, stow, gating) or ``'interrupted'``
-    (the process died during the visit; set on resume).
+    ``outcome`` is ``'running'`` until :meth:`Store.end_visit`; then one of the visit loop's
+    outcomes (``docs/running.md``): ``'converged'``, ``'not_converged'``, ``'invalid'``,
+    ``'refused'``, ``'fault'``, ``'aborted'`` (stow, campaign stop) or ``'interrupted'`` (the
+    process died during the visit; set on resume).
     """
 
     id: int

@@ -186,7 +186,7 @@ class Store:
 
     def end_visit(self, visit_id: int, *, ended_s: float, outcome: str, reason: str = "", iterations: int = 0,
                   first_error_mrad: float | None = None, final_error_mrad: float | None = None) -> None:
-        """Close a visit with its outcome (``'valid'``, ``'invalid'``, ``'aborted'``) and reason."""
+        """Close a visit with its outcome (``'converged'``, ``'invalid'``, ``'fault'``, ``'aborted'`` …; see Visit) and reason."""
         self._write(
             "UPDATE visits SET ended_s = ?, outcome = ?, reason = ?, iterations = ?, first_error_mrad = ?,"
             " final_error_mrad = ? WHERE id = ?",
