@@ -118,3 +118,36 @@ def test_prediction_error_is_formula_1_on_the_board(cfg):
                       sun_azimuth_deg=0.0, sun_elevation_deg=40.0, valid=True, spot_enu_m=tuple(seen))
     slant = np.linalg.norm(np.asarray(target.center_enu_m) - np.asarray(cfg.heliostat("H0012").position_enu_m))
     assert policy.prediction_error_mrad(model, obs, target) == pytest.approx(1000 * 0.5 / slant, rel=1e-6)
+
+
+def test_resume_while_stowed_keeps_the_field_stowed_until_calm(cfg, tmp_path):
+    import time as _time
+
+    from helicalib.devices.registers import FieldState
+
+    start = default_start_s(cfg) + 9 * 3600
+    iso = lambda s: _time.strftime("%Y-%m-%dT%H:%M:%SZ", _time.gmtime(s))  # noqa: E731
+    scenario = parse_scenario({"weather": {
+        "wind": {"mean_ms": 2.0, "diurnal_amplitude_ms": 0.0, "variability_ms": 0.0},
+        "events": [{"start": iso(start + 600), "end": iso(start + 3600), "wind_ms": 17.0},
+                   {"start": iso(start + 3600), "end": iso(start + 7200), "wind_ms": 12.0}]}})
+    sim = SimulatedPlant(cfg, scenario, start_s=start)
+    clock = VirtualClock(start)
+    clock.on_advance(sim.advance_to)
+    cams = {t.id: SimCamera(sim, cfg.cameras_for(t.id)[0].id) for t in cfg.targets}
+    store = Store.open(tmp_path / "c.db", tmp_path / "img")
+    ids = ["H0001", "H0040"]
+    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
+                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
+    first = CampaignRunner(cfg, sim, cams, clock, store, cid, heliostat_ids=ids)
+    first.run_until(start + 1800)  # stowed at 17 m/s; then the process "dies" (no shutdown)
+    assert first.stowed
+    second = CampaignRunner(cfg, sim, cams, clock, store, cid, heliostat_ids=ids)
+    assert second.stowed, "a resumed campaign forgot that it had stowed the field"
+    second.run_until(start + 5400)  # 12 m/s: above wind_max, below stow: stays stowed
+    assert second.stowed and not store.events(campaign_id=cid, kind="resume")
+    second.run_until(start + 7800)  # calm again: resumed within one poll
+    resumes = store.events(campaign_id=cid, kind="resume")
+    store.close()
+    assert resumes and start + 7200 <= resumes[0].time_s <= start + 7200 + 60.0 + 1e-6
+    assert sim.field_state() == FieldState.TRACKING

@@ -23,7 +23,7 @@ import numpy as np
 from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import policy
 from helicalib.campaign.controller import VisitContext, VisitOutcome, VisitSettings, run_visit
-from helicalib.devices.registers import FieldCommand, FieldState
+from helicalib.devices.registers import FieldCommand
 from helicalib.errors import PlantError
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable
@@ -121,10 +121,10 @@ class CampaignRunner:
                 except PlantError as err:
                     self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
                                             reason=f"{v.heliostat_id}: back to tracking after restart failed: {err}")
-        try:
-            self.stowed = self.plant.field_state() != FieldState.TRACKING
-        except PlantError:
-            self.stowed = False
+        # stowed by THIS campaign for wind (its newest stow/resume event is a stow): stay stowed until
+        # the wind allows; a plant stowed by its own logic (night, its own wind protection) is left alone
+        marks = [e.kind for e in self.store.events(campaign_id=self.campaign_id) if e.kind in ("stow", "resume")]
+        self.stowed = bool(marks) and marks[-1] == "stow"
 
     # ------------------------------------------------------------------ sun
     def sun(self, t_s: float):
@@ -198,13 +198,19 @@ class CampaignRunner:
             self._stow(now, g.reason)
         elif self.stowed and not g.stow:
             try:
-                self.plant.field_command(FieldCommand.RESUME_TRACKING)
+                if self.armed:
+                    self.plant.field_command(FieldCommand.RESUME_TRACKING)
                 self.stowed = False
                 self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="resume", reason=g.reason)
             except PlantError as err:
                 self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault", reason=f"resume: {err}")
 
     def _stow(self, now: float, reason: str) -> None:
+        if not self.armed:  # reads and plans only: say what it would do
+            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="note",
+                                    reason=f"not armed: would stow the field ({reason})")
+            self.stowed = True
+            return
         try:
             self.plant.field_command(FieldCommand.STOW_ALL)
         except PlantError as err:
