@@ -89,6 +89,8 @@ class CampaignRunner:
         self.last_poll_s = -math.inf
         self._gate_reason = None
         self.last_refresh_s = -math.inf
+        self._nominal_one: dict[str, HeliostatModel] = {}
+        self._clean_cache: dict[str, tuple[float, float | None]] = {}
         self.corrections: dict[str, np.ndarray | None] = {hid: None for hid in self.ids}
         self._resume_from_store()
 
@@ -236,12 +238,7 @@ class CampaignRunner:
     # ------------------------------------------------------------------ visits
     def _start_visit(self, target_id: str, now: float) -> None:
         cands = [hid for hid in self.ids if self.cfg.heliostat(hid).target == target_id]
-        cleanliness = {}
-        for hid in cands:
-            try:
-                cleanliness[hid] = self.plant.status(self.cfg.heliostat_index(hid)).cleanliness
-            except PlantError:
-                cleanliness[hid] = None
+        cleanliness = {hid: self._cleanliness(hid, now) for hid in cands}
         busy = [h for (_w, h, _g, _c) in self.active.values()]
         choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
                                     recheck=self.recheck, busy_heliostats=busy)
@@ -271,7 +268,23 @@ class CampaignRunner:
         self.stats.visits += 1
 
     def nominal_of(self, hid: str) -> HeliostatModel:
-        return self.nominal.subset([self.ids.index(hid)])
+        model = self._nominal_one.get(hid)
+        if model is None:
+            model = self._nominal_one[hid] = self.nominal.subset([self.ids.index(hid)])
+        return model
+
+    def _cleanliness(self, hid: str, now: float) -> float | None:
+        """The plant's cleanliness register of a heliostat, read at most once per weather poll
+        (soiling changes over days; a crowded board would otherwise cost a read per candidate per visit)."""
+        hit = self._clean_cache.get(hid)
+        if hit is not None and now - hit[0] < WEATHER_POLL_S:
+            return hit[1]
+        try:
+            value = self.plant.status(self.cfg.heliostat_index(hid)).cleanliness
+        except PlantError:
+            value = None
+        self._clean_cache[hid] = (now, value)
+        return value
 
     def _step(self, target_id: str, now: float) -> None:
         _wake, hid, gen, ctx = self.active[target_id]
