@@ -173,3 +173,26 @@ def test_campaign_measures_mirror_cleanliness_from_the_spot(demo_field_path, tmp
     assert len(measured) >= 0.8 * len(valid), "most valid visits should measure the mirror's cleanliness"
     for got, plant in measured:
         assert abs(got - plant) < 0.03
+
+
+def test_simulate_command_with_a_relative_out_dir(demo_field_path, tmp_path, monkeypatch):
+    """`make demo` passes a relative --out: frames must land in OUT/images, where the report finds them."""
+    import json
+    import subprocess
+    import sys
+
+    monkeypatch.chdir(tmp_path)
+    cfg = load_field_config(demo_field_path)
+    start = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(default_start_s(cfg) + MORNING_S))
+    r = subprocess.run([sys.executable, "-m", "helicalib", "simulate", str(demo_field_path), "--days", "0.05",
+                        "--start", start, "--heliostats", "H0001", "--out", "out", "--json", "--report"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["visits"] >= 1
+    frames = list((tmp_path / "out" / "images").rglob("*.png"))
+    assert frames, sorted(str(p) for p in (tmp_path / "out").rglob("*"))[:10]
+    assert not (tmp_path / "out" / "out").exists()
+    store = Store.open(tmp_path / "out" / "helicalib.db")
+    rel = store.observations()[0].before_frame_path
+    store.close()
+    assert (tmp_path / "out" / "images" / rel).is_file()

@@ -50,7 +50,7 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
     out_dir.mkdir(parents=True, exist_ok=True)
     db_path = out_dir / "helicalib.db"
     # durable=False: WAL with synchronous=NORMAL, still loses nothing on kill -9 (only on power loss)
-    store = Store.open(db_path, out_dir / "images", durable=False)
+    store = Store.open(db_path, "images", durable=False)  # relative to the database: OUT/images
     resumed = store.unfinished_campaign(mode="simulate")
     if resumed is not None:
         campaign_id = resumed.id
