@@ -17,35 +17,18 @@ from helicalib.geometry import optics
 from helicalib.geometry.drives import gamma_rad
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_vector_from_angles
+from field_variants import AZEL_DRIVE, mirror_south
 
 DEMO = Path(__file__).resolve().parents[1] / "field_config" / "demo_north.yaml"
 CFG = load_field_config(DEMO)
 
 
 
-def _mirror_south(data):
-    """The demo field reflected to the south of the tower (normals face north: azimuth near 0)."""
-    for h in data["heliostats"]:
-        e, n, u = h["position_enu_m"]
-        h["position_enu_m"] = [e, -n, u]
-    for t in data["targets"]:
-        e, n, u = t["center_enu_m"]
-        t["center_enu_m"] = [e, -n, u]
-        t["normal_enu"] = [0.0, -1.0, 0.0]
-        t["standby_offset_m"] = [-t["standby_offset_m"][0], 0.0]
-    for c in data["cameras"]:
-        e, n, u = c["position_enu_m"]
-        c["position_enu_m"] = [e, -n, u]
-    return data
 
 def _azel_cfg():
     data = copy.deepcopy(yaml.safe_load(DEMO.read_text()))
-    data["drives"]["tr20"] = {"kind": "azimuth-elevation", "mirror_offset_m": 0.3, "mirror_size_m": [6, 6], "actuators": [
-        {"arm_fixed_m": 2.0, "arm_moving_m": 2.0, "gamma0_deg": 90, "sign": 1, "length_at_zero_stroke_m": 0.2,
-         "stroke_range_mm": [-200, 3900]},
-        {"arm_fixed_m": 1.5, "arm_moving_m": 1.2, "gamma0_deg": 130, "sign": -1, "length_at_zero_stroke_m": 0.5,
-         "stroke_range_mm": [-200, 2200]}]}
-    return parse_field_config(_mirror_south(data))
+    data["drives"]["tr20"] = dict(AZEL_DRIVE)
+    return parse_field_config(mirror_south(data))
 
 
 def _observe(plant, strokes, sun, targets):

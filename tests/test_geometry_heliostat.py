@@ -17,6 +17,7 @@ from helicalib.geometry import optics
 from helicalib.geometry.drives import rotate
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_vector_from_angles
+from field_variants import AZEL_DRIVE, mirror_south
 
 DEMO = Path(__file__).resolve().parents[1] / "field_config" / "demo_north.yaml"
 CFG = load_field_config(DEMO)
@@ -26,34 +27,16 @@ TARGETS = [CFG.target(h.target) for h in CFG.heliostats]
 
 
 
-def _mirror_south(data):
-    """The demo field reflected to the south of the tower (normals face north: azimuth near 0)."""
-    for h in data["heliostats"]:
-        e, n, u = h["position_enu_m"]
-        h["position_enu_m"] = [e, -n, u]
-    for t in data["targets"]:
-        e, n, u = t["center_enu_m"]
-        t["center_enu_m"] = [e, -n, u]
-        t["normal_enu"] = [0.0, -1.0, 0.0]
-        t["standby_offset_m"] = [-t["standby_offset_m"][0], 0.0]
-    for c in data["cameras"]:
-        e, n, u = c["position_enu_m"]
-        c["position_enu_m"] = [e, -n, u]
-    return data
 
 def _azel_config():
     data = yaml.safe_load(DEMO.read_text())
     data = copy.deepcopy(data)
-    data["drives"] = {"ae": {"kind": "azimuth-elevation", "mirror_offset_m": 0.3, "mirror_size_m": [6, 6], "actuators": [
-        {"arm_fixed_m": 2.0, "arm_moving_m": 2.0, "gamma0_deg": 90, "sign": 1, "length_at_zero_stroke_m": 0.2,
-         "stroke_range_mm": [-200, 3900]},
-        {"arm_fixed_m": 1.5, "arm_moving_m": 1.2, "gamma0_deg": 130, "sign": -1, "length_at_zero_stroke_m": 0.5,
-         "stroke_range_mm": [-200, 2200]}]},
+    data["drives"] = {"ae": dict(AZEL_DRIVE),
         "cu": {"kind": "custom", "axis1_enu": [0, 0, 1], "axis2_enu": [0.995, 0.0998, 0], "normal0_enu": [0, 0.2, 0.98],
                "mirror_offset_m": 0.2, "mirror_size_m": [3, 3], "actuators": data["drives"]["tr20"]["actuators"]}}
     for i, h in enumerate(data["heliostats"]):
         h["drive"] = "ae" if i % 2 else "cu"
-    return parse_field_config(_mirror_south(data))
+    return parse_field_config(mirror_south(data))
 
 
 def _miss_mrad(model, strokes, sun, aims):

@@ -42,7 +42,6 @@ class HeliostatBook:
     cooldown_until_s: float = 0.0
     last_first_error_mrad: float | None = None
     verdict: acceptance.AcceptanceVerdict | None = None
-    fit_rms_mrad: float | None = None
     measured_cleanliness: float | None = None      # newest cleanliness measured from a spot
     measured_at_s: float = -math.inf
 
