@@ -83,6 +83,56 @@ def test_an_unexpected_failure_returns_the_heliostat_to_tracking(cfg, tmp_path):
     assert sim.state[cfg.heliostat_index("H0001")] == HeliostatState.TRACKING
 
 
+class _ApproachSpy:
+    """A camera that notes, at every frame, the actuator approach of the heliostat whose beam is on
+    the board (the plant's own record of each actuator's last motion) and its tracking direction."""
+
+    def __init__(self, inner, sim, target):
+        self.inner, self.sim, self.target, self.seen = inner, sim, target, []
+
+    def grab(self):
+        sim, t = self.sim, self.sim.t_s
+        holding = np.flatnonzero(sim.state == HeliostatState.HOLDING)
+        if len(holding):
+            _uv, _hit, on = sim.truth.spots(sim.true_beams(jitter=False), sim.targets)
+            for i in holding[on[holding]]:
+                # direction from the truth (independent of the campaign's model): strokes now and 5 min later
+                true = sim.truth.model_at(t).subset([i])
+                centre = np.asarray(self.target.center_enu_m)
+                s0 = true.strokes_for_aim(sim.sun(t)[0], centre).strokes_mm[0]
+                s1 = true.strokes_for_aim(sim.sun(t + 300.0)[0], centre).strokes_mm[0]
+                self.seen.append((sim.approach[i].copy(), np.sign(s1 - s0), np.abs(s1 - s0)))
+        return self.inner.grab()
+
+
+@pytest.mark.parametrize("approach_mm, expect_all", [(1.0, True), (0.0, False)])
+def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_mm, expect_all):
+    """Every on-board measurement is taken after each actuator last moved in its tracking direction
+    (so backlash sits as while tracking); without the approach step (0 mm) many are not."""
+    from dataclasses import replace
+
+    start = default_start_s(cfg) + 8 * 3600
+    sim = SimulatedPlant(cfg, parse_scenario({"seed": 5}), start_s=start)
+    clock = VirtualClock(start)
+    clock.on_advance(sim.advance_to)
+    spies = {t.id: _ApproachSpy(SimCamera(sim, cfg.cameras_for(t.id)[0].id), sim, t) for t in cfg.targets}
+    store = Store.open(tmp_path / "c.db", tmp_path / "img")
+    ids = ["H0001", "H0012", "H0025", "H0038"]
+    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
+                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
+    runner = CampaignRunner(cfg, sim, spies, clock, store, cid, heliostat_ids=ids)
+    runner.settings = replace(runner.settings, approach_mm=approach_mm)
+    runner.run_until(start + 2 * 3600)
+    store.close()
+    seen = [(a, d) for spy in spies.values() for a, d, moving in spy.seen if np.all(moving > 0.05)]
+    assert len(seen) >= 8
+    agree = np.mean([np.array_equal(a, d) for a, d in seen])
+    if expect_all:
+        assert agree == 1.0
+    else:
+        assert agree < 0.9
+
+
 def test_tracking_correction_of_a_pure_stroke_offset_is_that_offset(cfg):
     # a stroke zero offset shifts the stroke needed for any pointing by the same constant
     nominal = HeliostatModel.from_config(cfg, ["H0007", "H0033"])

@@ -7,6 +7,7 @@ import pytest
 
 from helicalib.config import load_field_config
 from helicalib.devices.protocols import Camera, Clock, Plant
+from helicalib.devices.registers import HeliostatState
 from helicalib.errors import ConfigError
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
@@ -166,7 +167,7 @@ def test_holding_truth_is_nan_unless_holding(cfg):
 
 def test_sky_evaluation_zero_for_true_params_without_unmodelled(cfg):
     sc = parse_scenario({"unmodelled": {"gravity_sag_mrad": 0.0, "gravity_sag_spread_mrad": 0.0,
-                                        "drift_mrad_per_week": 0.0}})
+                                        "drift_mrad_per_week": 0.0, "backlash_mm": 0.0}})
     p = SimulatedPlant(cfg, sc, start_s=START)
     times, sun = year_sun_times(cfg.site, 2026, step_days=30, step_min=60)
     assert len(times) > 50 and np.all(sun[:, 2] >= np.sin(np.radians(5.0)) - 1e-9)
@@ -175,6 +176,27 @@ def test_sky_evaluation_zero_for_true_params_without_unmodelled(cfg):
     nominal = evaluate_model(p.truth, p.nominal, times, sun)
     assert nominal.field_rms_mrad > 1.0 and nominal.rms_mrad.shape == (40,)
     assert nominal.field_p95_mrad >= np.sqrt(np.nanmean(nominal.errors_mrad**2)) * 0.9
+
+
+def test_sky_evaluation_has_backlash_as_the_tracking_plant_has_it(cfg):
+    """The evaluation's backlash (each actuator last moved the way its strokes go next) is the
+    state the simulated plant is really in while it tracks: same true error as the plant's beams."""
+    sc = parse_scenario({"tracking_aim": "target",
+                         "unmodelled": {"backlash_mm": 0.5, "repeatability_mm": 0.0, "wind_jitter_mrad_per_ms": 0.0}})
+    p = SimulatedPlant(cfg, sc, start_s=START)
+    t = START + 1800.0
+    p.advance_to(t)
+    assert np.all(p.state == HeliostatState.TRACKING)
+    aim = np.array([tg.center_enu_m for tg in p.targets])
+    _, hit, _ = p.truth.spots(p.true_beams(jitter=False), p.targets)
+    plant_err = optics.tracking_error_mrad(hit, aim, p.truth.nominal.pivots_enu)
+    sun = p.sun(t)[0][None, :]
+    tracking = evaluate_model(p.truth, p.nominal, np.array([t]), sun, t_eval_s=t).errors_mrad[:, 0]
+    geometry = evaluate_model(p.truth, p.nominal, np.array([t]), sun, t_eval_s=t, backlash="none").errors_mrad[:, 0]
+    np.testing.assert_allclose(tracking, plant_err, atol=0.01)
+    assert np.max(np.abs(geometry - plant_err)) > 0.2
+    with pytest.raises(ValueError, match="backlash"):
+        evaluate_model(p.truth, p.nominal, np.array([t]), sun, backlash="sometimes")
 
 
 @pytest.mark.parametrize("name", ["clear_week", "windy"])

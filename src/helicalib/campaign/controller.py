@@ -6,7 +6,9 @@ several targets on a virtual clock, or drive them from a live scheduler. It retu
 :class:`VisitOutcome`.
 
 Steps: park the beam at the standby point → "before" frame → on-target strokes from the current
-model → wait for "holding" → "after" frame(s) → spot → tracking error. Above the loop threshold:
+model, each actuator arriving in the direction it moves while tracking (so the gears' backlash
+sits as it does in tracking; see :func:`approach_and_hold`) → wait for "holding" → "after"
+frame(s) → spot → tracking error. Above the loop threshold:
 the inverse model's stroke correction and again, up to ``max_iterations``. A spot not found (or
 clipped) starts a search: aim points on the board opposite to where the spot was seen, then a
 ring around the centre. Every attempt is recorded, valid or not, with its reason. At the end the
@@ -42,6 +44,8 @@ SEARCHABLE = frozenset({"no_spot", "clipped", "low_contrast"})
 are gated before a visit, so a faint spot most likely means a beam mostly off the board)."""
 POLL_S = 2.0
 """Plant seconds between status polls while waiting for a heliostat to settle."""
+APPROACH_LEAD_S = 300.0
+"""Plant seconds ahead at which the tracking direction of each actuator is read off the model."""
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,9 @@ class VisitSettings:
     settle_timeout_s: float
     search_steps: int = 6
     reflectivity_clean: float = 0.93
+    approach_mm: float = 1.0
+    """Length of the last move of each actuator in its tracking direction, to take up backlash
+    (0 = arrive from wherever the previous hold was)."""
 
     @classmethod
     def from_config(cls, cfg) -> VisitSettings:
@@ -86,6 +93,8 @@ class VisitContext:
     corrections: Callable[[HeliostatModel], np.ndarray | None] | None = None
     """Tracking stroke corrections [mm] to write when the visit ends (None: keep the plant's)."""
     last_strokes_mm: np.ndarray | None = None
+    held_mm: np.ndarray | None = None
+    """Read-back strokes of the last hold [mm] (None before the first)."""
     before_path: str | None = None
 
 
@@ -125,6 +134,7 @@ def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray) -> Generator[float,
     while True:
         st = ctx.plant.status(ctx.index)
         if st.sequence_done == seq and st.state == HeliostatState.HOLDING:
+            ctx.held_mm = np.asarray(st.strokes_mm, dtype=float)
             return st.strokes_mm
         if st.sequence_done == seq and st.state == HeliostatState.FAULT:
             raise VisitAborted("plant_fault", f"{ctx.heliostat_id}: plant fault code {st.fault} on a move command")
@@ -134,6 +144,42 @@ def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray) -> Generator[float,
             raise VisitAborted("settle_timeout", f"{ctx.heliostat_id}: not holding after {waited:.0f} s")
         yield POLL_S
         waited += POLL_S
+
+
+def tracking_direction(model: HeliostatModel, sun, aim_enu: np.ndarray, t_s: float) -> np.ndarray:
+    """Direction (2,) of ±1 in which each actuator moves while tracking ``aim_enu`` at ``t_s``
+    (the model's strokes now and :data:`APPROACH_LEAD_S` later; +1 where it stands still or is
+    unknown). ``sun(t_s)`` returns the sun vector first."""
+    s0 = model.strokes_for_aim(sun(t_s)[0], aim_enu).strokes_mm[0]
+    s1 = model.strokes_for_aim(sun(t_s + APPROACH_LEAD_S)[0], aim_enu).strokes_mm[0]
+    d = np.sign(s1 - s0)
+    return np.where(np.isfinite(d) & (d != 0), d, 1.0)
+
+
+def approach_and_hold(ctx: VisitContext, strokes_mm: np.ndarray, aim_enu: np.ndarray
+                      ) -> Generator[float, None, tuple[float, float]]:
+    """Move to ``strokes_mm`` so that each actuator's last motion runs ``approach_mm`` in its
+    tracking direction, and hold; returns the read-back strokes.
+
+    A heliostat's gears have backlash: where the mirror sits for given encoder strokes depends on
+    the direction the actuator last moved. Tracking moves each actuator in one direction (the
+    sun's), so a measurement taken after the same approach sees the mirror as tracking will, and
+    the fitted model absorbs the backlash instead of taking it as noise. When the move from the
+    present hold does not already end that way, the heliostat first stops ``approach_mm`` short.
+    That intermediate point is used only if it is inside the stroke range and the model puts its
+    beam on the board (beams rest only on the board or at standby); otherwise the move is direct.
+    """
+    strokes = np.asarray(strokes_mm, dtype=float)
+    lead = float(ctx.settings.approach_mm)
+    if lead > 0 and ctx.held_mm is not None:
+        direction = tracking_direction(ctx.model, ctx.sun, aim_enu, ctx.now())
+        if np.any((strokes - ctx.held_mm) * direction < lead):
+            pre = strokes - direction * lead
+            uv = ctx.model.spot_on_target(pre[None, :], ctx.sun(ctx.now())[0], ctx.target)[0]
+            half = np.asarray(ctx.target.size_m, dtype=float) / 2.0
+            if _in_range(ctx, pre) and np.all(np.isfinite(uv)) and np.all(np.abs(uv) <= half):
+                yield from move_and_hold(ctx, pre)
+    return (yield from move_and_hold(ctx, strokes))
 
 
 def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float) -> np.ndarray:
@@ -168,7 +214,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         search = _search_aims(target, ctx.settings.search_steps)
         attempt, placements, searches = 0, 0, 0
         while True:
-            read = yield from move_and_hold(ctx, strokes)
+            read = yield from approach_and_hold(ctx, strokes, aim)
             obs = yield from _measure(ctx, before_frame, before, marks, strokes, read, aim, attempt)
             out.observations.append(obs)
             attempt += 1

@@ -143,12 +143,16 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
     params = np.zeros((len(all_ids), runner.nominal.params.shape[1]))
     rows = [all_ids.index(hid) for hid in ids]
     params[rows] = runner.calibrated_model().params
-    sky = evaluate_model(sim.truth, params)
-    with np.errstate(invalid="ignore"):
-        errs = sky.errors_mrad[rows]
-        flat = errs[np.isfinite(errs)]
-    sky = {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
-           "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan")}
+
+    def sky_of(backlash: str) -> dict:
+        ev = evaluate_model(sim.truth, params, backlash=backlash)
+        with np.errstate(invalid="ignore"):
+            errs = ev.errors_mrad[rows]
+            flat = errs[np.isfinite(errs)]
+        return {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
+                "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan")}
+
+    sky, geometry = sky_of("tracking"), sky_of("none")
     day0 = max(start_s, end_s - 86400.0)
     tracking = plant_tracking_truth(cfg, sim.truth, params, rows, day0, day0 + 86400.0, runner.sun_table)
     untracked = plant_tracking_truth(cfg, sim.truth, np.zeros_like(params), rows, day0, day0 + 86400.0,
@@ -166,6 +170,7 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "first_shot_rms_all_mrad": rms([e for e, _m in window]),
         "true_sky_rms_mrad": round(float(sky["rms_mrad"]), 3),
         "true_sky_p95_mrad": round(float(sky["p95_mrad"]), 3),
+        "true_sky_rms_no_backlash_mrad": round(float(geometry["rms_mrad"]), 3),
         "true_tracking_rms_mrad": round(tracking["rms_mrad"], 3),
         "true_tracking_p95_mrad": round(tracking["p95_mrad"], 3),
         "true_tracking_uncorrected_rms_mrad": round(untracked["rms_mrad"], 3),
@@ -196,10 +201,11 @@ def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s
     :data:`~helicalib.campaign.policy.TRACKING_REFRESH_S` for the sun half a period ahead (as the
     runner does); zero params give the uncorrected plant. Error: the angle between the true beam
     and the direction from the true mirror centre to the receiver aim [mrad], every ``step_s`` with
-    the sun above the low band, over the heliostats ``rows``.
+    the sun above the low band, over the heliostats ``rows``, with backlash as it sits while tracking.
     """
     from helicalib.campaign.policy import TRACKING_REFRESH_S, tracking_corrections
     from helicalib.geometry import optics
+    from helicalib.sim.evaluate import TRACKING_LEAD_S
 
     nominal = truth.nominal
     calibrated = nominal.with_params(params)
@@ -214,7 +220,11 @@ def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s
         nom = nominal.strokes_for_aim(sun, aim)
         if not np.all(nom.in_range[rows]):
             continue
-        beam = truth.beam(np.where(nom.in_range[:, None], nom.strokes_mm + corr, 0.0), sun, t, jitter=False)
+        # backlash as it sits while tracking: each actuator last moved the way its strokes go next
+        d = np.sign(nominal.strokes_for_aim(sun_table.vector_enu(t + TRACKING_LEAD_S), aim).strokes_mm - nom.strokes_mm)
+        approach = np.where(np.isfinite(d) & (d != 0), d, 1.0)
+        beam = truth.beam(np.where(nom.in_range[:, None], nom.strokes_mm + corr, 0.0), sun, t, approach=approach,
+                          jitter=False)
         want = optics.unit(aim - beam.origin_enu)
         errs.append(1000.0 * optics.angle_between_rad(beam.direction_enu, want)[rows])
     flat = np.concatenate(errs) if errs else np.array([])

@@ -2,8 +2,10 @@
 
 For every sun position of the year above ``min_elevation_deg`` the *calibrated* model computes the
 strokes that should put each heliostat on its aim point; the simulator's *true* heliostats
-(hidden errors, gravity sag, drift at the evaluation time; no backlash, repeatability or wind
-jitter, which a model cannot predict) then show where those strokes really send the beam.
+(hidden errors, gravity sag, drift at the evaluation time, and backlash as it sits while tracking:
+each actuator's last motion in the direction the model's strokes move a few minutes later; no
+repeatability or wind jitter, which a model cannot predict) then show where those strokes really
+send the beam. ``backlash="none"`` leaves backlash out (the pure geometry).
 """
 
 from __future__ import annotations
@@ -15,6 +17,9 @@ import numpy as np
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
+
+TRACKING_LEAD_S = 300.0
+"""Seconds ahead at which the tracking direction of each actuator is read off the model's strokes."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +60,7 @@ def year_sun_times(site, year: int = 2026, step_days: float = 7.0, step_min: flo
 
 def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np.ndarray | None = None,
                    aim_enu: np.ndarray | None = None, t_eval_s: float | None = None,
-                   min_elevation_deg: float = 5.0) -> SkyEvaluation:
+                   min_elevation_deg: float = 5.0, backlash: str = "tracking") -> SkyEvaluation:
     """True tracking error of the strokes a calibrated model commands, over the sky.
 
     Parameters
@@ -70,7 +75,13 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
         Aim points; default the centre of each heliostat's calibration target.
     t_eval_s : float, optional
         Plant time of the true geometry (drift); default the truth's start.
+    backlash : "tracking" or "none"
+        "tracking": each actuator has last moved in its tracking direction (the sign of the
+        model's stroke change over the next :data:`TRACKING_LEAD_S`; needs ``times_s``); "none":
+        no backlash.
     """
+    if backlash not in ("tracking", "none"):
+        raise ValueError(f"backlash must be 'tracking' or 'none', not {backlash!r}")
     model = fitted if isinstance(fitted, HeliostatModel) else truth.nominal.with_params(np.asarray(fitted, float))
     if len(model) != truth.n:
         raise ValueError(f"model has {len(model)} heliostats, the field {truth.n}")
@@ -85,9 +96,19 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
     t_eval = truth.start_s if t_eval_s is None else float(t_eval_s)
     errors = np.full((truth.n, len(sun_enu)), np.nan)
     outside = np.zeros(truth.n)
+    sun_later = None
+    if backlash == "tracking":
+        if len(times_s) != len(sun_enu):
+            raise ValueError("backlash='tracking' needs the times of the sun positions (times_s)")
+        sun_later = np.asarray(sun_at_site(truth.cfg.site, times_s + TRACKING_LEAD_S).vector_enu, float).reshape(-1, 3)
     for k, sun in enumerate(sun_enu):
         sol = model.strokes_for_aim(sun, aim_enu)
-        beam = truth.beam(np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), sun, t_eval, jitter=False)
+        approach = None
+        if sun_later is not None:
+            d = np.sign(model.strokes_for_aim(sun_later[k], aim_enu).strokes_mm - sol.strokes_mm)
+            approach = np.where(np.isfinite(d) & (d != 0), d, 1.0)
+        beam = truth.beam(np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), sun, t_eval, approach=approach,
+                          jitter=False)
         _, hit, _ = truth.spots(beam, targets)
         err = optics.tracking_error_mrad(hit, aim_enu, truth.nominal.pivots_enu)
         errors[:, k] = np.where(sol.in_range, err, np.nan)
