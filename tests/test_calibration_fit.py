@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from helicalib.calibration.fit import fit_error_model, predict_strokes
+from helicalib.calibration.fit import beam_spread_mrad, fit_error_model, leave_out_params, predict_strokes
 from helicalib.config import load_field_config
 from helicalib.geometry import errors as em
 from helicalib.geometry import optics
@@ -108,3 +108,54 @@ def test_free_subset_and_fixed_values():
     assert res.free == free
     with pytest.raises(ValueError):
         fit_error_model(HeliostatModel.from_config(CFG, ["H0001", "H0002"]), strokes, sun, spot)
+
+
+def test_beam_spread_matches_monte_carlo_of_the_fit_covariance():
+    """The linear predicted beam uncertainty agrees with sampling parameters from the fit's
+    covariance and measuring, for the same strokes, the true angle between the beam and the aim."""
+    ids = ["H0001", "H0017", "H0033"]
+    fits, models = [], []
+    for hid in ids:
+        model, _plant, strokes, sun, spot, aim, _ = _observe(hid, PATTERN, 6, seed=7)
+        fits.append(fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD))
+        models.append(model)
+    fitted = HeliostatModel.from_config(CFG, ids, np.vstack([f.params for f in fits]))
+    cov = np.stack([f.covariance for f in fits])
+    aims = np.array([CFG.target(CFG.heliostat(h).target).center_enu_m for h in ids])
+    sun = sun_at_site(CFG.site, pd.Timestamp("2026-12-21T03:00:00Z")).vector_enu.reshape(3)
+    spread = beam_spread_mrad(fitted, cov, sun, aims)
+    rng = np.random.default_rng(3)
+    for i in range(len(ids)):
+        one = fitted.subset([i])
+        strokes = one.strokes_for_aim(sun, aims[i]).strokes_mm
+        draws = rng.multivariate_normal(fits[i].params, cov[i], size=400)
+        sampled = one.repeat(400).with_params(draws)
+        origin, direction = sampled.beam(np.repeat(strokes, 400, axis=0), sun)
+        err = 1000.0 * optics.angle_between_rad(direction, optics.unit(aims[i] - origin))
+        mc = np.sqrt(np.mean(err**2))
+        assert abs(spread[i] - mc) < 0.15 * mc, (ids[i], spread[i], mc)
+    assert np.all(spread > 0.1)  # six points leave a noticeable uncertainty
+    # more data where it is asked for: the spread at this sun shrinks
+    tight = beam_spread_mrad(fitted, cov * 0.01, sun, aims)
+    np.testing.assert_allclose(tight, 0.1 * spread, rtol=1e-6)
+
+
+@pytest.mark.parametrize("outlier", [0.0, 4.0])
+def test_leave_out_params_match_full_refits(outlier):
+    """One Newton step from the full solution gives the same left-out models as refitting without
+    each group (pairs of observations, like a visit's placements), also with a robust-loss outlier."""
+    model, _plant, strokes, sun, spot, aim, target = _observe("H0017", PATTERN, 12, seed=11, outlier_mrad=outlier)
+    full = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD)
+    groups = [[2 * g, 2 * g + 1] for g in range(6)]
+    fast = leave_out_params(full, groups)
+    for g, idx in enumerate(groups):
+        keep = np.setdiff1d(np.arange(12), idx)
+        slow = fit_error_model(model, strokes[keep], sun[keep], spot[keep], sigma_mrad=NOISE_MRAD)
+        # compare what matters: where each model puts the left-out beams on the board [mrad]
+        for i in idx:
+            a = model.with_params(fast[g]).spot_on_target(strokes[i:i + 1], sun[i], target)[0]
+            b = slow.model.spot_on_target(strokes[i:i + 1], sun[i], target)[0]
+            dist = np.linalg.norm(target.uvw_to_enu(b) - model.pivots_enu[0])
+            assert 1000.0 * np.linalg.norm(a - b) / dist < 0.05, (g, i)
+    # and leaving a group out moves the model (the step is not a no-op)
+    assert np.max(np.abs(fast - full.params) / em.PRIOR_SIGMA) > 0.01

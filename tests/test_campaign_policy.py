@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from helicalib.calibration.acceptance import Gap
 from helicalib.campaign.gating import gate_field, gate_mirrors
 from helicalib.campaign.planner import (
-    TIER_EXTRA, TIER_LOW_BAND, TIER_OPEN, TIER_RECHECK, TIER_WINDOW, Candidate, plan, round_robin,
+    REFINE_MIN_SPREAD_MRAD, TIER_EXTRA, TIER_LOW_BAND, TIER_OPEN, TIER_RECHECK, TIER_REFINE, TIER_WINDOW, Candidate,
+    plan, round_robin,
 )
 from helicalib.config import Gating
 
@@ -129,6 +130,33 @@ def test_one_heliostat_per_free_target_and_skips():
     out = plan(cands, NOW, G, busy_heliostats=["H1"], include_accepted=True)
     assert {(x.target_id, x.heliostat_id, x.tier) for x in out} == {
         ("T1", "H2", TIER_EXTRA), ("T2", "H3", TIER_EXTRA), ("T3", "H5", TIER_RECHECK), ("T5", "H7", TIER_EXTRA)}
+
+
+def test_refine_is_asked_for_and_comes_after_every_gap():
+    done_sure = Candidate("HA", "T1", accepted=True, predicted_error_mrad=0.5, spread_mrad=0.1)
+    done_unsure = Candidate("HB", "T1", accepted=True, predicted_error_mrad=0.5, spread_mrad=0.9)
+    done_less = Candidate("HC", "T1", accepted=True, predicted_error_mrad=3.0, spread_mrad=0.4)
+    # not asked: accepted heliostats never take target time
+    assert plan([done_sure, done_unsure, done_less], NOW, G) == ()
+    (a,) = plan([done_sure, done_unsure, done_less], NOW, G, refine=True)
+    assert (a.heliostat_id, a.tier) == ("HB", TIER_REFINE)  # the most uncertain model at this sun
+    assert "0.90 mrad" in a.reason
+    # a model certain enough here is left alone
+    assert done_sure.spread_mrad < REFINE_MIN_SPREAD_MRAD
+    assert plan([done_sure], NOW, G, refine=True) == ()
+    # unaccepted heliostats go first: extra points (tier 3), ranked by their spread, then any open gap
+    waiting_a = Candidate("HD", "T1", predicted_error_mrad=5.0, spread_mrad=0.2,
+                          gaps=(gap("setting", NOW + 3600, NOW + 7200),))
+    waiting_b = Candidate("HE", "T1", predicted_error_mrad=1.0, spread_mrad=0.6,
+                          gaps=(gap("setting", NOW + 3600, NOW + 7200),))
+    (a,) = plan([done_unsure, waiting_a, waiting_b], NOW, G, refine=True)
+    assert (a.heliostat_id, a.tier) == ("HE", TIER_EXTRA)
+    band = Candidate("HF", "T1", predicted_error_mrad=0.1, spread_mrad=0.01, gaps=(gap("rising", NOW, NOW + 600),))
+    (a,) = plan([done_unsure, waiting_b, band], NOW, G, refine=True)
+    assert (a.heliostat_id, a.tier) == ("HF", TIER_LOW_BAND)
+    # a re-check (include_accepted) stays a re-check
+    (a,) = plan([done_unsure], NOW, G, include_accepted=True, refine=True)
+    assert a.tier == TIER_RECHECK
 
 
 def test_round_robin_goes_in_turn_and_wraps():

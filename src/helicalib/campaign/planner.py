@@ -8,10 +8,13 @@ gap-filling planner (:func:`plan`) ranks each free target's candidates in tiers:
 1. a high-elevation window gap open now, the window closing soonest first;
 2. other unaccepted heliostats with a gap open now (more points, RMS too high);
 3. unaccepted heliostats with nothing open now (extra points sharpen their model);
-4. accepted heliostats, only when ``include_accepted`` (a re-check).
+4. accepted heliostats, only when ``include_accepted`` (a re-check);
+5. accepted heliostats whose model is still uncertain at this sun, only when ``refine`` (asked
+   for: idle target time spent on points that sharpen year-round accuracy).
 
 Within a tier: the gap that closes soonest, then mirrors of preferred cleanliness, then the
-largest predicted error (a new heliostat, with no model yet, counts as infinite), then the
+largest predicted error (a new heliostat, with no model yet, counts as infinite; in tiers 3 and 5
+the model's own uncertainty at the present sun, ``spread_mrad``, where it is known), then the
 fewest visits, then the id. Gated mirrors (cleanliness ≤ min) and heliostats cooling down
 after an invalid visit are skipped. :func:`round_robin` is the paper's "in turn" order, the
 benchmark baseline. Both are pure: state in, frozen assignments out.
@@ -25,8 +28,10 @@ from dataclasses import dataclass
 
 from helicalib.calibration.acceptance import Gap
 
-TIER_LOW_BAND, TIER_WINDOW, TIER_OPEN, TIER_EXTRA, TIER_RECHECK = range(5)
-TIER_NAMES = ("low band", "high window", "more points", "extra points", "re-check")
+TIER_LOW_BAND, TIER_WINDOW, TIER_OPEN, TIER_EXTRA, TIER_RECHECK, TIER_REFINE = range(6)
+TIER_NAMES = ("low band", "high window", "more points", "extra points", "re-check", "refine")
+REFINE_MIN_SPREAD_MRAD = 0.15
+"""Refinement visits only for models whose predicted beam uncertainty at the present sun is at least this."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +53,9 @@ class Candidate:
         Visits so far in this campaign.
     cooldown_until_s : float
         Not before this plant time [UTC s] (e.g. after an invalid visit); 0 = no wait.
+    spread_mrad : float or None
+        The model's predicted 1-σ beam uncertainty at the present sun [mrad] (from the fit's
+        covariance; None: not computed).
     """
 
     heliostat_id: str
@@ -58,6 +66,7 @@ class Candidate:
     cleanliness: float = 1.0
     visits: int = 0
     cooldown_until_s: float = 0.0
+    spread_mrad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -75,16 +84,20 @@ def _eligible(c: Candidate, now_s: float, gating) -> bool:
     return c.cooldown_until_s <= now_s and math.isfinite(clean) and clean > gating.cleanliness_min
 
 
-def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False) -> tuple | None:
+def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False, refine: bool = False) -> tuple | None:
     """The sort key of a candidate at ``now_s`` (smaller goes first), or None when it should not go.
 
     The key is ``(tier, closes_s, not_preferred, -predicted_error, visits, id)``.
     """
-    if c.accepted and not include_accepted:
+    if c.accepted and not (include_accepted or refine):
         return None
     open_gaps = [g for g in c.gaps if g.is_open(now_s)]
-    if c.accepted:
+    if c.accepted and include_accepted:
         tier, closes = TIER_RECHECK, math.inf
+    elif c.accepted:
+        if c.spread_mrad is None or not c.spread_mrad >= REFINE_MIN_SPREAD_MRAD:
+            return None
+        tier, closes = TIER_REFINE, math.inf
     else:
         band = [g.next_end_s for g in open_gaps if g.kind in ("rising", "setting")]
         window = [g.next_end_s for g in open_gaps if g.kind == "window"]
@@ -97,6 +110,8 @@ def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False) -> 
         else:
             tier, closes = TIER_EXTRA, math.inf
     err = math.inf if c.predicted_error_mrad is None else float(c.predicted_error_mrad)
+    if tier in (TIER_EXTRA, TIER_REFINE) and c.spread_mrad is not None and c.predicted_error_mrad is not None:
+        err = float(c.spread_mrad)
     not_preferred = not (c.cleanliness > gating.cleanliness_preferred)
     return (tier, closes, not_preferred, -err, c.visits, c.heliostat_id)
 
@@ -106,12 +121,14 @@ def _reason(c: Candidate, key: tuple, now_s: float) -> str:
     open_gaps = [g.description for g in c.gaps if g.is_open(now_s)]
     what = f": {open_gaps[0]}" if open_gaps and tier <= TIER_OPEN else ""
     err = "no model yet" if c.predicted_error_mrad is None else f"predicted error {c.predicted_error_mrad:.1f} mrad"
+    if tier in (TIER_EXTRA, TIER_REFINE) and c.spread_mrad is not None and c.predicted_error_mrad is not None:
+        err = f"model uncertain by {c.spread_mrad:.2f} mrad at this sun"
     return f"{TIER_NAMES[tier]}{what} ({err})"
 
 
 def plan(candidates: Iterable[Candidate], now_s: float, gating, *, busy_targets: Iterable[str] = (),
          busy_heliostats: Iterable[str] = (), include_accepted: bool = False,
-         skip_extra: bool = False) -> tuple[Assignment, ...]:
+         skip_extra: bool = False, refine: bool = False) -> tuple[Assignment, ...]:
     """One assignment per free target: the best-ranked eligible heliostat of that target.
 
     Parameters
@@ -128,6 +145,9 @@ def plan(candidates: Iterable[Candidate], now_s: float, gating, *, busy_targets:
         Consider accepted heliostats too (re-check mode).
     skip_extra : bool
         Leave a target idle rather than spend it on tier 3 (nothing open now).
+    refine : bool
+        Spend otherwise idle target time on accepted heliostats whose model is still uncertain at
+        the present sun (tier 5, ``spread_mrad`` ≥ :data:`REFINE_MIN_SPREAD_MRAD`).
 
     Returns
     -------
@@ -140,7 +160,7 @@ def plan(candidates: Iterable[Candidate], now_s: float, gating, *, busy_targets:
     for c in candidates:
         if c.target_id in busy_t or c.heliostat_id in busy_h or not _eligible(c, now_s, gating):
             continue
-        key = rank(c, now_s, gating, include_accepted)
+        key = rank(c, now_s, gating, include_accepted, refine)
         if key is None or (skip_extra and key[0] == TIER_EXTRA):
             continue
         if c.target_id not in best or key < best[c.target_id][0]:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from helicalib.calibration import acceptance
-from helicalib.calibration.fit import fit_error_model
+from helicalib.calibration.fit import fit_error_model, leave_out_params
 from helicalib.calibration.sun_days import sun_days
 from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import planner as planner_mod
@@ -44,6 +44,7 @@ class HeliostatBook:
     verdict: acceptance.AcceptanceVerdict | None = None
     measured_cleanliness: float | None = None      # newest cleanliness measured from a spot
     measured_at_s: float = -math.inf
+    covariance: np.ndarray | None = None            # (P, P) of the newest fit; None before one
 
 
 class Book:
@@ -131,9 +132,16 @@ def _next_sun_above(sun, now_s: float, level_deg: float) -> float:
 
 # ---------------------------------------------------------------------------------- planning
 def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *, planner: str = "gaps",
-                recheck: bool = False, busy_heliostats=()) -> str | None:
-    """The heliostat to send to the (one) target of ``candidates`` now, or None."""
+                recheck: bool = False, busy_heliostats=(), refine: bool = False,
+                spreads: dict | None = None) -> str | None:
+    """The heliostat to send to the (one) target of ``candidates`` now, or None.
+
+    ``refine``: idle target time goes to heliostats with nothing open (unaccepted first, then
+    accepted ones) whose model is most uncertain at this sun; ``spreads`` maps heliostat id to
+    that uncertainty [mrad] (:func:`model_spreads`).
+    """
     days = book.days(now_s)
+    spreads = spreads or {}
     cands = []
     for hid in candidates:
         b = book.h[hid]
@@ -145,7 +153,8 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
         cands.append(planner_mod.Candidate(
             heliostat_id=hid, target_id=cfg.heliostat(hid).target, accepted=bool(verdict.accepted) and not recheck,
             gaps=gaps, predicted_error_mrad=b.last_first_error_mrad,
-            cleanliness=float("nan") if c is None else float(c), visits=b.visits, cooldown_until_s=b.cooldown_until_s))
+            cleanliness=float("nan") if c is None else float(c), visits=b.visits, cooldown_until_s=b.cooldown_until_s,
+            spread_mrad=spreads.get(hid)))
     if recheck:
         cands = [c for c in cands if book.h[c.heliostat_id].visits == 0]
     if planner == "round-robin":
@@ -153,17 +162,38 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
     else:
         # a target stays idle rather than spend time on points no acceptance gap asks for
         out = planner_mod.plan(cands, now_s, cfg.gating, busy_heliostats=busy_heliostats, include_accepted=recheck,
-                               skip_extra=not recheck)
+                               skip_extra=not (recheck or refine), refine=refine and not recheck)
     return out[0].heliostat_id if out else None
+
+
+def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, now_s: float) -> dict:
+    """Each fitted heliostat's predicted beam uncertainty [mrad] at this sun for its board centre
+    (:func:`helicalib.calibration.fit.beam_spread_mrad`), for those of ``hids`` off cool-down.
+
+    ``nominal_rows(hids)`` gives the nominal :class:`HeliostatModel` of those heliostats."""
+    from helicalib.calibration.fit import beam_spread_mrad
+
+    ready = [h for h in hids if book.h[h].covariance is not None and book.h[h].cooldown_until_s <= now_s]
+    if not ready:
+        return {}
+    model = nominal_rows(ready).with_params(np.vstack([models[h].params for h in ready]))
+    aims = np.array([cfg.target(cfg.heliostat(h).target).center_enu_m for h in ready], dtype=float)
+    cov = np.stack([book.h[h].covariance for h in ready])
+    spread = beam_spread_mrad(model, cov, sun_enu, aims)
+    return {h: float(v) for h, v in zip(ready, spread) if math.isfinite(v)}
 
 
 # ---------------------------------------------------------------------------------- fit
 def refit(nominal: HeliostatModel, points: list, current: HeliostatModel):
-    """Refit one heliostat's error model to its valid points; returns (model, FitResult or None)."""
+    """Refit one heliostat's error model to its valid points; returns (model, FitResult or None).
+
+    The solver starts from ``current``'s parameters (the priors stay centred on the nominal
+    heliostat), so a refit after one more point takes a few steps instead of a whole descent."""
     if not points:
         return current, None
     strokes, sun, spot = _arrays(points)
-    fit = fit_error_model(nominal, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0)
+    start = current if np.all(np.isfinite(current.params)) else nominal
+    fit = fit_error_model(nominal.with_params(start.params), strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0)
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return nominal.with_params(fit.params[None, :]), fit
@@ -194,12 +224,26 @@ def _visit_points(points: list) -> list:
     return list(last.values())
 
 
-def loo_errors_mrad(cfg, nominal: HeliostatModel, points: list, visit_points: list) -> np.ndarray:
-    """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 on its board)."""
+def loo_errors_mrad(cfg, nominal: HeliostatModel, points: list, visit_points: list,
+                    start: HeliostatModel | None = None, exact: bool = False) -> np.ndarray:
+    """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 on its board).
+
+    The model without a visit comes from one Gauss-Newton step from the fit to all points
+    (:func:`~helicalib.calibration.fit.leave_out_params`), or with ``exact`` from a full refit
+    per visit. Either way the solver starts from ``start`` (default nominal)."""
+    start = start if start is not None else nominal
+    if not exact:
+        _model, full = refit(nominal, points, start)
+        if full is not None and full.linearisation is not None:
+            groups = [[k for k, p in enumerate(points) if p.visit_id == vp.visit_id] for vp in visit_points]
+            params = leave_out_params(full, groups)
+            return np.asarray([prediction_error_mrad(nominal.with_params(params[g][None, :]), vp,
+                                                     cfg.target(vp.target_id))
+                               for g, vp in enumerate(visit_points)], dtype=float)
     out = []
     for vp in visit_points:
         rest = [p for p in points if p.visit_id != vp.visit_id]
-        model, _fit = refit(nominal, rest, nominal)
+        model, _fit = refit(nominal, rest, start)
         out.append(prediction_error_mrad(model, vp, cfg.target(vp.target_id)))
     return np.asarray(out, dtype=float)
 
@@ -212,7 +256,8 @@ def prediction_error_mrad(model: HeliostatModel, obs, target) -> float:
     return float(optics.tracking_error_mrad(spot[0], predicted, model.pivots_enu[0]))
 
 
-def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s: float):
+def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s: float,
+                start: HeliostatModel | None = None):
     points = book.points(hid)
     vps = _visit_points(points)
     days = book.days(now_s)
@@ -222,12 +267,14 @@ def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s
     if nominal is None or not coverage_ok:
         return base
     # coverage met: judge the accuracy honestly, out of sample
-    errs = loo_errors_mrad(cfg, nominal, points, vps)
+    errs = loo_errors_mrad(cfg, nominal, points, vps, start)
     return acceptance.evaluate_observations(vps, cfg.acceptance, days, now_s=now_s, errors_mrad=errs)
 
 
-def verdict(cfg, book: Book, hid: str, nominal: HeliostatModel, now_s: float):
-    return _verdict_of(cfg, book, hid, nominal, now_s)
+def verdict(cfg, book: Book, hid: str, nominal: HeliostatModel, now_s: float, start: HeliostatModel | None = None):
+    """The heliostat's acceptance verdict now; ``start``: its current model (speeds up the
+    leave-one-visit-out refits, which start there)."""
+    return _verdict_of(cfg, book, hid, nominal, now_s, start)
 
 
 # ---------------------------------------------------------------------------------- tracking

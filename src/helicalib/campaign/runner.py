@@ -64,23 +64,28 @@ class CampaignRunner:
         ``"gaps"`` (fill acceptance gaps fastest) or ``"round-robin"`` (the paper's "in turn").
     recheck : bool
         Visit every heliostat once regardless of acceptance (operators' re-check).
+    refine : bool
+        Gaps planner: spend target time that no acceptance gap asks for on the heliostats whose
+        model is most uncertain at the present sun, accepted ones included (asked for; default off).
     armed : bool
         False: read the plant and plan, but write nothing (each decision is recorded as an event).
     """
 
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
-                 recheck=False, model=None, armed=True):
+                 recheck=False, model=None, armed=True, refine=False):
         self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
         self.campaign_id = campaign_id
         self.ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
         self.planner_kind = planner
         self.recheck = recheck
+        self.refine = bool(refine) and planner == "gaps"
         self.armed = armed
         self.settings = VisitSettings.from_config(cfg)
         self.sun_table = SunTable(cfg.site)
         base = model if model is not None else HeliostatModel.from_config(cfg, self.ids)
         self.nominal = HeliostatModel.from_config(cfg, self.ids)
         self.models: dict[str, HeliostatModel] = {hid: base.subset([i]) for i, hid in enumerate(self.ids)}
+        self._index = {hid: i for i, hid in enumerate(self.ids)}
         self.book = policy.Book(cfg, self.ids)
         self.stats = RunnerStats()
         self.active: dict[str, tuple[float, str, object, VisitContext]] = {}
@@ -113,8 +118,12 @@ class CampaignRunner:
             fit = self.store.latest_fit(hid, campaign_id=self.campaign_id) or self.store.latest_fit(hid)
             if fit is not None:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
+            if self.refine and self.book.points(hid):  # the planner's uncertainty needs the fit's covariance
+                _model, refit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
+                self.book.h[hid].covariance = None if refit is None else refit.covariance
             if visits:
-                self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now))
+                self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
+                                                          self.models[hid]))
         self.store.close_interrupted_visits(self.campaign_id, now)
         if self.armed:
             for v in running:
@@ -240,8 +249,12 @@ class CampaignRunner:
         cands = [hid for hid in self.ids if self.cfg.heliostat(hid).target == target_id]
         cleanliness = {hid: self._cleanliness(hid, now) for hid in cands}
         busy = [h for (_w, h, _g, _c) in self.active.values()]
+        spreads = None
+        if self.refine:
+            spreads = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows,
+                                           [h for h in cands if h not in busy], self.sun(now)[0], now)
         choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
-                                    recheck=self.recheck, busy_heliostats=busy)
+                                    recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads)
         if choice is None:
             return
         hid = choice
@@ -266,6 +279,9 @@ class CampaignRunner:
         gen = run_visit(ctx)
         self.active[target_id] = (now, hid, gen, ctx)
         self.stats.visits += 1
+
+    def _nominal_rows(self, hids) -> HeliostatModel:
+        return self.nominal.subset([self._index[h] for h in hids])
 
     def nominal_of(self, hid: str) -> HeliostatModel:
         model = self._nominal_one.get(hid)
@@ -317,7 +333,7 @@ class CampaignRunner:
                              iterations=out.iterations, first_error_mrad=out.first_error_mrad,
                              final_error_mrad=out.final_error_mrad)
         self.book.visited(hid, now, out)
-        verdict = policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now)
+        verdict = policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now, self.models[hid])
         self.store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
                                   accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
                                   reasons=list(verdict.reasons),
@@ -375,6 +391,7 @@ class CampaignRunner:
         model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
         self.models[hid] = model
         if fit is not None:
+            self.book.h[hid].covariance = fit.covariance
             self.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
                                   **policy.fit_record(fit))
         return model

@@ -47,13 +47,15 @@ def live_session(args, mode: str) -> int:
             campaign_id = store.start_campaign(
                 name=f"{mode} {cfg.site.name}", mode=mode, started_s=now,
                 heliostats=[(hid, cfg.heliostat_index(hid), cfg.heliostat(hid).target) for hid in ids],
-                config_path=str(cfg.source), settings={"armed": args.arm, "planner": args.planner})
+                config_path=str(cfg.source), settings={"armed": args.arm, "planner": args.planner,
+                                                                     "refine": getattr(args, "refine", False)})
         if not args.arm:
             console.print("[yellow]not armed[/]: reading and planning only, nothing is written to the plant "
                           "(add --arm to calibrate)")
         cameras = cameras_from_config(cfg)
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=ids,
-                                planner=args.planner, recheck=args.recheck, armed=args.arm)
+                                planner=args.planner, recheck=args.recheck, armed=args.arm,
+                                refine=getattr(args, "refine", False))
         run_live(runner, until_s, done=(runner.rechecked if args.recheck else None))
         if clock.now_s() >= until_s or args.recheck:
             store.finish_campaign(campaign_id, clock.now_s())

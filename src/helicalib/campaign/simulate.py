@@ -38,8 +38,9 @@ def default_start_s(cfg) -> float:
 
 def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=None, start_s: float | None = None,
                       over_network: bool = False, planner: str = "gaps", heliostat_ids=None, progress=None,
-                      rate: float = 3000.0) -> SimulationResult:
-    """Run a simulated campaign; returns its summary (see :func:`summarise`)."""
+                      rate: float = 3000.0, refine: bool = False) -> SimulationResult:
+    """Run a simulated campaign; returns its summary (see :func:`summarise`). ``refine``: see
+    :class:`~helicalib.campaign.runner.CampaignRunner`."""
     from helicalib.sim.clock import VirtualClock
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
@@ -75,12 +76,12 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
                 name=f"simulate {cfg.site.name}", mode="simulate", started_s=start_s,
                 heliostats=[(hid, cfg.heliostat_index(hid), cfg.heliostat(hid).target) for hid in ids],
                 config_path=str(cfg.source or ""),
-                settings={"days": days, "seed": seed, "planner": planner, "over_network": over_network,
-                          "scenario": scenario.name})
+                settings={"days": days, "seed": seed, "planner": planner, "refine": refine,
+                          "over_network": over_network, "scenario": scenario.name})
         elif clock.now_s() < store_resume_time(store, campaign_id, start_s):
             clock.sleep(store_resume_time(store, campaign_id, start_s) - clock.now_s())
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=heliostat_ids,
-                                planner=planner)
+                                planner=planner, refine=refine)
         wall0 = time.perf_counter()
         runner.run_until(end_s, progress=progress)
         wall = time.perf_counter() - wall0

@@ -18,6 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--until", default=None, help="stop at this plant time (ISO 8601 with offset)")
     g.add_argument("--days", type=float, default=None, help="stop after this many plant days (default 7)")
     p.add_argument("--planner", choices=("gaps", "round-robin"), default="gaps", help="who goes next (default gaps)")
+    p.add_argument("--refine", action="store_true",
+                   help="gaps planner: spend target time no acceptance gap needs on the heliostats whose model is "
+                        "most uncertain at the present sun, accepted ones included (better year-round accuracy)")
     p.set_defaults(func=run, recheck=False)
 
 

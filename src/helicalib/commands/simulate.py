@@ -19,6 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--start", default=None, help="plant start time, ISO 8601 with offset (default 2026-06-01, local midnight)")
     p.add_argument("--planner", choices=("gaps", "round-robin"), default="gaps",
                    help="who goes next: fill acceptance gaps fastest (default) or the paper's round robin")
+    p.add_argument("--refine", action="store_true",
+                   help="gaps planner: spend target time no acceptance gap needs on the heliostats whose model is "
+                        "most uncertain at the present sun, accepted ones included (better year-round accuracy)")
     p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
     p.add_argument("--over-network", action="store_true", help="serve the plant on loopback and use the real clients")
     p.add_argument("--rate", type=float, default=3000.0, help="plant time rate with --over-network (default 3000)")
@@ -62,7 +65,7 @@ def run(args) -> int:
 
         result = simulate_campaign(cfg, out, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
                                    over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
-                                   progress=progress, rate=args.rate)
+                                   progress=progress, rate=args.rate, refine=args.refine)
     (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
     if args.report:
         from helicalib.report.build import build_report

@@ -101,6 +101,16 @@ class DriveArrays:
 
 
 # ---------------------------------------------------------------------------- rotations
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of 3-vectors (..., 3) × (..., 3) with broadcasting; ``np.cross`` without its
+    generality, about 2.5× faster on the small arrays of the fit's inner loop."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
 def rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rodrigues: rotate vectors ``v`` (..., 3) about unit ``axis`` (..., 3) by ``angle_rad`` (...)."""
     axis = np.asarray(axis, dtype=float)
@@ -108,7 +118,7 @@ def rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray) -> np.ndarray
     c = np.cos(angle_rad)[..., None]
     s = np.sin(angle_rad)[..., None]
     dot = np.sum(axis * v, axis=-1, keepdims=True)
-    return v * c + np.cross(axis, v) * s + axis * dot * (1.0 - c)
+    return v * c + cross3(axis, v) * s + axis * dot * (1.0 - c)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -119,7 +129,7 @@ def _rotation_angle(axis: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarra
     """Signed angle about ``axis`` that takes ``a`` to ``b`` (their components ⊥ axis) [rad]."""
     a_perp = a - axis * np.sum(axis * a, axis=-1, keepdims=True)
     b_perp = b - axis * np.sum(axis * b, axis=-1, keepdims=True)
-    return np.arctan2(np.sum(axis * np.cross(a_perp, b_perp), axis=-1), np.sum(a_perp * b_perp, axis=-1))
+    return np.arctan2(np.sum(axis * cross3(a_perp, b_perp), axis=-1), np.sum(a_perp * b_perp, axis=-1))
 
 
 # ---------------------------------------------------------------------------- linkage
@@ -203,7 +213,7 @@ def normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1
     rem = 1.0 - (alpha * alpha + beta * beta + 2.0 * alpha * beta * c12)
     exists = rem > -tol
     g = np.sqrt(np.clip(rem, 0.0, None) / det)
-    w = np.cross(a1, a2)
+    w = cross3(a1, a2)
     low, high = angle_interval_rad(drives)
     half = 0.5 * (high - low)
     mid = 0.5 * (high + low)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from helicalib.geometry.drives import DriveArrays, rotate
+from helicalib.geometry.drives import DriveArrays, cross3, rotate
 
 
 @dataclass(frozen=True)
@@ -125,11 +125,11 @@ def apply(drives: DriveArrays, pivots_enu: np.ndarray, params: np.ndarray) -> tu
     mrad = 1e-3
     a1, a2, n0 = drives.axis1_enu, drives.axis2_enu, drives.normal0_enu
     # mirror canting (relative to axis 2)
-    u = _unit_or(np.cross(a2, n0), np.broadcast_to(EAST, a2.shape))
+    u = _unit_or(cross3(a2, n0), np.broadcast_to(EAST, a2.shape))
     n0 = rotate(u, _col(params, "canting_1_mrad") * mrad, n0)
     n0 = rotate(a2, _col(params, "canting_2_mrad") * mrad, n0)
     # axis non-orthogonality: axis 2 with the mirror rotated about a1 × a2
-    w = _unit_or(np.cross(a1, a2), np.broadcast_to(UP, a2.shape))
+    w = _unit_or(cross3(a1, a2), np.broadcast_to(UP, a2.shape))
     delta = _col(params, "axis_nonorthogonality_mrad") * mrad
     a2 = rotate(w, delta, a2)
     n0 = rotate(w, delta, n0)
