@@ -108,9 +108,9 @@ class _ApproachSpy:
 @pytest.mark.parametrize("approach_mm, expect_all", [(1.0, True), (0.0, False)])
 def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_mm, expect_all):
     """Every on-board measurement is taken after each actuator last moved in its tracking direction
-    (so backlash sits as while tracking); without the approach step (0 mm) many are not."""
-    from dataclasses import replace
-
+    (so backlash sits as while tracking); without the approach step (``calibration.approach_mm: 0``)
+    many are not."""
+    cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"approach_mm": approach_mm})})
     start = default_start_s(cfg) + 8 * 3600
     sim = SimulatedPlant(cfg, parse_scenario({"seed": 5}), start_s=start)
     clock = VirtualClock(start)
@@ -121,7 +121,7 @@ def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_
     cid = store.start_campaign(name="t", mode="simulate", started_s=start,
                                heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
     runner = CampaignRunner(cfg, sim, spies, clock, store, cid, heliostat_ids=ids)
-    runner.settings = replace(runner.settings, approach_mm=approach_mm)
+    assert runner.settings.approach_mm == approach_mm
     runner.run_until(start + 2 * 3600)
     store.close()
     seen = [(a, d) for spy in spies.values() for a, d, moving in spy.seen if np.all(moving > 0.05)]
@@ -131,6 +131,43 @@ def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_
         assert agree == 1.0
     else:
         assert agree < 0.9
+
+
+class _TimeSpy:
+    def __init__(self, inner):
+        self.inner, self.times = inner, []
+
+    def grab(self):
+        frame = self.inner.grab()
+        self.times.append(frame.capture_time_s)
+        return frame
+
+
+def test_several_after_frames_take_the_sun_at_their_mean_time(cfg, tmp_path):
+    """With three after frames the spot is their mean, so the observation's sun (and time) is the
+    one at their mean capture time, not at the last frame's."""
+    cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"after_frames": 3})})
+    start = default_start_s(cfg) + 9 * 3600
+    sim = SimulatedPlant(cfg, parse_scenario({"seed": 2}), start_s=start)
+    clock = VirtualClock(start)
+    clock.on_advance(sim.advance_to)
+    spies = {t.id: _TimeSpy(SimCamera(sim, cfg.cameras_for(t.id)[0].id)) for t in cfg.targets}
+    store = Store.open(tmp_path / "c.db", tmp_path / "img")
+    ids = ["H0003"]
+    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
+                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
+    runner = CampaignRunner(cfg, sim, spies, clock, store, cid, heliostat_ids=ids)
+    runner.run_until(start + 1800)
+    obs = [o for o in store.observations(campaign_id=cid) if o.valid]
+    store.close()
+    times = np.array([t for spy in spies.values() for t in spy.times])
+    assert obs
+    for o in obs:
+        after = np.sort(times[(times <= o.capture_time_s + 1.5) & (times >= o.capture_time_s - 1.5)])
+        assert len(after) == 3 and np.ptp(after) >= 1.9  # one second apart
+        assert o.capture_time_s == pytest.approx(after.mean(), abs=1e-6)
+        sun = runner.sun(after.mean())[0]
+        np.testing.assert_allclose(o.sun_enu, sun, atol=1e-9)
 
 
 def test_tracking_correction_of_a_pure_stroke_offset_is_that_offset(cfg):

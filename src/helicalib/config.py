@@ -283,6 +283,7 @@ class Calibration(_Model):
     spot_method: Literal["grlm", "grlm-centroid", "centroid"] = "grlm-centroid"
     settle_timeout_s: PositiveFloat = 300.0
     reflectivity_clean: float = Field(default=0.93, gt=0, le=1)  # clean mirror, for the measured cleanliness
+    approach_mm: float = Field(default=1.0, ge=0, le=20)  # last move in the tracking direction (backlash)
 
 
 class Gating(_Model):

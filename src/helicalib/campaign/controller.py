@@ -67,7 +67,7 @@ class VisitSettings:
     def from_config(cls, cfg) -> VisitSettings:
         c = cfg.calibration
         return cls(c.loop_threshold_mrad, c.max_iterations, c.after_frames, c.spot_method, c.settle_timeout_s,
-                   reflectivity_clean=c.reflectivity_clean)
+                   reflectivity_clean=c.reflectivity_clean, approach_mm=c.approach_mm)
 
 
 @dataclass
@@ -279,7 +279,8 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
             break
         if ctx.settings.after_frames > 1:
             yield 1.0
-    capture_s = frames[-1].capture_time_s if frames else ctx.now()
+    # the spot is the mean over the after frames, so its sun is the sun at their mean capture time
+    capture_s = float(np.mean([f.capture_time_s for f in frames])) if frames else ctx.now()
     sun_vec, az, el, rising = ctx.sun(capture_s)
     weather = _safe(ctx.plant.weather)
     status = _safe(lambda: ctx.plant.status(ctx.index))
