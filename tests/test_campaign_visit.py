@@ -50,6 +50,20 @@ def test_beams_that_miss_are_searched_for_within_the_budget(cfg, tmp_path):
     assert found_after_search >= 1
 
 
+def _campaign(cfg, tmp_path, hours: float, seed: int, ids, camera=lambda cam, sim, target: cam):
+    """A runner on the in-process plant from ``hours`` after local midnight, each board's camera
+    wrapped by ``camera(sim_camera, sim, target)``; returns (runner, sim, store, campaign id, cameras)."""
+    start = default_start_s(cfg) + hours * 3600
+    sim = SimulatedPlant(cfg, parse_scenario({"seed": seed}), start_s=start)
+    clock = VirtualClock(start)
+    clock.on_advance(sim.advance_to)
+    cams = {t.id: camera(SimCamera(sim, cfg.cameras_for(t.id)[0].id), sim, t) for t in cfg.targets}
+    store = Store.open(tmp_path / "c.db", tmp_path / "img")
+    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
+                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
+    return CampaignRunner(cfg, sim, cams, clock, store, cid, heliostat_ids=ids), sim, store, cid, cams
+
+
 class _BrokenCamera:
     """Answers the before frame, then fails as no camera error class would (a full disk, say)."""
 
@@ -64,17 +78,9 @@ class _BrokenCamera:
 
 
 def test_an_unexpected_failure_returns_the_heliostat_to_tracking(cfg, tmp_path):
-    start = default_start_s(cfg) + 9 * 3600
-    sim = SimulatedPlant(cfg, parse_scenario({"seed": 3}), start_s=start)
-    clock = VirtualClock(start)
-    clock.on_advance(sim.advance_to)
-    cams = {t.id: _BrokenCamera(SimCamera(sim, cfg.cameras_for(t.id)[0].id)) for t in cfg.targets}
-    store = Store.open(tmp_path / "c.db", tmp_path / "img")
-    ids = ["H0001"]
-    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
-                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
-    runner = CampaignRunner(cfg, sim, cams, clock, store, cid, heliostat_ids=ids)
-    runner.run_until(start + 1800)
+    runner, sim, store, cid, _cams = _campaign(cfg, tmp_path, 9, 3, ["H0001"],
+                                               camera=lambda cam, _sim, _t: _BrokenCamera(cam))
+    runner.run_until(sim.t_s + 1800)
     failures = [o for o in store.observations(campaign_id=cid) if o.reason == "error_OSError"]
     visits = store.visits(campaign_id=cid)
     store.close()
@@ -111,18 +117,10 @@ def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_
     (so backlash sits as while tracking); without the approach step (``calibration.approach_mm: 0``)
     many are not."""
     cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"approach_mm": approach_mm})})
-    start = default_start_s(cfg) + 8 * 3600
-    sim = SimulatedPlant(cfg, parse_scenario({"seed": 5}), start_s=start)
-    clock = VirtualClock(start)
-    clock.on_advance(sim.advance_to)
-    spies = {t.id: _ApproachSpy(SimCamera(sim, cfg.cameras_for(t.id)[0].id), sim, t) for t in cfg.targets}
-    store = Store.open(tmp_path / "c.db", tmp_path / "img")
-    ids = ["H0001", "H0012", "H0025", "H0038"]
-    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
-                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
-    runner = CampaignRunner(cfg, sim, spies, clock, store, cid, heliostat_ids=ids)
+    runner, sim, store, _cid, spies = _campaign(cfg, tmp_path, 8, 5, ["H0001", "H0012", "H0025", "H0038"],
+                                                camera=_ApproachSpy)
     assert runner.settings.approach_mm == approach_mm
-    runner.run_until(start + 2 * 3600)
+    runner.run_until(sim.t_s + 2 * 3600)
     store.close()
     seen = [(a, d) for spy in spies.values() for a, d, moving in spy.seen if np.all(moving > 0.05)]
     assert len(seen) >= 8
@@ -147,17 +145,9 @@ def test_several_after_frames_take_the_sun_at_their_mean_time(cfg, tmp_path):
     """With three after frames the spot is their mean, so the observation's sun (and time) is the
     one at their mean capture time, not at the last frame's."""
     cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"after_frames": 3})})
-    start = default_start_s(cfg) + 9 * 3600
-    sim = SimulatedPlant(cfg, parse_scenario({"seed": 2}), start_s=start)
-    clock = VirtualClock(start)
-    clock.on_advance(sim.advance_to)
-    spies = {t.id: _TimeSpy(SimCamera(sim, cfg.cameras_for(t.id)[0].id)) for t in cfg.targets}
-    store = Store.open(tmp_path / "c.db", tmp_path / "img")
-    ids = ["H0003"]
-    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
-                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
-    runner = CampaignRunner(cfg, sim, spies, clock, store, cid, heliostat_ids=ids)
-    runner.run_until(start + 1800)
+    runner, sim, store, cid, spies = _campaign(cfg, tmp_path, 9, 2, ["H0003"],
+                                               camera=lambda cam, _sim, _t: _TimeSpy(cam))
+    runner.run_until(sim.t_s + 1800)
     obs = [o for o in store.observations(campaign_id=cid) if o.valid]
     store.close()
     times = np.array([t for spy in spies.values() for t in spy.times])
