@@ -127,8 +127,11 @@ def distort_px(points_px: np.ndarray, K, dist) -> np.ndarray:
 
 
 def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Points (N, 2) through the homography H; a point H sends to infinity (a degenerate fit of
+    bad marks) comes out non-finite, which the reprojection check then refuses."""
     p = np.column_stack([pts, np.ones(len(pts))]) @ H.T
-    return p[:, :2] / p[:, 2:3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return p[:, :2] / p[:, 2:3]
 
 
 def board_to_image(marks: MarksResult, uv_m: np.ndarray) -> np.ndarray:
