@@ -128,7 +128,8 @@ def distort_px(points_px: np.ndarray, K, dist) -> np.ndarray:
 
 def _apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Points (N, 2) through the homography H; a point H sends to infinity (a degenerate fit of
-    bad marks) comes out non-finite, which the reprojection check then refuses."""
+    bad marks) comes out non-finite: candidate layouts with such points are not matched, and a
+    non-finite reprojection error is refused."""
     p = np.column_stack([pts, np.ones(len(pts))]) @ H.T
     with np.errstate(divide="ignore", invalid="ignore"):
         return p[:, :2] / p[:, 2:3]
@@ -300,7 +301,7 @@ def find_marks(gray: np.ndarray, target: Target, camera: Camera | None = None, *
     kw = dict(vertices_px=refined.reshape(4, 6, 2)[:, 0, :].copy(), homography=Hib / Hib[2, 2],
               reprojection_px=reproj, center_px=distort_px(centre_ideal, K, dist)[0], corners_px=refined,
               px_per_m=px_per_m, camera_matrix=K, distortion=dist)
-    if reproj > max_reprojection_px:
+    if not np.isfinite(reproj) or reproj > max_reprojection_px:  # NaN compares False: refuse it explicitly
         return MarksResult(False, "reprojection",
                            f"the marks fit the board layout only to {reproj:.2f} px RMS "
                            f"(limit {max_reprojection_px:.2f} px).", **kw)
