@@ -119,8 +119,8 @@ class CampaignRunner:
             if fit is not None:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
             if self.refine and self.book.points(hid):  # the planner's uncertainty needs the fit's covariance
-                _model, refit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
-                self.book.h[hid].covariance = None if refit is None else refit.covariance
+                _model, fit_now = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
+                self.book.h[hid].covariance = None if fit_now is None else fit_now.covariance
             if visits:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
