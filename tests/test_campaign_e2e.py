@@ -196,3 +196,19 @@ def test_simulate_command_with_a_relative_out_dir(demo_field_path, tmp_path, mon
     rel = store.observations()[0].before_frame_path
     store.close()
     assert (tmp_path / "out" / "images" / rel).is_file()
+
+
+def test_demo_command_runs_simulate_with_its_defaults(demo_field_path, tmp_path):
+    """`helicalib demo` (what `make demo` runs) hands simulate every option it reads: a night-time
+    hour gives no visits (exit 1, said so), but a summary, a database and a report, no traceback."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "demo"
+    r = subprocess.run([sys.executable, "-m", "helicalib", "demo", str(demo_field_path), "--days", "0.02",
+                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 1  # no visit at night
+    assert json.loads((out / "summary.json").read_text())["visits"] == 0
+    assert (out / "helicalib.db").is_file() and (out / "report" / "index.html").is_file()

@@ -38,9 +38,11 @@ def run(args) -> int:
     console.print(f"[bold]helicalib demo[/]: a {args.days:g}-day calibration campaign on {args.field}, against the "
                   "simulated plant (hidden errors, weather, camera); every frame and observation goes to "
                   f"{out}/helicalib.db")
-    sim_args = argparse.Namespace(field=args.field, days=args.days, seed=args.seed, out=str(out), scenario=None,
-                                  start=None, planner="gaps", heliostats=None, over_network=False, rate=3000.0,
-                                  json=False, report=True)
+    # through simulate's own parser, so every simulate option keeps its default
+    parser = argparse.ArgumentParser(prog="helicalib")
+    sim_cmd.register(parser.add_subparsers())
+    sim_args = parser.parse_args(["simulate", str(args.field), "--days", repr(float(args.days)), "--seed",
+                                  str(args.seed), "--out", str(out), "--report"])
     sim_cmd.run(sim_args)
     summary = json.loads((out / "summary.json").read_text())
     console.print(f"report: {out / 'report' / 'index.html'}  (open it in a browser)")
