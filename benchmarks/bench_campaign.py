@@ -123,7 +123,8 @@ def daily_accepted(start_s: float, timeline, days: float) -> list[int]:
     return out
 
 
-def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: Path, keep_frames: bool) -> dict:
+def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: Path, keep_frames: bool,
+            start_s: float | None = None) -> dict:
     from helicalib.campaign.simulate import simulate_campaign
 
     shutil.rmtree(out_dir, ignore_errors=True)
@@ -160,7 +161,7 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     wall0 = time.perf_counter()
     base, refine = planner.split("+")[0], planner.endswith("+refine")
     result = simulate_campaign(cfg, out_dir, days, seed=seed, scenario=scenario, planner=base, heliostat_ids=ids,
-                               progress=progress, refine=refine)
+                               progress=progress, refine=refine, start_s=start_s)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     s = result.summary
     start_s, timeline = acceptance_timeline(result.database, n)
@@ -194,8 +195,9 @@ def _run_job(field: str, scenario_path: str, job) -> dict:
     from helicalib.config import load_field_config
     from helicalib.sim.scenario import load_scenario
 
-    planner, days, seed, ids, out_dir, keep = job
-    return run_one(load_field_config(field), planner, days, seed, load_scenario(scenario_path), ids, out_dir, keep)
+    planner, days, seed, ids, out_dir, keep, start_s = job
+    return run_one(load_field_config(field), planner, days, seed, load_scenario(scenario_path), ids, out_dir, keep,
+                   start_s)
 
 
 def speed_ratio(results: dict, days: float, name: str = "gaps") -> dict:
@@ -277,6 +279,8 @@ def main(argv=None) -> int:
                     help="only the heliostats of these boards, e.g. T2 (the others stay idle: a cheaper run "
                          "with as many heliostats per board as the full field)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--start", default=None,
+                    help="plant start, ISO 8601 with offset (default simulate's: 2026-06-01, local midnight)")
     ap.add_argument("--field", type=Path, default=FIELD, help="field config (default the 500-heliostat bench field)")
     ap.add_argument("--scenario", type=Path, default=SCENARIO)
     ap.add_argument("--out", type=Path, default=OUT / "bench_campaign.json")
@@ -306,22 +310,31 @@ def main(argv=None) -> int:
     for planner in planners:
         if planner not in PLANNERS:
             ap.error(f"--planners: unknown planner {planner!r}; known: {', '.join(PLANNERS)}")
-    jobs = [(planner, days, args.seed, ids, args.work / planner.replace("+", "-"), args.keep_frames)
+    start_s = None
+    if args.start:
+        from helicalib.geometry.sun import parse_time, to_unix_seconds
+
+        start_s = float(to_unix_seconds([parse_time(args.start)])[0])
+    jobs = [(planner, days, args.seed, ids, args.work / planner.replace("+", "-"), args.keep_frames, start_s)
             for planner in planners]
     results = {}
-    if args.jobs > 1 and len(jobs) > 1:
-        from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
-            futures = {job[0]: pool.submit(_run_job, str(args.field), str(args.scenario), job) for job in jobs}
-            for planner, fut in futures.items():
-                results[planner] = fut.result()
-    else:
-        for job in jobs:
-            results[job[0]] = run_one(cfg, job[0], *job[1:3], scenario, *job[3:])
-    for planner, r in results.items():
+    def done(planner: str, r: dict) -> None:  # each planner's figures as soon as it ends (a stopped run keeps them)
+        results[planner] = r
         print(f"  {planner}: {json.dumps({k: v for k, v in r.items() if k not in ('outcomes', 'database')})}",
               flush=True)
+
+    if args.jobs > 1 and len(jobs) > 1:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
+            futures = {pool.submit(_run_job, str(args.field), str(args.scenario), job): job[0] for job in jobs}
+            for fut in as_completed(futures):
+                done(futures[fut], fut.result())
+        results = {p: results[p] for p in planners}  # table columns in the order asked for
+    else:
+        for job in jobs:
+            done(job[0], run_one(cfg, job[0], *job[1:3], scenario, *job[3:6], start_s=start_s))
     ratios = {name: speed_ratio(results, days, name) for name in results if name.startswith("gaps")}
     print(table(results, ratios))
     verdict = goals(results, ratios)
@@ -331,6 +344,7 @@ def main(argv=None) -> int:
     doc = {"benchmark": "campaign", "field": str(args.field), "heliostats": count, "per_target": per_target,
            "targets": targets,
            "scenario": scenario.name, "days": days, "seed": args.seed, "quick": bool(args.quick),
+           "start": args.start or "2026-06-01 local midnight",
            "results": results, "speed_ratio": ratios, "goals": GOALS, "goals_met": verdict,
            "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
                        "load_avg_at_end": None if load is None else [round(x, 2) for x in load]}}
