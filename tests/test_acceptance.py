@@ -203,3 +203,17 @@ def test_sun_days_at_a_real_site_in_june():
         assert d.rise_band_start_s < d.rise_band_end_s <= d.high_start_s < d.noon_s < d.high_end_s
         assert 30 * 60 < d.rise_band_end_s - d.rise_band_start_s < 90 * 60  # 10° of rise near ~1 h
         assert 10 * H < d.high_span_s < 13 * H
+
+
+def test_rms_gap_closes_once_many_points_did_not_help():
+    """An RMS above the limit asks for more points until the heliostat has 4 × min_points of them;
+    then the planner stops spending board time on it (the verdict still refuses it)."""
+    from helicalib.calibration.acceptance import RMS_GAP_POINTS_FACTOR
+
+    limit = RMS_GAP_POINTS_FACTOR * RULES.min_points
+    for n, asks in ((limit - 1, True), (limit, False)):
+        t = D.high_start_s + np.linspace(0.0, 0.9, n) * (D.set_band_start_s - D.high_start_s)
+        v = evaluate(t, np.full(n, 40.0), np.full(n, 1.5), RULES, DAYS, now_s=D.noon_s)
+        assert not v.accepted and any(r.startswith("RMS error 1.50") for r in v.reasons)
+        kinds = {g.kind for g in gaps(v, RULES, DAYS, D.noon_s)}
+        assert ("rms" in kinds) is asks, (n, kinds)
