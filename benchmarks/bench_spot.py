@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from helicalib.vision.marks import board_to_image, find_marks
-from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose,
+from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Spot, demo_target, look_at_pose,
                                      project_board_points, render_frame)
 from helicalib.vision.spot import METHODS, measure_spot
 

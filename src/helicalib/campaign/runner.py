@@ -14,7 +14,6 @@ wake-up time comes. Every observation goes to the store as soon as it is made.
 
 from __future__ import annotations
 
-import heapq
 import math
 from dataclasses import dataclass, field
 
