@@ -175,7 +175,7 @@ def test_refinement_keeps_boards_busy_and_survives_a_restart(cfg, tmp_path):
     again = CampaignRunner(cfg, sim, cams, runner.clock, store, cid, heliostat_ids=ids, refine=True)
     for hid in ids:
         if runner.book.points(hid):
-            np.testing.assert_allclose(again.book.h[hid].covariance, runner.book.h[hid].covariance,
+            np.testing.assert_allclose(again.book.h[hid].fit.covariance, runner.book.h[hid].fit.covariance,
                                        rtol=0.05, atol=1e-9)
     store.close()
 

@@ -44,7 +44,7 @@ class HeliostatBook:
     verdict: acceptance.AcceptanceVerdict | None = None
     measured_cleanliness: float | None = None      # newest cleanliness measured from a spot
     measured_at_s: float = -math.inf
-    covariance: np.ndarray | None = None            # (P, P) of the newest fit; None before one
+    fit: object | None = None                       # newest FitResult over ``points``; None before one
 
 
 class Book:
@@ -173,12 +173,12 @@ def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, no
     ``nominal_rows(hids)`` gives the nominal :class:`HeliostatModel` of those heliostats."""
     from helicalib.calibration.fit import beam_spread_mrad
 
-    ready = [h for h in hids if book.h[h].covariance is not None and book.h[h].cooldown_until_s <= now_s]
+    ready = [h for h in hids if book.h[h].fit is not None and book.h[h].cooldown_until_s <= now_s]
     if not ready:
         return {}
     model = nominal_rows(ready).with_params(np.vstack([models[h].params for h in ready]))
     aims = np.array([cfg.target(cfg.heliostat(h).target).center_enu_m for h in ready], dtype=float)
-    cov = np.stack([book.h[h].covariance for h in ready])
+    cov = np.stack([book.h[h].fit.covariance for h in ready])
     spread = beam_spread_mrad(model, cov, sun_enu, aims)
     return {h: float(v) for h, v in zip(ready, spread) if math.isfinite(v)}
 
@@ -225,15 +225,17 @@ def _visit_points(points: list) -> list:
 
 
 def loo_errors_mrad(cfg, nominal: HeliostatModel, points: list, visit_points: list,
-                    start: HeliostatModel | None = None, exact: bool = False) -> np.ndarray:
+                    start: HeliostatModel | None = None, exact: bool = False, full=None) -> np.ndarray:
     """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 on its board).
 
     The model without a visit comes from one Gauss-Newton step from the fit to all points
-    (:func:`~helicalib.calibration.fit.leave_out_params`), or with ``exact`` from a full refit
-    per visit. Either way the solver starts from ``start`` (default nominal)."""
+    (:func:`~helicalib.calibration.fit.leave_out_params`; ``full``: that fit when the caller has
+    it, e.g. the refit after the visit's last point), or with ``exact`` from a full refit per
+    visit. Refits start from ``start`` (default nominal)."""
     start = start if start is not None else nominal
     if not exact:
-        _model, full = refit(nominal, points, start)
+        if full is None or len(full.residual_mrad) != len(points):
+            _model, full = refit(nominal, points, start)
         if full is not None and full.linearisation is not None:
             groups = [[k for k, p in enumerate(points) if p.visit_id == vp.visit_id] for vp in visit_points]
             params = leave_out_params(full, groups)
@@ -267,7 +269,7 @@ def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s
     if nominal is None or not coverage_ok:
         return base
     # coverage met: judge the accuracy honestly, out of sample
-    errs = loo_errors_mrad(cfg, nominal, points, vps, start)
+    errs = loo_errors_mrad(cfg, nominal, points, vps, start, full=book.h[hid].fit)
     return acceptance.evaluate_observations(vps, cfg.acceptance, days, now_s=now_s, errors_mrad=errs)
 
 

@@ -117,9 +117,9 @@ class CampaignRunner:
             fit = self.store.latest_fit(hid, campaign_id=self.campaign_id) or self.store.latest_fit(hid)
             if fit is not None:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
-            if self.refine and self.book.points(hid):  # the planner's uncertainty needs the fit's covariance
-                _model, fit_now = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
-                self.book.h[hid].covariance = None if fit_now is None else fit_now.covariance
+            if self.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
+                _model, self.book.h[hid].fit = policy.refit(self.nominal_of(hid), self.book.points(hid),
+                                                            self.models[hid])
             if visits:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
@@ -390,7 +390,7 @@ class CampaignRunner:
         model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
         self.models[hid] = model
         if fit is not None:
-            self.book.h[hid].covariance = fit.covariance
+            self.book.h[hid].fit = fit
             self.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
                                   **policy.fit_record(fit))
         return model
