@@ -3,8 +3,11 @@
 For a simulated field (default ``simulations/fields/bench500.yaml``, made by ``helicalib sim-field
 --n 500 --targets 4`` at the demo site) and the standard weather scenario
 (``simulations/scenarios/benchmark.yaml``), runs :func:`helicalib.campaign.simulate.simulate_campaign`
-in-process with ``planner="gaps"``, the same with ``refine`` (``gaps+refine``: idle board time
-spent on uncertain models, ``--refine``) and ``planner="round-robin"``, and reports, per planner:
+in-process with ``planner="gaps"`` (the product's default: a free board is lent to heliostats of a
+busy one, ``calibration.share_targets``), the same with ``refine`` (``gaps+refine``: idle board time
+spent on uncertain models, ``--refine``), the same with each heliostat on its own board only
+(``gaps-own``) and ``planner="round-robin"`` (the paper's "in turn", each heliostat on its own
+board), and reports, per planner:
 
 * days to accept 90 % and 95 % of the field (from the store's verdict timeline: the newest
   verdict of each heliostat as time goes on; ``null`` if not reached within ``--days``);
@@ -20,11 +23,17 @@ ratio ≥ 2.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_campaign.py --jobs 2              # 500 heliostats, 8 days, 3 planners
+    .venv/bin/python benchmarks/bench_campaign.py --jobs 2              # 500 heliostats, 8 days
     .venv/bin/python benchmarks/bench_campaign.py --planners gaps,round-robin --jobs 2
     .venv/bin/python benchmarks/bench_campaign.py --quick --jobs 2      # 30 heliostats, 1 day: a few minutes
     .venv/bin/python benchmarks/bench_campaign.py --targets T2 --heliostats 110 --days 2 --jobs 2
     .venv/bin/python benchmarks/bench_campaign.py --heliostats 200 --days 5 --planners gaps
+    .venv/bin/python benchmarks/bench_campaign.py --planners round-robin --days 4.5 --out rr.json
+    .venv/bin/python benchmarks/bench_campaign.py --planners gaps,round-robin --days 3.5 --baseline rr.json
+
+``--baseline`` reuses the results of an earlier run (same field, heliostats, scenario, seed and
+start; checked) for the planners it holds, so the costly round robin runs once per version of its
+code. ``--planners`` defaults to gaps, gaps+refine and round-robin.
 
 Cost: about 0.17 CPU s per visit (simulator ≈ 25 %, the rest campaign, vision and fits), and a
 busy board takes about 100 visits per hour of sun, so a busy 4-board plant day is ≈ 900 CPU s per
@@ -57,8 +66,10 @@ FIELD = ROOT / "simulations" / "fields" / "bench500.yaml"
 SCENARIO = ROOT / "simulations" / "scenarios" / "benchmark.yaml"
 OUT = ROOT / "benchmarks" / "out"
 SITE = (40.063, 94.426, 1267.0)
-PLANNERS = ("gaps", "gaps+refine", "round-robin")
-"""``gaps+refine``: the gaps planner asked to spend idle board time on uncertain models (``--refine``)."""
+PLANNERS = ("gaps", "gaps+refine", "gaps-own", "round-robin")
+"""``gaps+refine``: the gaps planner asked to spend idle board time on uncertain models (``--refine``);
+``gaps-own``: the gaps planner with each heliostat on its own board only (``calibration.share_targets:
+false``); ``gaps`` and ``gaps+refine`` lend a free board to heliostats of a busy one (the default)."""
 GOALS = {"acceptance_rate": 0.95, "true_sky_rms_mrad": 0.8, "speed_ratio": 2.0}
 
 
@@ -159,7 +170,9 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
                   file=sys.stderr, flush=True)
 
     wall0 = time.perf_counter()
-    base, refine = planner.split("+")[0], planner.endswith("+refine")
+    base, refine = ("gaps" if planner.startswith("gaps") else planner), planner.endswith("+refine")
+    if planner == "gaps-own":
+        cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"share_targets": False})})
     result = simulate_campaign(cfg, out_dir, days, seed=seed, scenario=scenario, planner=base, heliostat_ids=ids,
                                progress=progress, refine=refine, start_s=start_s)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
@@ -190,6 +203,25 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     }
 
 
+START_DEFAULT = "2026-06-01 local midnight"
+
+
+def load_baseline(path: Path, **expect) -> dict:
+    """The per-planner results of an earlier run (its JSON), after checking that it ran the same
+    field, heliostats, scenario, seed and start (``expect``); SystemExit naming what differs."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"--baseline {path}: cannot read it: {err}") from None
+    for key, want in expect.items():
+        have = doc.get(key)
+        if key == "field":
+            have, want = Path(str(have)).name, Path(str(want)).name
+        if have != want:
+            raise SystemExit(f"--baseline {path}: {key} is {have!r}, this run's is {want!r}")
+    return dict(doc.get("results", {}))
+
+
 def _run_job(field: str, scenario_path: str, job) -> dict:
     """One planner's run in a worker process."""
     from helicalib.config import load_field_config
@@ -212,7 +244,7 @@ def speed_ratio(results: dict, days: float, name: str = "gaps") -> dict:
     if g["days_to_90"] is None:
         return out
     if r["days_to_90"] is None:
-        out.update(ratio=round(days / g["days_to_90"], 2), lower_bound=True)
+        out.update(ratio=round(r.get("days_simulated", days) / g["days_to_90"], 2), lower_bound=True)
     else:
         out.update(ratio=round(r["days_to_90"] / g["days_to_90"], 2))
     return out
@@ -274,7 +306,8 @@ def main(argv=None) -> int:
     ap.add_argument("--days", type=float, default=None, help="plant days per planner (default 8; --quick 1)")
     ap.add_argument("--quick", action="store_true", help="30 heliostats, 1 day: a few minutes")
     ap.add_argument("--planners", default="gaps,gaps+refine,round-robin",
-                    help="comma-separated, of gaps, gaps+refine, round-robin (default all three)")
+                    help="comma-separated, of gaps, gaps+refine, gaps-own, round-robin "
+                         "(default gaps, gaps+refine, round-robin)")
     ap.add_argument("--targets", default=None,
                     help="only the heliostats of these boards, e.g. T2 (the others stay idle: a cheaper run "
                          "with as many heliostats per board as the full field)")
@@ -288,6 +321,10 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="run the planners in parallel processes (default 1; "
                     "CPU times stay comparable, wall times do not)")
     ap.add_argument("--keep-frames", action="store_true", help="keep the PNG frames of each run")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="an earlier bench_campaign JSON whose planners' results are reused instead of run "
+                         "(e.g. round robin's, the costly one); it must be of the same field, heliostats, "
+                         "scenario, seed and start")
     args = ap.parse_args(argv)
 
     from helicalib.config import load_field_config
@@ -315,9 +352,14 @@ def main(argv=None) -> int:
         from helicalib.geometry.sun import parse_time, to_unix_seconds
 
         start_s = float(to_unix_seconds([parse_time(args.start)])[0])
+    results, reused = {}, {}
+    if args.baseline is not None:
+        reused = load_baseline(args.baseline, field=str(args.field), heliostats=count, scenario=scenario.name,
+                               seed=args.seed, start=args.start or START_DEFAULT)
+        for name, r in reused.items():
+            print(f"  {name}: reused from {args.baseline} ({r['days_simulated']:g} days simulated)", flush=True)
     jobs = [(planner, days, args.seed, ids, args.work / planner.replace("+", "-"), args.keep_frames, start_s)
-            for planner in planners]
-    results = {}
+            for planner in planners if planner not in reused]
 
     def done(planner: str, r: dict) -> None:  # each planner's figures as soon as it ends (a stopped run keeps them)
         results[planner] = r
@@ -331,10 +373,11 @@ def main(argv=None) -> int:
             futures = {pool.submit(_run_job, str(args.field), str(args.scenario), job): job[0] for job in jobs}
             for fut in as_completed(futures):
                 done(futures[fut], fut.result())
-        results = {p: results[p] for p in planners}  # table columns in the order asked for
     else:
         for job in jobs:
             done(job[0], run_one(cfg, job[0], *job[1:3], scenario, *job[3:6], start_s=start_s))
+    results.update({p: r for p, r in reused.items() if p in planners})
+    results = {p: results[p] for p in planners}  # table columns in the order asked for
     ratios = {name: speed_ratio(results, days, name) for name in results if name.startswith("gaps")}
     print(table(results, ratios))
     verdict = goals(results, ratios)
@@ -344,7 +387,8 @@ def main(argv=None) -> int:
     doc = {"benchmark": "campaign", "field": str(args.field), "heliostats": count, "per_target": per_target,
            "targets": targets,
            "scenario": scenario.name, "days": days, "seed": args.seed, "quick": bool(args.quick),
-           "start": args.start or "2026-06-01 local midnight",
+           "start": args.start or START_DEFAULT, "baseline": None if args.baseline is None else str(args.baseline),
+           "reused": sorted(reused),
            "results": results, "speed_ratio": ratios, "goals": GOALS, "goals_met": verdict,
            "machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
                        "load_avg_at_end": None if load is None else [round(x, 2) for x in load]}}

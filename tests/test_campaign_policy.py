@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -157,6 +158,31 @@ def test_refine_is_asked_for_and_comes_after_every_gap():
     # a re-check (include_accepted) stays a re-check
     (a,) = plan([done_unsure], NOW, G, include_accepted=True, refine=True)
     assert a.tier == TIER_RECHECK
+
+
+def test_a_borrowed_target_serves_its_own_heliostats_first_and_only_open_gaps():
+    """A free board lent to heliostats of a busy one (``borrowed`` > 0): its own go first within
+    the same tier and closing time, a guest's scarcer gap beats an own heliostat's lesser one, and
+    a guest never takes it for points no gap asks for (extra, refine)."""
+    band_end = NOW + 1800
+    own = Candidate("H1", "T1", predicted_error_mrad=0.5, gaps=(gap("rising", NOW, band_end),))
+    guest = Candidate("G1", "T1", predicted_error_mrad=9.0, gaps=(gap("rising", NOW, band_end),), borrowed=1)
+    (a,) = plan([guest, own], NOW, G)
+    assert a.heliostat_id == "H1"  # same tier and closing: own first, though the guest's error is larger
+    assert plan([guest], NOW, G)[0].heliostat_id == "G1" and "borrowed" in plan([guest], NOW, G)[0].reason
+    own_window = Candidate("H2", "T1", predicted_error_mrad=9.0, gaps=(gap("window", NOW, NOW + 600, 3),))
+    assert plan([own_window, guest], NOW, G)[0].heliostat_id == "G1"  # a band gap outranks a window
+    nearer = Candidate("G2", "T1", predicted_error_mrad=0.1, gaps=(gap("rising", NOW, band_end),), borrowed=1)
+    farther = Candidate("G3", "T1", predicted_error_mrad=9.0, gaps=(gap("rising", NOW, band_end),), borrowed=2)
+    assert plan([farther, nearer], NOW, G)[0].heliostat_id == "G2"  # the nearer home board's guests first
+    # nothing open now: a guest stays home (tier 3 would be extra points), also under refine
+    idle = Candidate("G4", "T1", predicted_error_mrad=1.0, gaps=(gap("setting", NOW + 3600, NOW + 7200),),
+                     borrowed=1)
+    assert plan([idle], NOW, G) == () and plan([idle], NOW, G, refine=True) == ()
+    assert plan([replace(idle, borrowed=0)], NOW, G, refine=True)[0].tier == TIER_EXTRA
+    done = Candidate("G5", "T1", accepted=True, predicted_error_mrad=0.5, spread_mrad=0.9, borrowed=1)
+    assert plan([done], NOW, G, refine=True) == ()
+    assert plan([done], NOW, G, include_accepted=True)[0].tier == TIER_RECHECK  # a re-check may borrow
 
 
 def test_round_robin_goes_in_turn_and_wraps():

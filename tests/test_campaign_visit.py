@@ -248,3 +248,72 @@ def test_resume_while_stowed_keeps_the_field_stowed_until_calm(cfg, tmp_path):
     store.close()
     assert resumes and start + 7200 <= resumes[0].time_s <= start + 7200 + 60.0 + 1e-6
     assert sim.field_state() == FieldState.TRACKING
+
+
+# ----------------------------------------------------------------------------- shared targets
+def _own_only(cfg):
+    return cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"share_targets": False})})
+
+
+def test_shared_targets_lend_boards_that_face_the_heliostat_and_have_a_camera(cfg, demo_data, write_field):
+    t2 = [h.id for h in cfg.heliostats if h.target == "T2"]
+    lent = policy.shared_targets(cfg, t2, ["T1", "T2"])
+    assert set(lent["T1"]) == set(t2) and set(lent["T1"].values()) == {1} and lent["T2"] == {}
+    assert policy.shared_targets(cfg, t2, ["T2"])["T1"] == {}  # no camera on T1: not lent
+    # T1 turned to face away from the field: none of the field may borrow it
+    demo_data["targets"][0]["normal_enu"] = [0.0, -0.81915, -0.57358]
+    away = load_field_config(write_field(demo_data))
+    assert policy.shared_targets(away, t2, ["T1", "T2"])["T1"] == {}
+
+
+def test_choose_next_passes_over_guests_out_of_range_then_keeps_to_its_own(cfg):
+    ids = [h.id for h in cfg.heliostats][:12]
+    guests = {hid: 1 for hid in ids}
+    book = policy.Book(cfg, ids)
+    now = default_start_s(cfg) + 10 * 3600
+    clean = {hid: 0.95 for hid in ids}
+    asked = []
+
+    def usable(hid):
+        asked.append(hid)
+        return hid == ids[5]
+
+    pick = policy.choose_next(cfg, book, [], now, clean, target_id="T9", guests=guests, usable=usable)
+    assert pick == ids[5] and ids[5] in asked and len(asked) <= policy.MAX_GUEST_TRIES
+    asked.clear()
+    assert policy.choose_next(cfg, book, [], now, clean, target_id="T9", guests=guests,
+                              usable=lambda h: asked.append(h) and False) is None
+    assert len(asked) == policy.MAX_GUEST_TRIES  # then the target keeps to its own (none here)
+    # its own heliostats are never range-checked here (the visit loop refuses what it cannot reach)
+    own = ids[:3]
+    assert policy.choose_next(cfg, book, own, now, clean, target_id="T9", guests={h: 1 for h in ids[3:]},
+                              usable=lambda h: False) in own
+
+
+@pytest.mark.parametrize("planner, share, lent", [("gaps", True, True), ("gaps", False, False),
+                                                   ("round-robin", True, False)])
+def test_a_free_board_takes_heliostats_of_a_busy_one(cfg, tmp_path, planner, share, lent):
+    """All of T2's heliostats, new (each has its points gap open), T1 with none of its own: the
+    gaps planner lends T1 to T2's heliostats and measures them there (their spots on T1's board);
+    with ``calibration.share_targets: false``, or under round robin (the paper's order), T1 stays idle."""
+    field = cfg if share else _own_only(cfg)
+    t2 = [h.id for h in cfg.heliostats if h.target == "T2"]
+    runner, sim, store, cid, _ = _campaign(field, tmp_path, 10, 3, t2, planner=planner)
+    runner.run_until(sim.t_s + 0.75 * 3600)
+    visits = store.visits(campaign_id=cid)
+    on_t1 = [v for v in visits if v.target_id == "T1"]
+    obs = [o for o in store.observations(campaign_id=cid) if o.valid and o.target_id == "T1"]
+    store.close()
+    if not lent:
+        assert on_t1 == [] and len(visits) >= 10
+        return
+    assert len(on_t1) >= 5 and sum(v.outcome == "converged" for v in on_t1) >= 3
+    assert not (set(runner._guests["T2"]) & set(t2))
+    board = cfg.target("T1")
+    for o in obs:  # measured on T1's board, as T1 sees it
+        u, v, _w = board.enu_to_uvw(np.asarray(o.spot_enu_m))
+        assert abs(u) <= board.size_m[0] / 2 and abs(v) <= board.size_m[1] / 2
+    # one heliostat on one board at a time
+    spans = sorted((v.heliostat_id, v.started_s, v.ended_s) for v in visits)
+    for (h1, _s1, e1), (h2, s2, _e2) in zip(spans, spans[1:]):
+        assert h1 != h2 or s2 >= e1

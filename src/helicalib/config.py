@@ -284,6 +284,7 @@ class Calibration(_Model):
     settle_timeout_s: PositiveFloat = 300.0
     reflectivity_clean: float = Field(default=0.93, gt=0, le=1)  # clean mirror, for the measured cleanliness
     approach_mm: float = Field(default=1.0, ge=0, le=20)  # last move in the tracking direction (backlash)
+    share_targets: bool = True  # gaps planner: a free board may take heliostats of a busy one (docs/campaign.md)
 
 
 class Gating(_Model):

@@ -15,7 +15,10 @@ gap-filling planner (:func:`plan`) ranks each free target's candidates in tiers:
 Within a tier: the gap that closes soonest, then mirrors of preferred cleanliness, then the
 largest predicted error (a new heliostat, with no model yet, counts as infinite; in tiers 3 and 5
 the model's own uncertainty at the present sun, ``spread_mrad``, where it is known), then the
-fewest visits, then the id. Gated mirrors (cleanliness ≤ min) and heliostats cooling down
+fewest visits, then the id. A heliostat on a borrowed target (``borrowed`` > 0: another board
+that faces it, lent while its own is busy; ``calibration.share_targets``) goes only for a gap open
+now (tiers 0-2) or a re-check, and after the target's own heliostats of the same tier and closing
+time. Gated mirrors (cleanliness ≤ min) and heliostats cooling down
 after an invalid visit are skipped. :func:`round_robin` is the paper's "in turn" order, the
 benchmark baseline. Both are pure: state in, frozen assignments out.
 """
@@ -56,6 +59,9 @@ class Candidate:
     spread_mrad : float or None
         The model's predicted 1-σ beam uncertainty at the present sun [mrad] (from the fit's
         covariance; None: not computed).
+    borrowed : int
+        0: ``target_id`` is the heliostat's own target; k > 0: a borrowed one, the k-th nearest
+        other board to its own.
     """
 
     heliostat_id: str
@@ -67,6 +73,11 @@ class Candidate:
     visits: int = 0
     cooldown_until_s: float = 0.0
     spread_mrad: float | None = None
+    borrowed: int = 0
+
+
+BORROW_TIERS = (TIER_LOW_BAND, TIER_WINDOW, TIER_OPEN, TIER_RECHECK)
+"""Tiers for which a heliostat may go on a borrowed target."""
 
 
 @dataclass(frozen=True)
@@ -87,7 +98,7 @@ def _eligible(c: Candidate, now_s: float, gating) -> bool:
 def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False, refine: bool = False) -> tuple | None:
     """The sort key of a candidate at ``now_s`` (smaller goes first), or None when it should not go.
 
-    The key is ``(tier, closes_s, not_preferred, -predicted_error, visits, id)``.
+    The key is ``(tier, closes_s, borrowed, not_preferred, -predicted_error, visits, id)``.
     """
     if c.accepted and not (include_accepted or refine):
         return None
@@ -109,11 +120,13 @@ def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False, ref
             tier, closes = TIER_OPEN, math.inf
         else:
             tier, closes = TIER_EXTRA, math.inf
+    if c.borrowed and tier not in BORROW_TIERS:
+        return None
     err = math.inf if c.predicted_error_mrad is None else float(c.predicted_error_mrad)
     if tier in (TIER_EXTRA, TIER_REFINE) and c.spread_mrad is not None and c.predicted_error_mrad is not None:
         err = float(c.spread_mrad)
     not_preferred = not (c.cleanliness > gating.cleanliness_preferred)
-    return (tier, closes, not_preferred, -err, c.visits, c.heliostat_id)
+    return (tier, closes, int(c.borrowed), not_preferred, -err, c.visits, c.heliostat_id)
 
 
 def _reason(c: Candidate, key: tuple, now_s: float) -> str:
@@ -123,7 +136,8 @@ def _reason(c: Candidate, key: tuple, now_s: float) -> str:
     err = "no model yet" if c.predicted_error_mrad is None else f"predicted error {c.predicted_error_mrad:.1f} mrad"
     if tier in (TIER_EXTRA, TIER_REFINE) and c.spread_mrad is not None and c.predicted_error_mrad is not None:
         err = f"model uncertain by {c.spread_mrad:.2f} mrad at this sun"
-    return f"{TIER_NAMES[tier]}{what} ({err})"
+    lent = ", on a borrowed target" if c.borrowed else ""
+    return f"{TIER_NAMES[tier]}{what} ({err}{lent})"
 
 
 def plan(candidates: Iterable[Candidate], now_s: float, gating, *, busy_targets: Iterable[str] = (),

@@ -133,37 +133,88 @@ def _next_sun_above(sun, now_s: float, level_deg: float) -> float:
 # ---------------------------------------------------------------------------------- planning
 def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *, planner: str = "gaps",
                 recheck: bool = False, busy_heliostats=(), refine: bool = False,
-                spreads: dict | None = None) -> str | None:
+                spreads: dict | None = None, target_id: str | None = None, guests: dict | None = None,
+                usable=None) -> str | None:
     """The heliostat to send to the (one) target of ``candidates`` now, or None.
 
     ``refine``: idle target time goes to heliostats with nothing open (unaccepted first, then
     accepted ones) whose model is most uncertain at this sun; ``spreads`` maps heliostat id to
     that uncertainty [mrad] (:func:`model_spreads`).
+
+    ``guests`` (gaps planner): heliostats of other targets that may borrow ``target_id``, each
+    with its rank among the boards it may borrow (:func:`shared_targets`); ``usable(hid)`` says
+    whether a guest can go on it now (strokes in range); a guest it refuses is passed over.
     """
     days = book.days(now_s)
     spreads = spreads or {}
+    guests = dict(guests or {}) if planner != "round-robin" else {}
     cands = []
-    for hid in candidates:
+    for hid in list(candidates) + [g for g in guests if g not in candidates]:
         b = book.h[hid]
         verdict = b.verdict or _verdict_of(cfg, book, hid, None, now_s)
         gaps = acceptance.gaps(verdict, cfg.acceptance, days, now_s)
         c = cleanliness.get(hid)
         if c is None or not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
             c = b.measured_cleanliness
+        borrowed = int(guests.get(hid, 0))
         cands.append(planner_mod.Candidate(
-            heliostat_id=hid, target_id=cfg.heliostat(hid).target, accepted=bool(verdict.accepted) and not recheck,
+            heliostat_id=hid, target_id=target_id if borrowed else cfg.heliostat(hid).target,
+            accepted=bool(verdict.accepted) and not recheck,
             gaps=gaps, predicted_error_mrad=b.last_first_error_mrad,
             cleanliness=float("nan") if c is None else float(c), visits=b.visits, cooldown_until_s=b.cooldown_until_s,
-            spread_mrad=spreads.get(hid)))
+            spread_mrad=None if borrowed else spreads.get(hid), borrowed=borrowed))
     if recheck:
         cands = [c for c in cands if book.h[c.heliostat_id].visits == 0]
     if planner == "round-robin":
         out = planner_mod.round_robin(cands, now_s, cfg.gating, cursor=book.cursor, busy_heliostats=busy_heliostats)
-    else:
-        # a target stays idle rather than spend time on points no acceptance gap asks for
-        out = planner_mod.plan(cands, now_s, cfg.gating, busy_heliostats=busy_heliostats, include_accepted=recheck,
+        return out[0].heliostat_id if out else None
+    # a target stays idle rather than spend time on points no acceptance gap asks for
+    busy = set(busy_heliostats)
+    for _try in range(MAX_GUEST_TRIES + 1):
+        out = planner_mod.plan(cands, now_s, cfg.gating, busy_heliostats=busy, include_accepted=recheck,
                                skip_extra=not (recheck or refine), refine=refine and not recheck)
-    return out[0].heliostat_id if out else None
+        if not out:
+            return None
+        hid = out[0].heliostat_id
+        if not guests.get(hid) or usable is None or usable(hid):
+            return hid
+        busy.add(hid)
+        if _try == MAX_GUEST_TRIES - 1:  # give up on guests for this target now
+            busy.update(guests)
+    return None
+
+
+MAX_GUEST_TRIES = 8
+"""Guests a target passes over (their strokes out of range now) before it takes only its own."""
+MAX_SHARE_INCIDENCE_DEG = 70.0
+"""A heliostat may borrow a board only if it sees the board at most this far off its normal."""
+
+
+def shared_targets(cfg, hids, camera_targets) -> dict[str, dict[str, int]]:
+    """For each target: the heliostats of ``hids`` (of other targets) that may borrow it, with the
+    board's rank among those each may borrow (1 = nearest to its own board).
+
+    A board is lent only to heliostats in front of it, seen at most
+    :data:`MAX_SHARE_INCIDENCE_DEG` off its normal, and only if it has a camera
+    (``camera_targets``). Whether the strokes reach it is checked at each assignment.
+    """
+    cams = set(camera_targets)
+    out: dict[str, dict[str, int]] = {t.id: {} for t in cfg.targets}
+    cos_max = math.cos(math.radians(MAX_SHARE_INCIDENCE_DEG))
+    for hid in hids:
+        h = cfg.heliostat(hid)
+        home = np.asarray(cfg.target(h.target).center_enu_m, dtype=float)
+        pos = np.asarray(h.position_enu_m, dtype=float)
+        ok = []
+        for t in cfg.targets:
+            if t.id == h.target or t.id not in cams:
+                continue
+            centre = np.asarray(t.center_enu_m, dtype=float)
+            if float(np.dot(optics.unit(pos - centre), np.asarray(t.normal_enu, dtype=float))) >= cos_max:
+                ok.append((float(np.linalg.norm(centre - home)), t.id))
+        for rank, (_d, tid) in enumerate(sorted(ok), start=1):
+            out[tid][hid] = rank
+    return out
 
 
 def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, now_s: float) -> dict:

@@ -31,6 +31,8 @@ WEATHER_POLL_S = 60.0
 """Plant seconds between weather polls (a stow follows within one poll)."""
 PLANNER_TICK_S = 30.0
 """Plant seconds between planner ticks while a target is free."""
+SHARE_REACH_S = 1800.0
+"""A borrowed board must be within the heliostat's stroke range now and this much later [plant s]."""
 
 
 @dataclass
@@ -78,6 +80,10 @@ class CampaignRunner:
         self.planner_kind = planner
         self.recheck = recheck
         self.refine = bool(refine) and planner == "gaps"
+        self.share = bool(cfg.calibration.share_targets) and planner == "gaps"
+        self._home = {t.id: [hid for hid in self.ids if cfg.heliostat(hid).target == t.id] for t in cfg.targets}
+        self._guests = (policy.shared_targets(cfg, self.ids, [t for t in cameras if cfg.cameras_for(t)])
+                        if self.share else {})
         self.armed = armed
         self.settings = VisitSettings.from_config(cfg)
         self.sun_table = SunTable(cfg.site)
@@ -245,15 +251,19 @@ class CampaignRunner:
 
     # ------------------------------------------------------------------ visits
     def _start_visit(self, target_id: str, now: float) -> None:
-        cands = [hid for hid in self.ids if self.cfg.heliostat(hid).target == target_id]
+        cands = self._home[target_id]
+        guests = self._guests.get(target_id, {})
         cleanliness = {hid: self._cleanliness(hid, now) for hid in cands}
+        cleanliness.update({hid: self._cleanliness(hid, now) for hid in guests})
         busy = [h for (_w, h, _g, _c) in self.active.values()]
         spreads = None
         if self.refine:
             spreads = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows,
                                            [h for h in cands if h not in busy], self.sun(now)[0], now)
         choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
-                                    recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads)
+                                    recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
+                                    target_id=target_id, guests=guests,
+                                    usable=lambda hid: self._reaches(hid, target_id, now))
         if choice is None:
             return
         hid = choice
@@ -278,6 +288,18 @@ class CampaignRunner:
         gen = run_visit(ctx)
         self.active[target_id] = (now, hid, gen, ctx)
         self.stats.visits += 1
+
+    def _reaches(self, hid: str, target_id: str, now: float) -> bool:
+        """Whether ``hid``'s model puts both the standby point and the centre of ``target_id``
+        inside its stroke range now and :data:`SHARE_REACH_S` later (a borrowed board)."""
+        target = self.cfg.target(target_id)
+        aims = np.array([target.uvw_to_enu(np.asarray(target.standby_uvw_m)), target.center_enu_m], dtype=float)
+        model = self.models[hid]
+        for t in (now, now + SHARE_REACH_S):
+            sun = self.sun(t)[0]
+            if not all(bool(model.strokes_for_aim(sun, aim).in_range[0]) for aim in aims):
+                return False
+        return True
 
     def _nominal_rows(self, hids) -> HeliostatModel:
         return self.nominal.subset([self._index[h] for h in hids])
