@@ -284,6 +284,7 @@ class Calibration(_Model):
     settle_timeout_s: PositiveFloat = 300.0
     reflectivity_clean: float = Field(default=0.93, gt=0, le=1)  # clean mirror, for the measured cleanliness
     approach_mm: float = Field(default=1.0, ge=0, le=20)  # last move in the tracking direction (backlash)
+    max_jitter_mrad: float = Field(default=2.0, gt=0)  # several after frames: their spread limit, as an angle
     share_targets: bool = True  # gaps planner: a free board may take heliostats of a busy one (docs/campaign.md)
 
 

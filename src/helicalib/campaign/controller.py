@@ -37,7 +37,7 @@ from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.store.records import Observation
 from helicalib.vision.frames import decode_frame
 from helicalib.vision.marks import find_marks
-from helicalib.vision.spot import measure_spot
+from helicalib.vision.spot import SpotLimits, measure_spot
 
 SEARCHABLE = frozenset({"no_spot", "clipped", "low_contrast"})
 """Spot results after which the visit searches for the beam instead of giving up (DNI and cleanliness
@@ -62,12 +62,16 @@ class VisitSettings:
     approach_mm: float = 1.0
     """Length of the last move of each actuator in its tracking direction, to take up backlash
     (0 = arrive from wherever the previous hold was)."""
+    max_jitter_mrad: float = 2.0
+    """With several after frames: their spot centres' RMS spread, as an angle seen from the
+    heliostat, above which the measurement is refused ("jitter")."""
 
     @classmethod
     def from_config(cls, cfg) -> VisitSettings:
         c = cfg.calibration
         return cls(c.loop_threshold_mrad, c.max_iterations, c.after_frames, c.spot_method, c.settle_timeout_s,
-                   reflectivity_clean=c.reflectivity_clean, approach_mm=c.approach_mm)
+                   reflectivity_clean=c.reflectivity_clean, approach_mm=c.approach_mm,
+                   max_jitter_mrad=c.max_jitter_mrad)
 
 
 @dataclass
@@ -299,7 +303,11 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
         obs = Observation(valid=False, reason=reason, message=message, **base)
         obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame), after_frames=[f.data for f in frames])
         return _with_id(obs, obs_id)
-    spot = measure_spot(before, images, ctx.target, ctx.camera_config, method=ctx.settings.spot_method, marks=marks)
+    # the jitter limit as an angle: a far heliostat's beam wanders as many metres for less mrad
+    distance_m = float(np.linalg.norm(np.asarray(ctx.target.center_enu_m, dtype=float) - ctx.model.pivots_enu[0]))
+    limits = SpotLimits(max_jitter_m=1e-3 * ctx.settings.max_jitter_mrad * distance_m)
+    spot = measure_spot(before, images, ctx.target, ctx.camera_config, method=ctx.settings.spot_method, marks=marks,
+                        limits=limits)
     extra = {}
     if spot.spot_center_px is not None:
         extra.update(spot_x_px=float(spot.spot_center_px[0]), spot_y_px=float(spot.spot_center_px[1]))
