@@ -341,3 +341,45 @@ def test_the_jitter_limit_of_several_after_frames_is_an_angle(cfg, tmp_path, max
         assert jitter >= 0.5 * len(obs), [o.reason for o in obs]
     else:
         assert jitter <= 0.2 * len(obs) and sum(o.valid for o in obs) >= 0.6 * len(obs), [o.reason for o in obs]
+
+
+def test_a_campaign_stop_takes_each_beam_to_standby_before_tracking(cfg, tmp_path):
+    """``runner.shutdown`` (the end of ``helicalib run``, Ctrl-C) with beams on the boards: each
+    heliostat in a visit is first moved so that its beam rests at its board's standby point (seen
+    from the plant's side: off the board, near that point), and only then told to track."""
+    runner, sim, store, cid, _ = _campaign(cfg, tmp_path, 10, 2, ["H0001", "H0002", "H0021", "H0022"])
+    on_board = {}
+    for _ in range(400):  # until some visit holds its beam on the board
+        runner.run_until(sim.t_s + 4.0)
+        _uv, _hit, on = sim.truth.spots(sim.true_beams(jitter=False), sim.targets)
+        on_board = {hid: ctx for (_w, hid, _g, ctx) in runner.active.values()
+                    if sim.state[ctx.index] == HeliostatState.HOLDING and on[ctx.index]}
+        if on_board:
+            break
+    assert on_board
+    calls = []
+    move_to, track = sim.move_to, sim.track
+
+    def spy_move(index, strokes):
+        calls.append(("move", index))
+        return move_to(index, strokes)
+
+    def spy_track(index, corrections):
+        _uv, hit, on = sim.truth.spots(sim.true_beams(jitter=False), sim.targets)
+        calls.append(("track", index, bool(on[index]), hit[index].copy(), sim.state[index]))
+        return track(index, corrections)
+
+    sim.move_to, sim.track = spy_move, spy_track
+    runner.shutdown(sim.t_s)
+    assert not runner.active
+    for hid, ctx in on_board.items():
+        mine = [c for c in calls if c[1] == ctx.index]
+        assert [c[0] for c in mine] == ["move", "track"], mine
+        _kind, _i, was_on, hit, state = mine[-1]
+        standby = ctx.target.uvw_to_enu(np.asarray(ctx.target.standby_uvw_m))
+        assert state == HeliostatState.HOLDING and not was_on
+        assert np.linalg.norm(hit - standby) < 5.0  # the model's aim: its error is a few mrad
+        assert sim.state[ctx.index] in (HeliostatState.TRACKING, HeliostatState.MOVING)
+    visits = store.visits(campaign_id=cid)
+    store.close()
+    assert {v.outcome for v in visits if v.heliostat_id in on_board} >= {"aborted"}

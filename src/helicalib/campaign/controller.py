@@ -266,7 +266,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         code = f"error_{type(err).__name__}"
         out.status, out.reason = "fault", code
         _record_failure(ctx, code, f"{ctx.heliostat_id}: {type(err).__name__}: {err}")
-    yield from _leave(ctx)
+    yield from leave_board(ctx)
     return out
 
 
@@ -402,8 +402,11 @@ def _record_failure(ctx: VisitContext, code: str, message: str) -> None:
         pass
 
 
-def _leave(ctx: VisitContext) -> Generator[float, None, None]:
-    """Back to standby (beam off the board, never across the receiver), then to tracking."""
+def leave_board(ctx: VisitContext) -> Generator[float, None, str | None]:
+    """Back to standby (beam off the board, never across the receiver), then to tracking.
+
+    Returns None, or what failed on the way back to tracking (the heliostat then stays where it
+    is: holding at standby, or on the board if even that move failed)."""
     try:
         standby = ctx.target.uvw_to_enu(np.asarray(ctx.target.standby_uvw_m))
         sol = ctx.model.strokes_for_aim(ctx.sun(ctx.now())[0], standby)
@@ -419,5 +422,6 @@ def _leave(ctx: VisitContext) -> Generator[float, None, None]:
             corrections = None
     try:  # None: the plant keeps the corrections it has
         ctx.plant.track(ctx.index, None if corrections is None else np.asarray(corrections, dtype=float))
-    except PlantError:
-        pass
+    except PlantError as err:
+        return f"back to tracking failed: {err}"
+    return None

@@ -21,9 +21,9 @@ import numpy as np
 
 from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import policy
-from helicalib.campaign.controller import VisitContext, VisitOutcome, VisitSettings, run_visit
+from helicalib.campaign.controller import VisitContext, VisitOutcome, VisitSettings, leave_board, run_visit
 from helicalib.devices.registers import FieldCommand
-from helicalib.errors import PlantError
+from helicalib.errors import HelicalibError, PlantError
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable
 
@@ -422,16 +422,40 @@ class CampaignRunner:
         return not self.active and all(self.book.h[hid].visits > 0 for hid in self.ids)
 
     def shutdown(self, now: float) -> None:
-        """Stop every visit under way and hand its heliostat back to tracking."""
+        """Stop every visit under way; each heliostat leaves its board as a finished visit does:
+        the beam to the board's standby point first (never across the receiver), then back to
+        tracking with the corrections last written (the visits' legs run side by side on the
+        clock; each move is bounded by ``settle_timeout_s``). A failure is recorded as a fault
+        event; if the clock itself fails, the rest go straight back to tracking."""
+        leaving = []
         for tid in list(self.active):
             _wake, hid, gen, ctx = self.active.pop(tid)
             gen.close()
             self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
+            ctx.corrections = lambda _model, hid=hid: self.corrections[hid]
+            leaving.append([now, hid, ctx, leave_board(ctx)])
+        while leaving:
+            leaving.sort(key=lambda item: item[0])
+            wake, hid, ctx, leg = leaving.pop(0)
             try:
-                self.plant.track(ctx.index, None if self.corrections[hid] is None else self.corrections[hid])
-            except PlantError as err:
-                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
-                                        reason=f"{hid}: back to tracking failed: {err}")
+                t = self.clock.now_s()
+                if wake > t:
+                    self.clock.sleep(wake - t)
+                    t = self.clock.now_s()
+                leaving.append([t + float(leg.send(None)), hid, ctx, leg])
+            except StopIteration as done:
+                if done.value:
+                    self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
+                                            reason=f"{hid}: {done.value}")
+            except HelicalibError as err:  # no clock: straight back to tracking, as before a stop
+                for _w, h, c, g in [[wake, hid, ctx, leg], *leaving]:
+                    g.close()
+                    try:
+                        self.plant.track(c.index, self.corrections[h])
+                    except PlantError as err2:
+                        self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
+                                                reason=f"{h}: back to tracking failed: {err2} (clock: {err})")
+                leaving = []
 
     # ------------------------------------------------------------------ summary
     def accepted(self) -> list[str]:
