@@ -16,6 +16,8 @@ Worlds:
 * ``real``: the scenario's unmodelled effects too (gravity sag, backlash approached in the
   tracking direction as the campaign does, drift, stroke repeatability), plus 0.2 mrad spot noise;
   evaluated with backlash as while tracking. Wind jitter is left out.
+* ``real-nosag``, ``real-nobacklash``: ``real`` less gravity sag, or less backlash: what that one
+  unmodelled effect costs (the most an error-model term for it could win).
 
 Aims: ``board`` (the heliostat's own board centre, as the campaign does) or ``boards`` (the
 centres of all boards in turn: more geometric diversity from one season).
@@ -43,6 +45,9 @@ FIELD = ROOT / "simulations" / "fields" / "bench500.yaml"
 SCENARIO = ROOT / "simulations" / "scenarios" / "benchmark.yaml"
 OUT = ROOT / "benchmarks" / "out"
 NOISE_MRAD = 0.2
+WITHOUT = {"real-nosag": ("sag_mrad",), "real-nobacklash": ("backlash_mm",)}
+"""Worlds ``real`` less one unmodelled effect (the most a model term for it could win)."""
+WORLDS = ("ideal", "real", *WITHOUT)
 
 
 def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng) -> tuple:
@@ -59,14 +64,15 @@ def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng)
         s = nominal.strokes_for_aim(sun, aim).strokes_mm[0]
         every = np.tile(s, (truth.n, 1))
         approach = None
-        if world == "real":  # the campaign approaches each actuator in its tracking direction
+        if world.startswith("real"):  # the campaign approaches each actuator in its tracking direction
             d = np.sign(nominal.strokes_for_aim(later[k], aim).strokes_mm[0] - s)
             approach = np.tile(np.where(np.isfinite(d) & (d != 0), d, 1.0), (truth.n, 1))
         beam = truth.beam(every, sun, float(times[k]), approach=approach, jitter=False,
-                          stroke_noise_mm=(truth.repeat_noise_mm(np.full(truth.n, k)) if world == "real" else None))
+                          stroke_noise_mm=(truth.repeat_noise_mm(np.full(truth.n, k)) if world.startswith("real")
+                                           else None))
         _uv, hit, _on = truth.spots(beam, [target] * truth.n)
         spot = hit[i]
-        if world == "real":
+        if world.startswith("real"):
             dist = np.linalg.norm(spot - truth.nominal.pivots_enu[i])
             spot = spot + (rng.normal(size=2) * NOISE_MRAD * 1e-3 * dist) @ target.frame_enu[:2]
         strokes.append(s)
@@ -86,6 +92,8 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
     if world == "ideal":
         for name in ("backlash_mm", "sag_mrad", "drift_mrad_per_s", "repeatability_mm", "jitter_mrad_per_ms"):
             setattr(truth, name, np.zeros_like(np.asarray(getattr(truth, name), dtype=float)))
+    for name in WITHOUT.get(world, ()):  # a real world less one unmodelled effect: what that effect costs
+        setattr(truth, name, np.zeros_like(np.asarray(getattr(truth, name), dtype=float)))
     times = t0 + np.arange(0.0, days * 86400.0, every_min * 60.0)
     times = times[sun_at_site(cfg.site, times).elevation_deg >= 5.0]
     rng = np.random.default_rng(seed)
@@ -96,7 +104,7 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
                                                                range(len(times))]
         strokes, suns, spots = observe(truth, cfg, i, times, targets, world, rng)
         params[i] = fit_error_model(truth.nominal.subset([i]), strokes, suns, spots, loss="soft_l1").params
-    backlash = "tracking" if world == "real" else "none"
+    backlash = "tracking" if world.startswith("real") else "none"
     year_t, year_sun = year_sun_times(cfg.site, int(start[:4]))
     fitted = evaluate_model(truth, params, year_t, year_sun, backlash=backlash, t_eval_s=t0)
     exact = evaluate_model(truth, truth.params0, year_t, year_sun, backlash=backlash, t_eval_s=t0)
@@ -115,7 +123,7 @@ def main(argv=None) -> int:
     ap.add_argument("--days", type=float, default=3.0, help="days of observations (default 3)")
     ap.add_argument("--every-min", type=float, default=20.0, help="minutes between observations (default 20)")
     ap.add_argument("--heliostats", type=int, default=20, help="heliostats of board T2, evenly spread (default 20)")
-    ap.add_argument("--worlds", default="ideal,real")
+    ap.add_argument("--worlds", default="ideal,real", help=f"comma-separated, of {', '.join(WORLDS)}")
     ap.add_argument("--aims", default="board,boards")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=OUT / "bench_season.json")
@@ -131,6 +139,8 @@ def main(argv=None) -> int:
     t_start = time.perf_counter()
     for start in [s.strip() for s in args.starts.split(",") if s.strip()]:
         for world in args.worlds.split(","):
+            if world not in WORLDS:
+                ap.error(f"--worlds: unknown world {world!r}; known: {', '.join(WORLDS)}")
             for aims in args.aims.split(","):
                 case = run_case(cfg, scenario, f"{start}T00:00:00Z" if "T" not in start else start, args.days,
                                 args.every_min, world, aims, rows, args.seed)
