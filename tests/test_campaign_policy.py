@@ -14,7 +14,7 @@ from helicalib.calibration.acceptance import Gap
 from helicalib.campaign.gating import gate_field, gate_mirrors
 from helicalib.campaign.planner import (
     REFINE_MIN_SPREAD_MRAD, TIER_EXTRA, TIER_LOW_BAND, TIER_OPEN, TIER_RECHECK, TIER_REFINE, TIER_WINDOW, Candidate,
-    plan, round_robin,
+    plan, round_robin, round_robin_shared,
 )
 from helicalib.config import Gating
 
@@ -195,3 +195,18 @@ def test_round_robin_goes_in_turn_and_wraps():
     assert round_robin(cands, NOW, G, cursor={"T2": "K0"})[1].heliostat_id == "K0"
     assert round_robin(cands, NOW, G, cursor={"T1": "H0"}, busy_heliostats=["H1"])[0].heliostat_id == "H2"
     assert [a.target_id for a in round_robin(cands, NOW, G, cursor={}, busy_targets=["T1"])] == ["T2"]
+
+
+def test_shared_round_robin_goes_in_one_field_wide_turn():
+    """The baseline with shared boards: whichever board is free takes the next heliostat in one
+    field-wide order, its own or a guest that can reach it, skipping accepted and busy ones."""
+    cands = [Candidate("A", "T1"), Candidate("B", "T1", borrowed=1), Candidate("C", "T1", accepted=True),
+             Candidate("D", "T1", borrowed=1)]
+    take = lambda **kw: round_robin_shared(cands, NOW, G, target_id="T1", **kw)  # noqa: E731
+    assert take(cursor=None).heliostat_id == "A"
+    assert take(cursor="A").heliostat_id == "B"
+    assert take(cursor="B").heliostat_id == "D"  # C is accepted
+    assert take(cursor="D").heliostat_id == "A"  # wraps around
+    assert take(cursor="A", usable=lambda h: h != "B").heliostat_id == "D"  # B cannot reach T1 now
+    assert take(cursor="A", busy_heliostats=["B", "D", "A"]) is None
+    assert take(cursor="A").reason.startswith("in turn")

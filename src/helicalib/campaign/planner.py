@@ -20,7 +20,7 @@ that faces it, lent while its own is busy; ``calibration.share_targets``) goes o
 now (tiers 0-2) or a re-check, and after the target's own heliostats of the same tier and closing
 time. Gated mirrors (cleanliness ≤ min) and heliostats cooling down
 after an invalid visit are skipped. :func:`round_robin` is the paper's "in turn" order, the
-benchmark baseline. Both are pure: state in, frozen assignments out.
+benchmark baseline; :func:`round_robin_shared` the same over the whole field with shared boards. Both are pure: state in, frozen assignments out.
 """
 
 from __future__ import annotations
@@ -213,3 +213,22 @@ def round_robin(candidates: Sequence[Candidate], now_s: float, gating, *, cursor
             out.append(Assignment(target, c.heliostat_id, TIER_EXTRA, "in turn"))
             break
     return tuple(out)
+
+
+def round_robin_shared(candidates: Sequence[Candidate], now_s: float, gating, *, target_id: str,
+                       cursor: str | None, busy_heliostats: Iterable[str] = (), usable=None) -> Assignment | None:
+    """Round robin over the whole field with shared boards (a benchmark baseline): the free
+    ``target_id`` takes the next eligible, unaccepted heliostat in the order of ``candidates``
+    (its own and those that may borrow it, in one field-wide order) after ``cursor`` (the one
+    that last went on any board), wrapping around; a borrowed one only if ``usable(id)``."""
+    busy = set(busy_heliostats)
+    ids = [c.heliostat_id for c in candidates]
+    start = ids.index(cursor) + 1 if cursor in ids else 0
+    for step in range(len(candidates)):
+        c = candidates[(start + step) % len(candidates)]
+        if c.heliostat_id in busy or c.accepted or not _eligible(c, now_s, gating):
+            continue
+        if c.borrowed and usable is not None and not usable(c.heliostat_id):
+            continue
+        return Assignment(target_id, c.heliostat_id, TIER_EXTRA, "in turn (shared boards)")
+    return None

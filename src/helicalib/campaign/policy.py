@@ -28,6 +28,8 @@ from helicalib.geometry import errors as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
 
+FIELD_CURSOR = "*"
+"""``Book.cursor`` key of the heliostat that last went on any board (field-wide round robin)."""
 COOLDOWN_INVALID_S = 1800.0
 """After a visit without a valid point a heliostat waits this long [plant s] before its next try."""
 COOLDOWN_VALID_S = 1200.0
@@ -71,6 +73,7 @@ class Book:
     def visiting(self, hid: str, now_s: float) -> None:
         self.h[hid].visits += 1
         self.cursor[self.cfg.heliostat(hid).target] = hid
+        self.cursor[FIELD_CURSOR] = hid
 
     def visited(self, hid: str, now_s: float, outcome) -> None:
         b = self.h[hid]
@@ -149,7 +152,10 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
     spreads = spreads or {}
     guests = dict(guests or {}) if planner != "round-robin" else {}
     cands = []
-    for hid in list(candidates) + [g for g in guests if g not in candidates]:
+    order = list(candidates) + [g for g in guests if g not in candidates]
+    if planner == "round-robin-shared":  # one field-wide order
+        order.sort(key=cfg.heliostat_index)
+    for hid in order:
         b = book.h[hid]
         verdict = b.verdict or _verdict_of(cfg, book, hid, None, now_s)
         gaps = acceptance.gaps(verdict, cfg.acceptance, days, now_s)
@@ -168,6 +174,11 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
     if planner == "round-robin":
         out = planner_mod.round_robin(cands, now_s, cfg.gating, cursor=book.cursor, busy_heliostats=busy_heliostats)
         return out[0].heliostat_id if out else None
+    if planner == "round-robin-shared":
+        one = planner_mod.round_robin_shared(cands, now_s, cfg.gating, target_id=target_id,
+                                             cursor=book.cursor.get(FIELD_CURSOR), busy_heliostats=busy_heliostats,
+                                             usable=usable)
+        return None if one is None else one.heliostat_id
     # a target stays idle rather than spend time on points no acceptance gap asks for
     busy = set(busy_heliostats)
     for _try in range(MAX_GUEST_TRIES + 1):

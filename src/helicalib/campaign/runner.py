@@ -62,7 +62,9 @@ class CampaignRunner:
     heliostat_ids : list of str, optional
         Heliostats to calibrate (default all).
     planner : str
-        ``"gaps"`` (fill acceptance gaps fastest) or ``"round-robin"`` (the paper's "in turn").
+        ``"gaps"`` (fill acceptance gaps fastest), ``"round-robin"`` (the paper's "in turn", each
+        heliostat on its own board) or ``"round-robin-shared"`` (in turn over the whole field,
+        boards shared as for gaps: a benchmark baseline).
     recheck : bool
         Visit every heliostat once regardless of acceptance (operators' re-check).
     refine : bool
@@ -80,7 +82,7 @@ class CampaignRunner:
         self.planner_kind = planner
         self.recheck = recheck
         self.refine = bool(refine) and planner == "gaps"
-        self.share = bool(cfg.calibration.share_targets) and planner == "gaps"
+        self.share = bool(cfg.calibration.share_targets) and planner in ("gaps", "round-robin-shared")
         self._home = {t.id: [hid for hid in self.ids if cfg.heliostat(hid).target == t.id] for t in cfg.targets}
         self._guests = (policy.shared_targets(cfg, self.ids, [t for t in cameras if cfg.cameras_for(t)])
                         if self.share else {})
