@@ -197,6 +197,7 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
         "mean_iterations": s["mean_iterations"], "first_shot_rms_mrad": s["first_shot_rms_mrad"],
         "true_sky_rms_mrad": s["true_sky_rms_mrad"], "true_sky_p95_mrad": s["true_sky_p95_mrad"],
         "true_sky_rms_no_backlash_mrad": s["true_sky_rms_no_backlash_mrad"],
+        "true_sky_rms_accepted_mrad": s.get("true_sky_rms_accepted_mrad"),
         "true_tracking_rms_mrad": s["true_tracking_rms_mrad"],
         "gated_hours": s["gated_hours"], "stowed_hours": s["stowed_hours"], "outcomes": s["outcomes"],
         "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
@@ -258,7 +259,8 @@ def table(results: dict, ratios: dict) -> str:
             ("visits", "visits"), ("valid visits", "valid_visits"), ("visits / target-hour", "visits_per_target_hour"),
             ("mean iterations", "mean_iterations"), ("first-shot RMS [mrad]", "first_shot_rms_mrad"),
             ("true sky RMS [mrad]", "true_sky_rms_mrad"), ("true sky p95 [mrad]", "true_sky_p95_mrad"),
-            ("  without backlash", "true_sky_rms_no_backlash_mrad"), ("plant tracking [mrad]", "true_tracking_rms_mrad"),
+            ("  without backlash", "true_sky_rms_no_backlash_mrad"),
+            ("  accepted heliostats", "true_sky_rms_accepted_mrad"), ("plant tracking [mrad]", "true_tracking_rms_mrad"),
             ("gated / stowed [h]", None), ("wall / CPU [s]", None), ("CPU per visit [s]", "cpu_s_per_visit")]
     names = list(results)
     lines = [f"{'':24s}" + "".join(f"{n:>16s}" for n in names)]
@@ -271,7 +273,7 @@ def table(results: dict, ratios: dict) -> str:
             elif label.startswith("wall"):
                 v = f"{r['wall_s']:.0f} / {r['cpu_s']:.0f}"
             else:
-                x = r[key]
+                x = r.get(key)
                 v = "not reached" if x is None and key.startswith("days") else (
                     f"{100 * x:.1f} %" if key == "acceptance_rate" else str(x))
             cells.append(f"{v:>16s}")

@@ -73,6 +73,9 @@ def test_counts_match_the_database_and_the_runner(sim):
     valid_visits = q(db, "SELECT COUNT(DISTINCT visit_id) FROM observations WHERE valid = 1")[0][0]
     assert s["valid_visits"] == valid_visits == summary["valid_visits"]
     assert s["accepted"] == summary["accepted"]
+    # the sky figure over accepted heliostats only: none here, so none (not the all-heliostat one)
+    assert summary["accepted"] == 0 and summary["true_sky_rms_accepted_mrad"] is None
+    assert summary["true_sky_rms_mrad"] > 0
     assert s["visits_by_outcome"] == dict(q(db, "SELECT outcome, COUNT(*) FROM visits GROUP BY outcome"))
     # hours from the events, against the runner's own accounting (ticks of at most a weather poll)
     assert s["stowed_hours"] == pytest.approx(summary["stowed_hours"], abs=0.05)

@@ -145,13 +145,18 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
     rows = [all_ids.index(hid) for hid in ids]
     params[rows] = runner.calibrated_model().params
 
+    accepted_rows = [all_ids.index(hid) for hid in accepted]
+
     def sky_of(backlash: str) -> dict:
         ev = evaluate_model(sim.truth, params, backlash=backlash)
         with np.errstate(invalid="ignore"):
             errs = ev.errors_mrad[rows]
             flat = errs[np.isfinite(errs)]
+            ok = ev.errors_mrad[accepted_rows]
+            ok = ok[np.isfinite(ok)]
         return {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
-                "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan")}
+                "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan"),
+                "accepted_rms_mrad": float(np.sqrt(np.mean(ok**2))) if ok.size else None}
 
     sky, geometry = sky_of("tracking"), sky_of("none")
     day0 = max(start_s, end_s - 86400.0)
@@ -172,6 +177,8 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "true_sky_rms_mrad": round(float(sky["rms_mrad"]), 3),
         "true_sky_p95_mrad": round(float(sky["p95_mrad"]), 3),
         "true_sky_rms_no_backlash_mrad": round(float(geometry["rms_mrad"]), 3),
+        "true_sky_rms_accepted_mrad": (None if sky["accepted_rms_mrad"] is None
+                                       else round(sky["accepted_rms_mrad"], 3)),
         "true_tracking_rms_mrad": round(tracking["rms_mrad"], 3),
         "true_tracking_p95_mrad": round(tracking["p95_mrad"], 3),
         "true_tracking_uncorrected_rms_mrad": round(untracked["rms_mrad"], 3),
