@@ -383,3 +383,14 @@ def test_a_campaign_stop_takes_each_beam_to_standby_before_tracking(cfg, tmp_pat
     visits = store.visits(campaign_id=cid)
     store.close()
     assert {v.outcome for v in visits if v.heliostat_id in on_board} >= {"aborted"}
+
+
+def test_a_heliostat_goes_to_its_own_board_when_that_is_free(cfg, tmp_path):
+    """Both boards free, one heliostat of T2 (an operator's re-check, say): T1 comes first in the
+    planner's round of free boards, but lends itself only while T2 is busy, so T2 takes it."""
+    runner, sim, store, cid, _ = _campaign(cfg, tmp_path, 10, 4, ["H0001"], recheck=True)
+    assert cfg.heliostat("H0001").target == "T2" and "H0001" in runner._guests["T1"]
+    runner.run_until(sim.t_s + 600.0)
+    visits = store.visits(campaign_id=cid)
+    store.close()
+    assert visits and {v.target_id for v in visits} == {"T2"}

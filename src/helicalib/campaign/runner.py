@@ -254,7 +254,9 @@ class CampaignRunner:
     # ------------------------------------------------------------------ visits
     def _start_visit(self, target_id: str, now: float) -> None:
         cands = self._home[target_id]
-        guests = self._guests.get(target_id, {})
+        # a board is lent only to heliostats whose own board is busy (a free own board takes them)
+        guests = {h: r for h, r in self._guests.get(target_id, {}).items()
+                  if self.cfg.heliostat(h).target in self.active}
         cleanliness = {hid: self._cleanliness(hid, now) for hid in cands}
         cleanliness.update({hid: self._cleanliness(hid, now) for hid in guests})
         busy = [h for (_w, h, _g, _c) in self.active.values()]
