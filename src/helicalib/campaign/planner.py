@@ -18,9 +18,10 @@ the model's own uncertainty at the present sun, ``spread_mrad``, where it is kno
 fewest visits, then the id. A heliostat on a borrowed target (``borrowed`` > 0: another board
 that faces it, lent while its own is busy; ``calibration.share_targets``) goes only for a gap open
 now (tiers 0-2) or a re-check, and after the target's own heliostats of the same tier and closing
-time. Gated mirrors (cleanliness ≤ min) and heliostats cooling down
-after an invalid visit are skipped. :func:`round_robin` is the paper's "in turn" order, the
-benchmark baseline; :func:`round_robin_shared` the same over the whole field with shared boards. Both are pure: state in, frozen assignments out.
+time. Gated mirrors (cleanliness ≤ min) and heliostats cooling down after an invalid visit are
+skipped. :func:`round_robin` is the paper's "in turn" order, the benchmark baseline;
+:func:`round_robin_shared` goes in turn over the whole field with shared boards (a second
+baseline). All three are pure: state in, frozen assignments out.
 """
 
 from __future__ import annotations
