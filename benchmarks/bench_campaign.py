@@ -263,7 +263,8 @@ def table(results: dict, ratios: dict) -> str:
             ("  accepted heliostats", "true_sky_rms_accepted_mrad"), ("plant tracking [mrad]", "true_tracking_rms_mrad"),
             ("gated / stowed [h]", None), ("wall / CPU [s]", None), ("CPU per visit [s]", "cpu_s_per_visit")]
     names = list(results)
-    lines = [f"{'':24s}" + "".join(f"{n:>16s}" for n in names)]
+    w = max([16] + [len(n) + 2 for n in names])
+    lines = [f"{'':24s}" + "".join(f"{n:>{w}s}" for n in names)]
     for label, key in rows:
         cells = []
         for n in names:
@@ -276,14 +277,15 @@ def table(results: dict, ratios: dict) -> str:
                 x = r.get(key)
                 v = "not reached" if x is None and key.startswith("days") else (
                     f"{100 * x:.1f} %" if key == "acceptance_rate" else str(x))
-            cells.append(f"{v:>16s}")
+            cells.append(f"{v:>{w}s}")
         lines.append(f"{label:24s}" + "".join(cells))
     for name, ratio in ratios.items():
         if ratio["ratio"] is not None:
             lines.append(f"speed ratio ({name if ' vs ' in name else 'round robin / ' + name}, {ratio['basis']}): "
                          f"{'≥ ' if ratio['lower_bound'] else ''}{ratio['ratio']}")
         if ratio.get("accepted_ratio_by_day"):
-            lines.append(f"accepted {name} / round robin at the end of each day: {ratio['accepted_ratio_by_day']}")
+            pair = name.replace(" vs ", " / ") if " vs " in name else f"{name} / round robin"
+            lines.append(f"accepted {pair} at the end of each day: {ratio['accepted_ratio_by_day']}")
     for n in names:
         lines.append(f"accepted by day [{n}]: {results[n]['accepted_by_day']}")
     return "\n".join(lines)
