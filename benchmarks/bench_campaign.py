@@ -6,8 +6,9 @@ For a simulated field (default ``simulations/fields/bench500.yaml``, made by ``h
 in-process with ``planner="gaps"`` (the product's default: a free board is lent to heliostats of a
 busy one, ``calibration.share_targets``), the same with ``refine`` (``gaps+refine``: idle board time
 spent on uncertain models, ``--refine``), the same with each heliostat on its own board only
-(``gaps-own``) and ``planner="round-robin"`` (the paper's "in turn", each heliostat on its own
-board), and reports, per planner:
+(``gaps-own``), ``planner="round-robin"`` (the paper's "in turn", each heliostat on its own
+board) and ``round-robin-shared`` (in turn over the whole field, boards shared), and reports,
+per planner:
 
 * days to accept 90 % and 95 % of the field (from the store's verdict timeline: the newest
   verdict of each heliostat as time goes on; ``null`` if not reached within ``--days``);
@@ -37,7 +38,8 @@ code. ``--planners`` defaults to gaps, gaps+refine and round-robin.
 
 Cost: about 0.17 CPU s per visit (simulator ≈ 25 %, the rest campaign, vision and fits), and a
 busy board takes about 100 visits per hour of sun, so a busy 4-board plant day is ≈ 900 CPU s per
-planner (round robin and gaps+refine keep boards busy; the gaps planner idles once gaps close). ``--targets T2`` keeps one board's 219 heliostats (the scarce case) at a quarter of it.
+planner (round robin and gaps+refine keep boards busy; the gaps planner idles once gaps close). ``--targets T2`` keeps one board's 219 heliostats (the scarce case) at a quarter of it (for
+``gaps-own`` and ``round-robin``: under sharing they also use the idle boards).
 
 A subset (``--heliostats N`` below the field's size) takes every k-th heliostat of the field, so
 every target keeps its share; the simulated plant still has the whole field. Prints a table and
