@@ -58,7 +58,7 @@ def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng)
     suns = np.asarray(sun_at_site(cfg.site, times).vector_enu).reshape(-1, 3)
     later = np.asarray(sun_at_site(cfg.site, times + 300.0).vector_enu).reshape(-1, 3)
     nominal = truth.nominal.subset([i])
-    strokes, spots = [], []
+    strokes, spots, approaches = [], [], []
     for k, (sun, target) in enumerate(zip(suns, aims_by_obs)):
         aim = np.asarray(target.center_enu_m, dtype=float)
         s = nominal.strokes_for_aim(sun, aim).strokes_mm[0]
@@ -77,10 +77,12 @@ def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng)
             spot = spot + (rng.normal(size=2) * NOISE_MRAD * 1e-3 * dist) @ target.frame_enu[:2]
         strokes.append(s)
         spots.append(spot)
-    return np.array(strokes), suns, np.array(spots)
+        approaches.append(np.zeros(2) if approach is None else approach[i])
+    return np.array(strokes), suns, np.array(spots), np.array(approaches)
 
 
-def run_case(cfg, scenario, start: str, days: float, every_min: float, world: str, aims: str, rows, seed: int) -> dict:
+def run_case(cfg, scenario, start: str, days: float, every_min: float, world: str, aims: str, rows, seed: int,
+             backlash_term: bool = True) -> dict:
     from helicalib.calibration.fit import fit_error_model
     from helicalib.geometry import errors as em
     from helicalib.geometry.sun import sun_at_site, to_unix_seconds
@@ -102,8 +104,9 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
         own = cfg.target(cfg.heliostats[i].target)
         targets = [own] * len(times) if aims == "board" else [cfg.targets[k % len(cfg.targets)] for k in
                                                                range(len(times))]
-        strokes, suns, spots = observe(truth, cfg, i, times, targets, world, rng)
-        params[i] = fit_error_model(truth.nominal.subset([i]), strokes, suns, spots, loss="soft_l1").params
+        strokes, suns, spots, approach = observe(truth, cfg, i, times, targets, world, rng)
+        params[i] = fit_error_model(truth.nominal.subset([i]), strokes, suns, spots, loss="soft_l1",
+                                    approach=approach if backlash_term else None).params
     backlash = "tracking" if world.startswith("real") else "none"
     year_t, year_sun = year_sun_times(cfg.site, int(start[:4]))
     fitted = evaluate_model(truth, params, year_t, year_sun, backlash=backlash, t_eval_s=t0)
@@ -112,7 +115,8 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
     months = (year_t - float(to_unix_seconds([f"{start[:4]}-01-01T00:00:00Z"])[0])) // (365.25 / 12 * 86400)
     by_month = [rms(fitted.errors_mrad[:, months == m]) for m in range(12)]
     own = np.abs(year_t - (t0 + days * 43200.0)) < 10 * 86400.0
-    return {"start": start, "days": days, "world": world, "aims": aims, "observations_per_heliostat": int(len(times)),
+    return {"start": start, "days": days, "world": world, "aims": aims,
+            "model": "backlash" if backlash_term else "geometric", "observations_per_heliostat": int(len(times)),
             "year_rms_mrad": rms(fitted.errors_mrad), "exact_params_year_rms_mrad": rms(exact.errors_mrad),
             "own_season_rms_mrad": rms(fitted.errors_mrad[:, own]), "by_month_rms_mrad": by_month}
 
@@ -125,6 +129,9 @@ def main(argv=None) -> int:
     ap.add_argument("--heliostats", type=int, default=20, help="heliostats of board T2, evenly spread (default 20)")
     ap.add_argument("--worlds", default="ideal,real", help=f"comma-separated, of {', '.join(WORLDS)}")
     ap.add_argument("--aims", default="board,boards")
+    ap.add_argument("--models", default="backlash",
+                    help="comma-separated, of backlash (the fit sees each observation's approach and fits the "
+                         "dead bands), geometric (the 13 geometric parameters only)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=OUT / "bench_season.json")
     args = ap.parse_args(argv)
@@ -141,11 +148,13 @@ def main(argv=None) -> int:
         for world in args.worlds.split(","):
             if world not in WORLDS:
                 ap.error(f"--worlds: unknown world {world!r}; known: {', '.join(WORLDS)}")
-            for aims in args.aims.split(","):
+            for aims, model in [(a, m) for a in args.aims.split(",") for m in args.models.split(",")]:
+                if model not in ("backlash", "geometric"):
+                    ap.error(f"--models: unknown model {model!r}; known: backlash, geometric")
                 case = run_case(cfg, scenario, f"{start}T00:00:00Z" if "T" not in start else start, args.days,
-                                args.every_min, world, aims, rows, args.seed)
+                                args.every_min, world, aims, rows, args.seed, backlash_term=model == "backlash")
                 cases.append(case)
-                print(f"{case['start'][:10]}  {world:5s}  {aims:6s}  {case['observations_per_heliostat']:3d} obs  "
+                print(f"{case['start'][:10]}  {world:5s}  {aims:6s}  {model:9s}  {case['observations_per_heliostat']:3d} obs  "
                       f"year {case['year_rms_mrad']:.3f}  (exact params {case['exact_params_year_rms_mrad']:.3f})  "
                       f"own season {case['own_season_rms_mrad']:.3f}  worst month "
                       f"{max(case['by_month_rms_mrad']):.3f}  months {case['by_month_rms_mrad']}", flush=True)

@@ -25,6 +25,12 @@ PATTERN = 1.5 * np.where(np.arange(em.P) % 2 == 0, 1.0, -1.0) * em.PRIOR_SIGMA
 
 
 def _observe(hid, true_params, k, seed, outlier_mrad=0.0):
+    return _observe_approached(hid, true_params, k, seed, outlier_mrad)[:7]
+
+
+def _observe_approached(hid, true_params, k, seed, outlier_mrad=0.0, approached=False):
+    """Synthetic observations; with ``approached`` each actuator arrives from a random side (±1,
+    returned as the 8th item) and the plant's dead bands (its backlash parameters) act."""
     rng = np.random.default_rng(seed)
     model = HeliostatModel.from_config(CFG, [hid])
     target = CFG.target(CFG.heliostat(hid).target)
@@ -33,7 +39,8 @@ def _observe(hid, true_params, k, seed, outlier_mrad=0.0):
     sun = SUNS[rng.choice(len(SUNS), k, replace=False)]
     held = model.repeat(k).strokes_for_aim(sun, aim)  # what an uncalibrated controller commands
     assert held.in_range.all()
-    origin, direction = plant.repeat(k).beam(held.strokes_mm, sun)
+    approach = np.where(np.random.default_rng(seed + 1000).random((k, 2)) < 0.5, -1.0, 1.0) if approached else None
+    origin, direction = plant.repeat(k).beam(held.strokes_mm, sun, approach)
     _, hit, valid = optics.intersect_target(origin, direction, target)
     assert valid.all()
     dist = np.linalg.norm(hit - model.pivots_enu[0], axis=1)
@@ -41,19 +48,21 @@ def _observe(hid, true_params, k, seed, outlier_mrad=0.0):
     if outlier_mrad:
         noise_m[0] += outlier_mrad * 1e-3 * dist[0] * np.array([0.6, 0.8])
     spot = hit + noise_m @ target.frame_enu[:2]
-    return model, plant, held.strokes_mm, sun, spot, aim, target
+    return model, plant, held.strokes_mm, sun, spot, aim, target, approach
 
 
 @pytest.mark.parametrize("hid", ["H0001", "H0017", "H0033"])
 @pytest.mark.parametrize("kind", ["beam", "normal"])
 def test_fit_recovers_injected_parameters_within_3_sigma(hid, kind):
-    model, plant, strokes, sun, spot, aim, _ = _observe(hid, PATTERN, 24, seed=int(hid[1:]))
-    res = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD, residual_kind=kind)
+    model, plant, strokes, sun, spot, aim, _, approach = _observe_approached(hid, PATTERN, 24, seed=int(hid[1:]),
+                                                                             approached=True)
+    res = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD, residual_kind=kind, approach=approach)
     assert res.success
+    assert res.free == em.NAMES  # with approaches, the dead bands are fitted too
     z = (res.params - PATTERN) / res.sigma
     assert np.all(np.abs(z) <= 3.0), dict(zip(em.NAMES, np.round(z, 2)))
     # the data pin down the main parameters far better than the prior
-    for name in ("stroke_offset_2_mm", "canting_1_mrad", "pedestal_tilt_n_mrad"):
+    for name in ("stroke_offset_2_mm", "canting_1_mrad", "pedestal_tilt_n_mrad", "backlash_1_mm", "backlash_2_mm"):
         assert name in res.identifiability.determined
         assert res.sigma[em.index(name)] < 0.5 * em.PRIOR_SIGMA[em.index(name)]
     # residuals are at the noise level (beam kind: two components of NOISE_MRAD each)
@@ -79,7 +88,9 @@ def test_calibrated_model_predicts_strokes_for_other_sun_positions():
 def test_robust_loss_resists_an_outlier():
     model, plant, strokes, sun, spot, aim, _ = _observe("H0005", PATTERN, 16, seed=11, outlier_mrad=25.0)
     res = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD)
-    z = (res.params - PATTERN) / res.sigma
+    assert res.free == em.GEOMETRIC  # without approaches the dead bands are not fitted (nor seen)
+    free = [em.index(n) for n in res.free]
+    z = (res.params[free] - PATTERN[free]) / res.sigma[free]
     assert np.all(np.abs(z) <= 3.0)
     assert res.residual_mrad[0] > 50 * NOISE_MRAD  # the outlier stands out
     assert np.median(res.residual_mrad[1:]) < 3 * NOISE_MRAD

@@ -132,6 +132,42 @@ def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_
         assert agree < 0.9
 
 
+class _PlantApproachSpy:
+    """A camera that notes, at every frame, the plant's own record of each holding heliostat's last
+    actuator motions (``SimulatedPlant.approach``), by frame time."""
+
+    def __init__(self, inner, sim, target):
+        self.inner, self.sim, self.seen = inner, sim, {}
+
+    def grab(self):
+        frame = self.inner.grab()
+        for i in np.flatnonzero(self.sim.state == HeliostatState.HOLDING):
+            self.seen[(round(frame.capture_time_s, 3), int(i))] = tuple(int(x) for x in self.sim.approach[i])
+        return frame
+
+
+def test_each_observation_records_the_approach_the_plant_made(cfg, tmp_path):
+    """The recorded approach of every valid observation is the direction in which the plant last
+    moved each actuator before the after frame (the plant's side), also when the campaign does not
+    arrive in the tracking direction (``approach_mm: 0``), and the fits then see the dead bands."""
+    cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"approach_mm": 0.0})})
+    ids = ["H0001", "H0012", "H0025", "H0038"]
+    runner, sim, store, cid, spies = _campaign(cfg, tmp_path, 8, 5, ids, camera=_PlantApproachSpy)
+    runner.run_until(sim.t_s + 2 * 3600)
+    obs = [o for o in store.observations(campaign_id=cid) if o.valid]
+    fits = {h: store.latest_fit(h, campaign_id=cid) for h in ids}
+    store.close()
+    seen = {k: v for spy in spies.values() for k, v in spy.seen.items()}
+    checked = 0
+    for o in obs:
+        plant_side = seen[(round(o.capture_time_s, 3), cfg.heliostat_index(o.heliostat_id))]
+        assert o.approach == plant_side, (o.heliostat_id, o.iteration)
+        checked += 1
+    assert checked >= 8
+    assert len({o.approach for o in obs}) >= 2  # not one constant direction
+    assert all("backlash_1_mm" in f.params for f in fits.values() if f is not None)
+
+
 class _TimeSpy:
     def __init__(self, inner):
         self.inner, self.times = inner, []

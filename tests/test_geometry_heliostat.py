@@ -116,11 +116,41 @@ def test_every_parameter_moves_the_beam():
     strokes = np.tile([900.0, 1200.0], (len(MODEL), 1))
     sun = np.array([0.0, -0.5, 0.866])
     o0, d0 = MODEL.beam(strokes, sun)
+    approach = np.tile([1.0, -1.0], (len(MODEL), 1))
     for i, p in enumerate(em.PARAMETERS):
         params = em.zeros(len(MODEL))
         params[:, i] = p.prior_sigma
-        o, d = MODEL.with_params(params).beam(strokes, sun)
+        o, d = MODEL.with_params(params).beam(strokes, sun, approach)
         assert np.max(np.linalg.norm(o - o0, axis=1) + np.linalg.norm(d - d0, axis=1)) > 1e-5, p.name
+        if p.name in em.BACKLASH:  # a dead band acts only through the approach direction
+            o, d = MODEL.with_params(params).beam(strokes, sun)
+            assert np.max(np.linalg.norm(o - o0, axis=1) + np.linalg.norm(d - d0, axis=1)) == 0.0, p.name
+
+
+def test_backlash_parameters_match_the_simulated_plant_and_invert_exactly():
+    """The model's dead bands put the mirror where the simulator's backlash does (half the band
+    against the approach), and strokes_for_aim with an approach lands the beam on the aim."""
+    from helicalib.sim.scenario import Scenario
+    from helicalib.sim.truth import TrueField
+
+    truth = TrueField(CFG, Scenario(), 0.0, zero=True)
+    band = np.tile([0.6, 0.35], (len(MODEL), 1))
+    truth.backlash_mm = band
+    params = em.zeros(len(MODEL))
+    params[:, em.index("backlash_1_mm")], params[:, em.index("backlash_2_mm")] = band[:, 0], band[:, 1]
+    model = MODEL.with_params(params)
+    strokes = np.tile([900.0, 1200.0], (len(MODEL), 1))
+    sun = np.array([0.3, -0.5, 0.81])
+    for approach in ([1.0, 1.0], [-1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]):
+        a = np.tile(approach, (len(MODEL), 1))
+        true = truth.beam(strokes, sun, 0.0, approach=a, jitter=False)
+        np.testing.assert_allclose(model.normal(strokes, a), true.normal_enu, atol=1e-12)
+        aim = np.asarray(CFG.targets[0].center_enu_m, dtype=float)
+        sol = model.strokes_for_aim(sun, aim, a)
+        np.testing.assert_allclose(sol.strokes_mm - MODEL.strokes_for_aim(sun, aim).strokes_mm, 0.5 * band * a,
+                                   atol=1e-9)
+        origin, direction = model.beam(sol.strokes_mm, sun, a)
+        assert np.max(optics.angle_between_rad(direction, optics.unit(aim - origin))) < 1e-9
 
 
 def test_error_model_names_and_dicts():

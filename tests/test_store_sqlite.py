@@ -29,7 +29,7 @@ def _obs(cid, vid, i=0, *, valid=True, hid="H0001", t=1_750_000_000.0, error=1.2
         offset_u_m=0.12 if valid else None, offset_v_m=-0.3 if valid else None,
         spot_x_px=640.5 if valid else None, spot_y_px=500.25 if valid else None, spot_area_px=1500.0 if valid else None,
         threshold=37.0, jitter_px=0.4 if valid else None, spot_enu_m=(0.12, 9.0, 119.7) if valid else None,
-        error_mrad=error if valid else None,
+        error_mrad=error if valid else None, approach=(1, -1),
     )
 
 
@@ -67,6 +67,32 @@ def test_newer_schema_and_foreign_database_are_refused(tmp_path):
         Store.open(foreign)
 
 
+def test_version_1_database_is_migrated_in_place_and_keeps_its_rows(tmp_path):
+    """A database of schema version 1 (no approach columns) opens, gains the columns, keeps every
+    row (approach unknown: None) and takes new observations with their approach."""
+    path = tmp_path / "v1.db"
+    s = Store.open(path)
+    cid = s.start_campaign(name="old", mode="simulate", started_s=1.0, heliostats=[("H0001", 0, "T1")])
+    vid = s.begin_visit(cid, "H0001", "T1", 1_750_000_000.0)
+    s.record_observation(_obs(cid, vid))
+    s.close()
+    conn = sqlite3.connect(path)  # make it what helicalib's schema version 1 wrote
+    conn.execute("ALTER TABLE observations DROP COLUMN approach_1")
+    conn.execute("ALTER TABLE observations DROP COLUMN approach_2")
+    conn.execute("UPDATE schema_version SET version = 1")
+    conn.commit()
+    conn.close()
+    s = Store.open(path)
+    old = s.observations()
+    assert len(old) == 1 and old[0].approach is None and old[0].strokes_read_mm == pytest.approx((812.4, 640.3))
+    s.record_observation(_obs(cid, vid, 1))
+    assert [o.approach for o in s.observations()] == [None, (1, -1)]
+    s.close()
+    conn = sqlite3.connect(path)
+    assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == SCHEMA_VERSION == 2
+    conn.close()
+
+
 def test_observation_round_trip_with_frames(store):
     cid = store.start_campaign(name="demo", mode="simulate", started_s=1.0, heliostats=[("H0001", 0, "T1")],
                                settings={"seed": 1})
@@ -80,7 +106,7 @@ def test_observation_round_trip_with_frames(store):
     assert back.id == oid
     # every field given comes back unchanged
     for name in ("heliostat_id", "target_id", "visit_id", "iteration", "capture_time_s", "strokes_cmd_mm",
-                 "strokes_read_mm", "sun_enu", "sun_rising", "wind_ms", "dni_wm2", "cleanliness", "valid",
+                 "strokes_read_mm", "approach", "sun_enu", "sun_rising", "wind_ms", "dni_wm2", "cleanliness", "valid",
                  "offset_u_m", "spot_enu_m", "error_mrad", "threshold", "jitter_px"):
         expected = getattr(obs, name)
         if isinstance(expected, (str, bool)) or expected is None:

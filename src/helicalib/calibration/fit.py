@@ -140,9 +140,10 @@ def _basis(d: np.ndarray) -> np.ndarray:
 class _Problem:
     """Vectorised residuals for many parameter sets at once."""
 
-    def __init__(self, model, strokes, sun, spot, kind):
+    def __init__(self, model, strokes, sun, spot, kind, approach=None):
         self.model, self.kind = model, kind
         self.strokes = np.asarray(strokes, dtype=float).reshape(-1, 2)
+        self.approach = None if approach is None else np.sign(np.asarray(approach, dtype=float)).reshape(-1, 2)
         self.sun = optics.unit(np.asarray(sun, dtype=float).reshape(-1, 3))
         self.spot = np.asarray(spot, dtype=float).reshape(-1, 3)
         self.k = len(self.strokes)
@@ -165,6 +166,8 @@ class _Problem:
         rows = np.repeat(np.arange(m), self.k)
         eff, piv = eff.take(rows), piv[rows]
         strokes = np.tile(self.strokes, (m, 1))
+        if self.approach is not None:  # backlash: half the dead band against each actuator's approach
+            strokes = strokes + em.backlash_shift_mm(param_sets[rows], np.tile(self.approach, (m, 1)))
         sun = np.tile(self.sun, (m, 1))
         spot = np.tile(self.spot, (m, 1))
         n = angles_to_normal(eff, strokes_to_angles(eff, strokes))
@@ -182,7 +185,8 @@ class _Problem:
 def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mapping[str, float] | None = None,
                     free: Sequence[str] | None = None, loss: str = "soft_l1", f_scale_mrad: float = 1.0,
                     sigma_mrad: float = 0.3, residual_kind: str = "beam", candidate_sun_enu: np.ndarray | None = None,
-                    aim_enu: np.ndarray | None = None, n_suggestions: int = 3) -> FitResult:
+                    aim_enu: np.ndarray | None = None, n_suggestions: int = 3,
+                    approach: np.ndarray | None = None) -> FitResult:
     """Fit the error model of one heliostat to its observations.
 
     Parameters
@@ -192,21 +196,32 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     sun_enu : (K, 3) unit sun vectors at the captures
     spot_enu : (K, 3) observed spot centres [m, ENU]
     prior_sigma : overrides of the default prior σ by name (units of each parameter)
-    free : names to fit (default all); the others stay at ``model.params``
+    free : names to fit (default all; without ``approach`` all but the backlash parameters, which
+        the data then cannot see); the others stay at ``model.params``
     loss, f_scale_mrad : robust loss of ``least_squares`` and its scale [mrad]
     sigma_mrad : measurement noise of one beam-angle component [mrad]
     residual_kind : "beam" or "normal"
     candidate_sun_enu : (C, 3) sun positions to rank in the identifiability report (default: a sky grid,
         elevation 10–80°); ``aim_enu`` (3,) the aim point for them (default: mean observed spot)
+    approach : (K, 2), optional
+        Direction of each actuator's last motion before each observation (±1; 0 = unknown): lets
+        the fit see the backlash parameters. A dead band is determined only where the data hold
+        both directions of an actuator; otherwise its prior keeps it near 0 and the stroke offset
+        takes the one-sided shift.
     """
     if len(model) != 1:
         raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
-    free_names = tuple(em.NAMES) if free is None else tuple(free)
+    if approach is not None and not np.any(np.asarray(approach, dtype=float)):
+        approach = None
+    if free is None:
+        free_names = tuple(em.NAMES) if approach is not None else em.GEOMETRIC
+    else:
+        free_names = tuple(free)
     free_idx = np.array([em.index(n) for n in free_names], dtype=int)
     sig_prior = em.prior_sigma(prior_sigma)[free_idx]
     base = model.params[0].copy()
     sigma_eff = sigma_mrad / 2.0 if residual_kind == "normal" else sigma_mrad
-    prob = _Problem(model, strokes_mm, sun_enu, spot_enu, residual_kind)
+    prob = _Problem(model, strokes_mm, sun_enu, spot_enu, residual_kind, approach)
     f = len(free_idx)
 
     def params_of(xs: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ from helicalib.devices.protocols import Camera, Plant
 from helicalib.devices.registers import HeliostatState
 from helicalib.errors import HelicalibError, MeasurementError, PlantError
 from helicalib.flux.visit import cleanliness_from_visit
+from helicalib.geometry import errors as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import strokes_in_range
 from helicalib.geometry.heliostat import HeliostatModel
@@ -99,6 +100,9 @@ class VisitContext:
     last_strokes_mm: np.ndarray | None = None
     held_mm: np.ndarray | None = None
     """Read-back strokes of the last hold [mm] (None before the first)."""
+    approach: np.ndarray | None = None
+    """Direction (2,) of each actuator's last motion (±1; 0 not known) after the last hold: where
+    the backlash left the mirror. Recorded with each observation for the error model's dead bands."""
     before_path: str | None = None
 
 
@@ -134,6 +138,7 @@ def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray) -> Generator[float,
                            f"{ctx.heliostat_id}: strokes {np.round(strokes_mm, 1).tolist()} mm lie outside the drive's range; not sent")
     ctx.last_strokes_mm = np.asarray(strokes_mm, dtype=float)
     seq = ctx.plant.move_to(ctx.index, np.asarray(strokes_mm, dtype=float))
+    ctx.approach = _approach_after(ctx.approach, ctx.held_mm, ctx.last_strokes_mm)
     waited = 0.0
     while True:
         st = ctx.plant.status(ctx.index)
@@ -148,6 +153,21 @@ def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray) -> Generator[float,
             raise VisitAborted("settle_timeout", f"{ctx.heliostat_id}: not holding after {waited:.0f} s")
         yield POLL_S
         waited += POLL_S
+
+
+APPROACH_MIN_MM = 0.01
+"""A move shorter than this leaves the actuator's approach direction as it was."""
+
+
+def _approach_after(before: np.ndarray | None, held_mm: np.ndarray | None, target_mm: np.ndarray) -> np.ndarray:
+    """Each actuator's last-motion direction after moving from ``held_mm`` to ``target_mm``: the
+    move's sign where it moves, ``before`` where it stays (0 where that is not known either, e.g.
+    the first move of a visit, whose start the controller did not hold)."""
+    prev = np.zeros(2) if before is None else np.asarray(before, dtype=float)
+    if held_mm is None:
+        return np.zeros(2)
+    move = np.asarray(target_mm, dtype=float) - np.asarray(held_mm, dtype=float)
+    return np.where(np.abs(move) >= APPROACH_MIN_MM, np.sign(move), prev)
 
 
 def tracking_direction(model: HeliostatModel, sun, aim_enu: np.ndarray, t_s: float) -> np.ndarray:
@@ -186,12 +206,19 @@ def approach_and_hold(ctx: VisitContext, strokes_mm: np.ndarray, aim_enu: np.nda
     return (yield from move_and_hold(ctx, strokes))
 
 
-def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float) -> np.ndarray:
+def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float, on_board: bool = True) -> np.ndarray:
+    """The model's strokes for ``aim_enu`` at ``t_s``; on the board, for the tracking-direction
+    arrival of :func:`approach_and_hold` (the model's dead bands)."""
     sun_vec = ctx.sun(t_s)[0]
-    sol = ctx.model.strokes_for_aim(sun_vec, aim_enu)
+    approach = tracking_direction(ctx.model, ctx.sun, aim_enu, t_s) if on_board and _has_backlash(ctx.model) else None
+    sol = ctx.model.strokes_for_aim(sun_vec, aim_enu, approach)
     if not bool(sol.in_range[0]):
         raise VisitAborted("aim_out_of_range", f"{ctx.heliostat_id}: the strokes for this aim point lie outside the drive's range now")
     return sol.strokes_mm[0]
+
+
+def _has_backlash(model: HeliostatModel) -> bool:
+    return bool(np.any(model.params[:, [em.index(n) for n in em.BACKLASH]]))
 
 
 def _grab(ctx: VisitContext):
@@ -206,7 +233,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     centre = np.asarray(target.center_enu_m, dtype=float)
     standby = target.uvw_to_enu(np.asarray(target.standby_uvw_m))
     try:
-        yield from move_and_hold(ctx, _aim_strokes(ctx, standby, ctx.now()))
+        yield from move_and_hold(ctx, _aim_strokes(ctx, standby, ctx.now(), on_board=False))
         before_frame, before = _grab(ctx)
         if ctx.save_frame is not None:
             ctx.before_path = ctx.save_frame(before_frame.data, campaign_id=ctx.campaign_id,
@@ -293,6 +320,7 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
         visit_id=ctx.visit_id, iteration=iteration, capture_time_s=float(capture_s),
         strokes_cmd_mm=tuple(float(x) for x in strokes_cmd),
         strokes_read_mm=None if strokes_read is None else tuple(float(x) for x in strokes_read),
+        approach=None if ctx.approach is None else tuple(int(x) for x in ctx.approach),
         sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az), sun_elevation_deg=float(el),
         sun_rising=bool(rising), before_frame_path=ctx.before_path,
         wind_ms=getattr(weather, "wind_ms", None), wind_direction_deg=getattr(weather, "wind_direction_deg", None),
@@ -319,7 +347,7 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
                      spot_enu_m=tuple(float(x) for x in spot_enu))
     if spot.valid:
         held = np.asarray([strokes_read if strokes_read is not None else strokes_cmd], dtype=float)
-        predicted_uv = ctx.model.spot_on_target(held, sun_vec, ctx.target)[0]
+        predicted_uv = ctx.model.spot_on_target(held, sun_vec, ctx.target, ctx.approach)[0]
         predicted = ctx.target.uvw_to_enu(predicted_uv)
         err = float(optics.tracking_error_mrad(np.asarray(extra["spot_enu_m"]), predicted,
                                                ctx.model.pivots_enu[0]))

@@ -255,7 +255,8 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel):
         return current, None
     strokes, sun, spot = _arrays(points)
     start = current if np.all(np.isfinite(current.params)) else nominal
-    fit = fit_error_model(nominal.with_params(start.params), strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0)
+    fit = fit_error_model(nominal.with_params(start.params), strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0,
+                          approach=_approaches(points))
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return nominal.with_params(fit.params[None, :]), fit
@@ -268,8 +269,13 @@ def _arrays(points):
     return strokes, sun, spot
 
 
+def _approaches(points) -> np.ndarray:
+    """Each point's approach directions (K, 2) (0 where not recorded, e.g. an older database)."""
+    return np.array([p.approach if getattr(p, "approach", None) is not None else (0, 0) for p in points], dtype=float)
+
+
 def fit_record(fit) -> dict:
-    return dict(model="geometric-v1", params=em.as_dict(fit.params), sigma=em.as_dict(fit.sigma),
+    return dict(model="geometric-backlash-v2", params=em.as_dict(fit.params), sigma=em.as_dict(fit.sigma),
                 rms_mrad=float(fit.rms_mrad), n_points=int(len(fit.residual_mrad)))
 
 
@@ -316,7 +322,7 @@ def prediction_error_mrad(model: HeliostatModel, obs, target) -> float:
     """How far ``model`` puts the beam from where ``obs`` saw it [mrad]: T/GRLM formula (1) between
     the observed spot and the model's spot on the same board plane, as the visit loop measures it."""
     strokes, sun, spot = _arrays([obs])
-    predicted = target.uvw_to_enu(model.spot_on_target(strokes, sun[0], target)[0])
+    predicted = target.uvw_to_enu(model.spot_on_target(strokes, sun[0], target, _approaches([obs]))[0])
     return float(optics.tracking_error_mrad(spot[0], predicted, model.pivots_enu[0]))
 
 
@@ -346,13 +352,17 @@ TRACKING_REFRESH_S = 900.0
 """Plant seconds between rewrites of the tracking corrections of calibrated heliostats."""
 
 
-def tracking_corrections(cfg, nominal: HeliostatModel, calibrated: HeliostatModel, sun_enu) -> np.ndarray:
+def tracking_corrections(cfg, nominal: HeliostatModel, calibrated: HeliostatModel, sun_enu,
+                         sun_later_enu=None) -> np.ndarray:
     """Stroke corrections [mm] that make the plant's nominal tracking follow the calibrated models.
 
     The plant tracks the receiver with its nominal model plus one constant offset per actuator
     (PLANT_INTERFACE). The offset that makes it point like the calibrated model is the stroke
     difference for the receiver aim at the sun ``sun_enu`` (3,); it drifts slowly with the sun, so
     the runner rewrites it every :data:`TRACKING_REFRESH_S` for the sun half a period ahead.
+    With ``sun_later_enu`` (the sun a few minutes after ``sun_enu``), the calibrated strokes
+    include the models' dead bands for each actuator's tracking direction (the sign of the
+    nominal strokes' change between the two suns), as the plant's tracking moves it.
 
     Returns
     -------
@@ -361,8 +371,12 @@ def tracking_corrections(cfg, nominal: HeliostatModel, calibrated: HeliostatMode
         write nothing for those heliostats.
     """
     aim = np.asarray(cfg.tower.receiver_aim_enu_m, dtype=float)
-    cal = calibrated.strokes_for_aim(sun_enu, aim)
     nom = nominal.strokes_for_aim(sun_enu, aim)
+    approach = None
+    if sun_later_enu is not None:
+        d = np.sign(nominal.strokes_for_aim(sun_later_enu, aim).strokes_mm - nom.strokes_mm)
+        approach = np.where(np.isfinite(d) & (d != 0), d, 1.0)
+    cal = calibrated.strokes_for_aim(sun_enu, aim, approach)
     corr = cal.strokes_mm - nom.strokes_mm
     d = nominal.drives
     tracked = nom.strokes_mm + corr

@@ -21,7 +21,14 @@ import numpy as np
 
 from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import policy
-from helicalib.campaign.controller import VisitContext, VisitOutcome, VisitSettings, leave_board, run_visit
+from helicalib.campaign.controller import (
+    APPROACH_LEAD_S,
+    VisitContext,
+    VisitOutcome,
+    VisitSettings,
+    leave_board,
+    run_visit,
+)
 from helicalib.devices.registers import FieldCommand
 from helicalib.errors import HelicalibError, PlantError
 from helicalib.geometry.heliostat import HeliostatModel
@@ -372,7 +379,8 @@ class CampaignRunner:
         if self.recheck or not self.book.points(hid):
             return self.corrections[hid]  # a re-check, or no fitted model yet: the plant keeps what it has
         sun_ahead = self.sun(now + policy.TRACKING_REFRESH_S / 2)[0]
-        corr = policy.tracking_corrections(self.cfg, self.nominal_of(hid), model, sun_ahead)[0]
+        sun_later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
+        corr = policy.tracking_corrections(self.cfg, self.nominal_of(hid), model, sun_ahead, sun_later)[0]
         if not np.all(np.isfinite(corr)):
             return self.corrections[hid]
         self.corrections[hid] = corr
@@ -398,7 +406,8 @@ class CampaignRunner:
             return
         rows = [self.ids.index(hid) for hid in ids]
         calibrated = self.nominal.subset(rows).with_params(np.vstack([self.models[h].params for h in ids]))
-        corr = policy.tracking_corrections(self.cfg, self.nominal.subset(rows), calibrated, vec)
+        later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
+        corr = policy.tracking_corrections(self.cfg, self.nominal.subset(rows), calibrated, vec, later)
         for hid, c in zip(ids, corr):
             if not np.all(np.isfinite(c)):
                 continue

@@ -22,6 +22,12 @@ How each parameter acts (a1, a2, n0 = nominal axis 1, axis 2 in the zero pose, z
   azimuth-elevation drive (a1 = down) the yaw equals an azimuth offset. ``pedestal_yaw_mrad`` is the
   thirteenth parameter, added because a tilt-roll pedestal's orientation error is a yaw.
 * ``pivot_de_m`` / ``pivot_dn_m`` / ``pivot_du_m``: the true pivot is the nominal one plus this.
+* ``backlash_1_mm`` / ``backlash_2_mm``: each actuator's dead band. The mirror sits where the
+  strokes ``s − backlash/2 · approach`` would put it, ``approach`` = ±1 the direction of the
+  actuator's last motion. These two act on the strokes, not on the drive, so :func:`apply` leaves
+  them out: :class:`~helicalib.geometry.heliostat.HeliostatModel` applies them to commanded strokes
+  when it is told the approach (:data:`BACKLASH`, :func:`backlash_shift_mm`). Without an approach
+  (``None`` or 0) they act as the middle of the dead band, i.e. not at all.
 """
 
 from __future__ import annotations
@@ -58,11 +64,17 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("arm_scale_1", "1", "relative error of actuator 1's moving arm", 0.001),
     Parameter("arm_scale_2", "1", "relative error of actuator 2's moving arm", 0.001),
     Parameter("pedestal_yaw_mrad", "mrad", "pedestal rotation about up", 2.0),
+    Parameter("backlash_1_mm", "mm", "dead band of actuator 1 (the mirror lags the encoder by half of it)", 0.5),
+    Parameter("backlash_2_mm", "mm", "dead band of actuator 2", 0.5),
 )
 NAMES: tuple[str, ...] = tuple(p.name for p in PARAMETERS)
 P = len(PARAMETERS)
 _INDEX = {name: i for i, name in enumerate(NAMES)}
 PRIOR_SIGMA = np.array([p.prior_sigma for p in PARAMETERS], dtype=float)
+BACKLASH: tuple[str, str] = ("backlash_1_mm", "backlash_2_mm")
+"""The parameters that act on the strokes through the approach direction, not on the drive."""
+GEOMETRIC: tuple[str, ...] = tuple(n for n in NAMES if n not in BACKLASH)
+"""The parameters :func:`apply` uses: every one but :data:`BACKLASH`."""
 
 EAST = np.array([1.0, 0.0, 0.0])
 NORTH = np.array([0.0, 1.0, 0.0])
@@ -104,6 +116,16 @@ def prior_sigma(overrides: Mapping[str, float] | None = None) -> np.ndarray:
     for name, v in (overrides or {}).items():
         sig[index(name)] = float(v)
     return sig
+
+
+def backlash_shift_mm(params: np.ndarray, approach: np.ndarray | None) -> np.ndarray | float:
+    """Stroke shift (N, 2) [mm] from commanded to effective strokes for ``approach`` (N, 2) or (2,)
+    of ±1 (0 = unknown, no shift): ``−backlash/2 · approach``; 0.0 when ``approach`` is None."""
+    if approach is None:
+        return 0.0
+    params = np.asarray(params, dtype=float).reshape(-1, P)
+    b = params[:, [_INDEX[BACKLASH[0]], _INDEX[BACKLASH[1]]]]
+    return -0.5 * b * np.sign(np.asarray(approach, dtype=float))
 
 
 def _col(params: np.ndarray, name: str) -> np.ndarray:

@@ -115,29 +115,38 @@ class HeliostatModel:
     def mirror_offset_m(self) -> np.ndarray:
         return self.drives.mirror_offset_m
 
-    def angles(self, strokes_mm: np.ndarray) -> np.ndarray:
-        """Effective axis angles (N, 2) [rad] for commanded strokes (N, 2) [mm]; NaN if impossible."""
-        return strokes_to_angles(self.drives_eff, strokes_mm)
+    def effective_strokes(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None) -> np.ndarray:
+        """Strokes (N, 2) [mm] at which the mirror sits for commanded strokes (N, 2) after each
+        actuator last moved in ``approach`` (N, 2) or (2,) of ±1: the backlash parameters shift
+        them by half the dead band against the approach. ``approach`` None: no shift."""
+        return np.asarray(strokes_mm, dtype=float) + em.backlash_shift_mm(self.params, approach)
 
-    def normal(self, strokes_mm: np.ndarray) -> np.ndarray:
+    def angles(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None) -> np.ndarray:
+        """Effective axis angles (N, 2) [rad] for commanded strokes (N, 2) [mm]; NaN if impossible.
+        ``approach``: the last motion of each actuator (±1), for the backlash parameters."""
+        return strokes_to_angles(self.drives_eff, self.effective_strokes(strokes_mm, approach))
+
+    def normal(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None) -> np.ndarray:
         """Mirror normal (N, 3), ENU, for commanded strokes (N, 2) [mm], errors applied."""
-        return angles_to_normal(self.drives_eff, self.angles(strokes_mm))
+        return angles_to_normal(self.drives_eff, self.angles(strokes_mm, approach))
 
-    def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, approach: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
         """Reflected beam for strokes (N, 2) [mm] and sun (3,) or (N, 3).
 
         Returns ``(origin_enu (N, 3), direction_enu (N, 3))``: the mirror centre and unit direction.
         """
-        n = self.normal(strokes_mm)
+        n = self.normal(strokes_mm, approach)
         s = optics.unit(_rows(sun_enu, len(self), 3))
         return optics.mirror_centre(self.pivots_eff_enu, n, self.mirror_offset_m), optics.reflect(s, n)
 
-    def spot_on_target(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, target) -> np.ndarray:
+    def spot_on_target(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, target,
+                       approach: np.ndarray | None = None) -> np.ndarray:
         """Beam centre on the target plane(s), target frame (u, v), shape (N, 2) [m]; NaN if missed.
 
         ``target`` is one ``config.Target`` or a sequence of N of them (one per heliostat).
         """
-        origin, direction = self.beam(strokes_mm, sun_enu)
+        origin, direction = self.beam(strokes_mm, sun_enu, approach)
         if isinstance(target, Sequence) and not isinstance(target, str):
             uv = np.full((len(self), 2), np.nan)
             for t in {id(t): t for t in target}.values():
@@ -147,20 +156,25 @@ class HeliostatModel:
         return optics.intersect_target(origin, direction, target)[0]
 
     # -- inverse ------------------------------------------------------------------------
-    def normal_to_strokes(self, normal_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Normal (N, 3) → (strokes_mm (N, 2), angles_rad (N, 2), reachable (N,)), errors applied."""
+    def normal_to_strokes(self, normal_enu: np.ndarray, approach: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Normal (N, 3) → (strokes_mm (N, 2), angles_rad (N, 2), reachable (N,)), errors applied:
+        the strokes to command, arriving in ``approach`` (±1 per actuator; None: no backlash)."""
         angles, reachable = normal_to_angles(self.drives_eff, normal_enu)
-        strokes = angles_to_strokes(self.drives_eff, angles)
+        strokes = angles_to_strokes(self.drives_eff, angles) - em.backlash_shift_mm(self.params, approach)
         reachable = reachable & np.all(np.isfinite(strokes), axis=-1)
         return strokes, angles, reachable
 
-    def strokes_for_aim(self, sun_enu: np.ndarray, aim_enu: np.ndarray) -> AimSolution:
-        """Strokes that put the beam on ``aim_enu`` ((3,) or (N, 3) [m]) for the sun (3,) or (N, 3)."""
+    def strokes_for_aim(self, sun_enu: np.ndarray, aim_enu: np.ndarray, approach: np.ndarray | None = None
+                        ) -> AimSolution:
+        """Strokes that put the beam on ``aim_enu`` ((3,) or (N, 3) [m]) for the sun (3,) or (N, 3),
+        with each actuator arriving in ``approach`` ((N, 2) or (2,) of ±1; None: the backlash
+        parameters are left out, as for the middle of the dead band)."""
         n_rows = len(self)
         s = optics.unit(_rows(sun_enu, n_rows, 3))
         t = _rows(aim_enu, n_rows, 3)
         normal = optics.aim_normal(self.pivots_eff_enu, s, t, self.mirror_offset_m)
-        strokes, angles, reachable = self.normal_to_strokes(normal)
+        strokes, angles, reachable = self.normal_to_strokes(normal, approach)
         in_range = reachable & np.all(strokes_in_range(self.drives, strokes), axis=-1)
         return AimSolution(strokes_mm=strokes, angles_rad=angles, normal_enu=normal, in_range=in_range,
                            reachable=reachable)

@@ -123,6 +123,9 @@ REALDATA_PRIOR_SIGMA: dict[str, float] = {
     # arm lengths: manufacturing tolerance 0.1 %
     "arm_scale_1": 0.001,
     "arm_scale_2": 0.001,
+    # dead bands: an observations CSV records no approach direction, so the data cannot see them (fixed)
+    "backlash_1_mm": 0.0,
+    "backlash_2_mm": 0.0,
 }
 """Priors used for the real (PAINT) records, chosen before looking at the leave-one-out figures from
 the physics of the heliostat (see ``docs/realdata.md``): wide on the angle offsets and pedestal

@@ -5,7 +5,8 @@ strokes that should put each heliostat on its aim point; the simulator's *true* 
 (hidden errors, gravity sag, drift at the evaluation time, and backlash as it sits while tracking:
 each actuator's last motion in the direction the model's strokes move a few minutes later; no
 repeatability or wind jitter, which a model cannot predict) then show where those strokes really
-send the beam. ``backlash="none"`` leaves backlash out (the pure geometry).
+send the beam. A model with backlash parameters commands its strokes for that approach.
+``backlash="none"`` leaves backlash out (the pure geometry) of the truth and of the model.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from helicalib.geometry import errors as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
@@ -107,6 +109,8 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
         if sun_later is not None:
             d = np.sign(model.strokes_for_aim(sun_later[k], aim_enu).strokes_mm - sol.strokes_mm)
             approach = np.where(np.isfinite(d) & (d != 0), d, 1.0)
+            if np.any(model.params[:, [em.index(n) for n in em.BACKLASH]]):  # the model's own dead band
+                sol = model.strokes_for_aim(sun, aim_enu, approach)
         beam = truth.beam(np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), sun, t_eval, approach=approach,
                           jitter=False)
         _, hit, _ = truth.spots(beam, targets)

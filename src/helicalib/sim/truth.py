@@ -74,6 +74,8 @@ class TrueField:
             sigma = np.array([scenario.errors.get(name, 0.0) for name in em.NAMES], dtype=float)
         z = noise.normal(self.seed, _S_PARAMS, idx[:, None], np.arange(em.P)[None, :])
         scale = 0.0 if zero else 1.0
+        # the truth's backlash is its own effect below (backlash_mm, with the plant's real approach)
+        sigma[[em.index(name) for name in em.BACKLASH]] = 0.0
         self.params0 = scale * z * sigma
         self.backlash_mm = scale * u.backlash_mm * np.abs(noise.normal(self.seed, _S_BACKLASH, idx[:, None], np.arange(2)))
         self.sag_mrad = scale * np.maximum(0.0, u.gravity_sag_mrad + u.gravity_sag_spread_mrad

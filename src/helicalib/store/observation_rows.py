@@ -15,7 +15,7 @@ from helicalib.store.records import Observation
 
 OBSERVATION_COLUMNS: tuple[str, ...] = (
     "id", "campaign_id", "heliostat_id", "target_id", "visit_id", "iteration", "capture_time_s",
-    "stroke_cmd_1_mm", "stroke_cmd_2_mm", "stroke_read_1_mm", "stroke_read_2_mm",
+    "stroke_cmd_1_mm", "stroke_cmd_2_mm", "stroke_read_1_mm", "stroke_read_2_mm", "approach_1", "approach_2",
     "sun_e", "sun_n", "sun_u", "sun_azimuth_deg", "sun_elevation_deg", "sun_rising",
     "wind_ms", "wind_direction_deg", "dni_wm2", "temperature_c", "cleanliness", "cleanliness_measured",
     "valid", "reason", "message", "offset_u_m", "offset_v_m",
@@ -48,6 +48,8 @@ def observation_to_row(obs: Observation, before_path: str | None, after_paths: t
         "stroke_cmd_2_mm": _f(obs.strokes_cmd_mm[1]),
         "stroke_read_1_mm": None if read is None else _f(read[0]),
         "stroke_read_2_mm": None if read is None else _f(read[1]),
+        "approach_1": None if obs.approach is None else int(obs.approach[0]),
+        "approach_2": None if obs.approach is None else int(obs.approach[1]),
         "sun_e": float(obs.sun_enu[0]),
         "sun_n": float(obs.sun_enu[1]),
         "sun_u": float(obs.sun_enu[2]),
@@ -88,6 +90,7 @@ def observation_from_row(r: sqlite3.Row) -> Observation:
         visit_id=r["visit_id"], iteration=r["iteration"], capture_time_s=r["capture_time_s"],
         strokes_cmd_mm=tuple(float("nan") if x is None else x for x in (r["stroke_cmd_1_mm"], r["stroke_cmd_2_mm"])),
         strokes_read_mm=read,
+        approach=None if r["approach_1"] is None else (int(r["approach_1"]), int(r["approach_2"])),
         sun_enu=(r["sun_e"], r["sun_n"], r["sun_u"]), sun_azimuth_deg=r["sun_azimuth_deg"],
         sun_elevation_deg=r["sun_elevation_deg"],
         sun_rising=None if r["sun_rising"] is None else bool(r["sun_rising"]),

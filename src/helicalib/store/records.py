@@ -91,6 +91,9 @@ class Observation:
         time and to ``strokes_read_mm``.
     strokes_cmd_mm, strokes_read_mm : (float, float), (float, float) or None
         Strokes commanded and read back (actuator 1, 2) [mm].
+    approach : (int, int) or None
+        Direction of each actuator's last motion before this hold (+1 extending, −1 retracting, 0
+        not known): where the backlash left the mirror. None when not recorded.
     sun_enu : (float, float, float)
         Unit sun vector at ``capture_time_s``, ENU.
     sun_azimuth_deg, sun_elevation_deg : float
@@ -156,6 +159,7 @@ class Observation:
     error_mrad: float | None = None
     before_frame_path: str | None = None
     after_frame_paths: tuple[str, ...] = ()
+    approach: tuple[int, int] | None = None
     id: int | None = None
 
     @property

@@ -1,8 +1,10 @@
-"""The SQLite schema of a campaign database (version 1) and its creation.
+"""The SQLite schema of a campaign database (version 2) and its creation.
 
 One file holds every campaign run against it. Times are plant time in UTC seconds (REAL);
 vectors are stored one column per component; JSON columns hold dictionaries and lists.
-The ``schema_version`` table holds one row; a database of a newer version is refused.
+The ``schema_version`` table holds one row; a database of a newer version is refused, one of an
+older version is brought up to date in place (:data:`MIGRATIONS`: version 2 added each
+observation's approach directions, ``approach_1`` / ``approach_2``, NULL in older rows).
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ import sqlite3
 
 from helicalib.errors import ConfigError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 DDL = """
 CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL);
@@ -63,6 +65,8 @@ CREATE TABLE IF NOT EXISTS observations (
     stroke_cmd_2_mm REAL,
     stroke_read_1_mm REAL,
     stroke_read_2_mm REAL,
+    approach_1 INTEGER,              -- direction of actuator 1's last motion before the hold (+1/-1), NULL if unknown
+    approach_2 INTEGER,
     sun_e REAL NOT NULL,
     sun_n REAL NOT NULL,
     sun_u REAL NOT NULL,
@@ -133,12 +137,20 @@ CREATE INDEX IF NOT EXISTS events_by_campaign ON events (campaign_id, time_s);
 """
 
 
+MIGRATIONS: dict[int, tuple[str, ...]] = {
+    2: ("ALTER TABLE observations ADD COLUMN approach_1 INTEGER",
+        "ALTER TABLE observations ADD COLUMN approach_2 INTEGER"),
+}
+"""Statements that take a database from the version before the key to the key's version."""
+
+
 def ensure_schema(conn: sqlite3.Connection, where: str) -> int:
     """Create the tables of an empty database or check the version of an existing one.
 
     Returns the schema version. Raises :class:`ConfigError` for a database written by a newer
     helicalib (its version is higher than :data:`SCHEMA_VERSION`) or a file that is not a
-    helicalib database (tables present but no version).
+    helicalib database (tables present but no version). An older version is migrated in place, in
+    one transaction.
     """
     tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
     if tables and "schema_version" not in tables:
@@ -152,6 +164,13 @@ def ensure_schema(conn: sqlite3.Connection, where: str) -> int:
             )
         if version == SCHEMA_VERSION:
             return version
+        if version >= 1:
+            with conn:
+                for v in range(version + 1, SCHEMA_VERSION + 1):
+                    for stmt in MIGRATIONS[v]:
+                        conn.execute(stmt)
+                conn.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
+            return SCHEMA_VERSION
     with conn:
         conn.executescript(DDL)
         conn.execute("DELETE FROM schema_version")
