@@ -58,6 +58,15 @@ def test_aim_with_params_file_moves_strokes(capsys, demo_field_path, tmp_path):
     moved = json.loads(_run(capsys, "aim", str(demo_field_path), "--heliostat", "H0003", "--time",
                             "2026-03-20T13:00:00+08:00", "--params", str(p), "--json")[1])
     np.testing.assert_allclose(np.subtract(moved["strokes_mm"], base["strokes_mm"]), [-2.5, 0.0], atol=1e-9)
+    # dead bands: half of each band toward the arrival direction; without --approach, none
+    p.write_text(json.dumps({"backlash_1_mm": 0.6, "backlash_2_mm": 0.4}))
+    args = ("aim", str(demo_field_path), "--heliostat", "H0003", "--time", "2026-03-20T13:00:00+08:00",
+            "--params", str(p), "--json")
+    middle = json.loads(_run(capsys, *args)[1])
+    arrived = json.loads(_run(capsys, *args, "--approach", "1", "-1")[1])
+    np.testing.assert_allclose(middle["strokes_mm"], base["strokes_mm"], atol=1e-9)
+    np.testing.assert_allclose(np.subtract(arrived["strokes_mm"], base["strokes_mm"]), [0.3, -0.2], atol=1e-9)
+    assert arrived["approach"] == [1, -1]
     p.write_text(json.dumps({"bogus": 1}))
     code, _, err = _run(capsys, "aim", str(demo_field_path), "--heliostat", "H0003", "--time",
                         "2026-03-20T13:00:00+08:00", "--params", str(p))

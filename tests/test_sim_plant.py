@@ -88,6 +88,8 @@ def test_scenario_errors_name_the_key():
         parse_scenario({"weather": {"wind": {"bogus": 1}}})
     with pytest.raises(ConfigError, match="unknown error-model parameter"):
         parse_scenario({"errors": {"tilt": 1.0}})
+    with pytest.raises(ConfigError, match=r"backlash_1_mm.*unmodelled\.backlash_mm"):
+        parse_scenario({"errors": {"backlash_1_mm": 0.3}})
 
 
 def test_soiling_falls_then_jumps_back_at_cleaning():

@@ -18,11 +18,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="aim point on the target in the target frame [m] (default: the centre)")
     p.add_argument("--params", default=None,
                    help="JSON file {name: value} of error-model parameters (default: the nominal heliostat)")
+    p.add_argument("--approach", type=int, nargs=2, metavar=("A1", "A2"), choices=(-1, 1), default=None,
+                   help="each actuator's arrival direction (+1 extending, -1 retracting) for the dead bands "
+                        "(backlash_1_mm, backlash_2_mm) of --params; default: the middle of the dead bands")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
 
-def aim(cfg, heliostat_id: str, target_id: str | None, time, uv_m=(0.0, 0.0), params: dict | None = None) -> dict:
+def aim(cfg, heliostat_id: str, target_id: str | None, time, uv_m=(0.0, 0.0), params: dict | None = None,
+        approach=None) -> dict:
     """Plain-data aim solution for one heliostat (see ``run``)."""
     import numpy as np
 
@@ -37,7 +41,8 @@ def aim(cfg, heliostat_id: str, target_id: str | None, time, uv_m=(0.0, 0.0), pa
     row = em.from_dict(params or {})
     model = HeliostatModel.from_config(cfg, [heliostat_id], params=row[None, :])
     aim_enu = target.uvw_to_enu(np.asarray(uv_m, dtype=float))
-    sol = model.strokes_for_aim(np.asarray(sun.vector_enu, dtype=float), aim_enu)
+    sol = model.strokes_for_aim(np.asarray(sun.vector_enu, dtype=float), aim_enu,
+                                None if approach is None else np.asarray(approach, dtype=float))
 
     def num(x):
         return None if not np.isfinite(x) else float(x)
@@ -55,6 +60,7 @@ def aim(cfg, heliostat_id: str, target_id: str | None, time, uv_m=(0.0, 0.0), pa
         "in_range": bool(sol.in_range[0]), "reachable": bool(sol.reachable[0]),
         "sun_up": bool(float(sun.elevation_deg) > 0.0),
         "params": {k: v for k, v in em.as_dict(row).items() if v != 0.0},
+        "approach": None if approach is None else [int(a) for a in approach],
     }
 
 
@@ -71,11 +77,11 @@ def run(args) -> int:
             params = json.loads(Path(args.params).read_text())
             if not isinstance(params, dict):
                 raise ValueError("expected a JSON object {name: value}")
-            out = aim(cfg, args.heliostat, args.target, args.time, args.uv, params)
+            out = aim(cfg, args.heliostat, args.target, args.time, args.uv, params, args.approach)
         except (OSError, ValueError, KeyError) as err:
             raise ConfigError(f"--params {args.params}: {err}") from None
     else:
-        out = aim(cfg, args.heliostat, args.target, args.time, args.uv)
+        out = aim(cfg, args.heliostat, args.target, args.time, args.uv, approach=args.approach)
     if args.json:
         print(json.dumps(out))
         return 0

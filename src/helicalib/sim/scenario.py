@@ -150,8 +150,10 @@ class Scenario(_Model):
         from helicalib.geometry import errors as em
 
         for name, sigma in value.items():
-            if name not in em.NAMES:
-                raise ValueError(f"unknown error-model parameter {name!r}; known: {', '.join(em.NAMES)}")
+            if name in em.BACKLASH:
+                raise ValueError(f"{name}: the simulated backlash is unmodelled.backlash_mm, not an error parameter")
+            if name not in em.GEOMETRIC:
+                raise ValueError(f"unknown error-model parameter {name!r}; known: {', '.join(em.GEOMETRIC)}")
             if not sigma >= 0:
                 raise ValueError(f"{name}: standard deviation must be >= 0")
         return value
