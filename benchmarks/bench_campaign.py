@@ -200,6 +200,8 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
         "true_sky_rms_mrad": s["true_sky_rms_mrad"], "true_sky_p95_mrad": s["true_sky_p95_mrad"],
         "true_sky_rms_no_backlash_mrad": s["true_sky_rms_no_backlash_mrad"],
         "true_sky_rms_accepted_mrad": s.get("true_sky_rms_accepted_mrad"),
+        "true_sky_rms_formula1_mrad": s.get("true_sky_rms_formula1_mrad"),
+        "true_sky_rms_formula1_accepted_mrad": s.get("true_sky_rms_formula1_accepted_mrad"),
         "true_tracking_rms_mrad": s["true_tracking_rms_mrad"],
         "gated_hours": s["gated_hours"], "stowed_hours": s["stowed_hours"], "outcomes": s["outcomes"],
         "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
@@ -262,7 +264,10 @@ def table(results: dict, ratios: dict) -> str:
             ("mean iterations", "mean_iterations"), ("first-shot RMS [mrad]", "first_shot_rms_mrad"),
             ("true sky RMS [mrad]", "true_sky_rms_mrad"), ("true sky p95 [mrad]", "true_sky_p95_mrad"),
             ("  without backlash", "true_sky_rms_no_backlash_mrad"),
-            ("  accepted heliostats", "true_sky_rms_accepted_mrad"), ("plant tracking [mrad]", "true_tracking_rms_mrad"),
+            ("  accepted heliostats", "true_sky_rms_accepted_mrad"),
+            ("  formula (1), all", "true_sky_rms_formula1_mrad"),
+            ("  formula (1), accepted", "true_sky_rms_formula1_accepted_mrad"),
+            ("plant tracking [mrad]", "true_tracking_rms_mrad"),
             ("gated / stowed [h]", None), ("wall / CPU [s]", None), ("CPU per visit [s]", "cpu_s_per_visit")]
     names = list(results)
     w = max([16] + [len(n) + 2 for n in names])
@@ -300,7 +305,10 @@ def goals(results: dict, ratios: dict) -> dict:
         g = results[name]
         out.update({
             f"{name}: acceptance_rate >= 0.95": g["acceptance_rate"] >= GOALS["acceptance_rate"],
-            f"{name}: true_sky_rms_mrad <= 0.8": g["true_sky_rms_mrad"] <= GOALS["true_sky_rms_mrad"],
+            # judged on the heliostats the campaign accepted (released); all of them alongside
+            f"{name}: true_sky_rms_accepted_mrad <= 0.8": (None if g.get("true_sky_rms_accepted_mrad") is None else
+                                                           g["true_sky_rms_accepted_mrad"] <= GOALS["true_sky_rms_mrad"]),
+            f"{name}: true_sky_rms_mrad (all heliostats) <= 0.8": g["true_sky_rms_mrad"] <= GOALS["true_sky_rms_mrad"],
             # a lower bound below 2 decides nothing: round robin did not get there within --days
             f"{name}: speed_ratio >= 2": None if ratio["ratio"] is None or (ratio["lower_bound"] and
                                                                              ratio["ratio"] < GOALS["speed_ratio"])

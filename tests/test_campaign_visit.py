@@ -239,20 +239,33 @@ def test_sun_table_agrees_with_spa(cfg):
     assert ang.max() * 1000 < 0.005  # SPA's own uncertainty is ±0.0003° = 0.005 mrad
 
 
-def test_prediction_error_is_formula_1_on_the_board(cfg):
+def test_prediction_error_is_the_angle_at_the_pivot(cfg):
+    """The acceptance's error is the angle at the pivot between the observed and the predicted
+    spot, not formula (1)'s board distance / slant distance, which grows on a board seen obliquely."""
     from helicalib.store.records import Observation
 
     model = HeliostatModel.from_config(cfg, ["H0012"])
     target = cfg.target(cfg.heliostat("H0012").target)
+    pivot = np.asarray(cfg.heliostat("H0012").position_enu_m, dtype=float)
     sun = sun_at_site(cfg.site, default_start_s(cfg) + 11 * 3600).vector_enu
     strokes = model.strokes_for_aim(sun, np.asarray(target.center_enu_m)).strokes_mm
-    seen = target.uvw_to_enu(np.array([0.30, -0.40]))  # 0.5 m from where the model puts the beam
+    predicted = target.uvw_to_enu(model.spot_on_target(strokes, sun, target)[0])
+    # 0.5 m away on the board, in the board's direction most along the line of sight
+    w = target.frame_enu[2]
+    sight = (pivot - predicted) / np.linalg.norm(pivot - predicted)
+    along = sight - np.dot(sight, w) * w
+    seen = predicted + 0.5 * along / np.linalg.norm(along)
     obs = Observation(campaign_id=1, heliostat_id="H0012", target_id=target.id, visit_id=1, iteration=0,
                       capture_time_s=0.0, strokes_cmd_mm=tuple(strokes[0]), strokes_read_mm=None, sun_enu=tuple(sun),
                       sun_azimuth_deg=0.0, sun_elevation_deg=40.0, valid=True, spot_enu_m=tuple(seen))
-    slant = np.linalg.norm(np.asarray(target.center_enu_m) - np.asarray(cfg.heliostat("H0012").position_enu_m))
-    assert policy.prediction_error_mrad(model, obs, target) == pytest.approx(1000 * 0.5 / slant, rel=1e-6)
-
+    a, b = seen - pivot, predicted - pivot  # the angle by the law of cosines, independently of optics
+    expected = 1000 * np.arccos(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b))
+    assert policy.prediction_error_mrad(model, obs, target) == pytest.approx(expected, rel=1e-4)
+    # formula (1) says more, by 1/cos of the angle between the board's normal and the line of sight
+    obliquity = 1.0 / abs(float(np.dot(sight, w)))
+    slant = np.linalg.norm(np.asarray(target.center_enu_m) - pivot)
+    assert obliquity > 1.05
+    assert 1000 * 0.5 / slant == pytest.approx(expected * obliquity, rel=0.02)
 
 def test_resume_while_stowed_keeps_the_field_stowed_until_calm(cfg, tmp_path):
     import time as _time

@@ -319,11 +319,16 @@ def loo_errors_mrad(cfg, nominal: HeliostatModel, points: list, visit_points: li
 
 
 def prediction_error_mrad(model: HeliostatModel, obs, target) -> float:
-    """How far ``model`` puts the beam from where ``obs`` saw it [mrad]: T/GRLM formula (1) between
-    the observed spot and the model's spot on the same board plane, as the visit loop measures it."""
+    """How far ``model`` puts the beam from where ``obs`` saw it [mrad]: the angle at the pivot
+    between the observed spot and the model's spot on the same board plane.
+
+    Not T/GRLM formula (1) (distance on the board / slant distance), which the visit loop records:
+    on a board seen obliquely, formula (1) grows by up to 1/cos(incidence) along the oblique
+    direction (2.9× at 70°), so heliostats that see their board at a grazing angle would fail
+    acceptance for the board's obliquity, not their pointing (docs/running.md)."""
     strokes, sun, spot = _arrays([obs])
     predicted = target.uvw_to_enu(model.spot_on_target(strokes, sun[0], target, _approaches([obs]))[0])
-    return float(optics.tracking_error_mrad(spot[0], predicted, model.pivots_enu[0]))
+    return float(optics.tracking_error_exact_mrad(spot[0], predicted, model.pivots_enu[0]))
 
 
 def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s: float,

@@ -154,9 +154,15 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
             flat = errs[np.isfinite(errs)]
             ok = ev.errors_mrad[accepted_rows]
             ok = ok[np.isfinite(ok)]
+            f1 = ev.errors_formula1_mrad[rows]
+            f1 = f1[np.isfinite(f1)]
+            f1_ok = ev.errors_formula1_mrad[accepted_rows]
+            f1_ok = f1_ok[np.isfinite(f1_ok)]
         return {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
                 "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan"),
-                "accepted_rms_mrad": float(np.sqrt(np.mean(ok**2))) if ok.size else None}
+                "accepted_rms_mrad": float(np.sqrt(np.mean(ok**2))) if ok.size else None,
+                "formula1_rms_mrad": float(np.sqrt(np.mean(f1**2))) if f1.size else float("nan"),
+                "formula1_accepted_rms_mrad": float(np.sqrt(np.mean(f1_ok**2))) if f1_ok.size else None}
 
     sky, geometry = sky_of("tracking"), sky_of("none")
     day0 = max(start_s, end_s - 86400.0)
@@ -179,6 +185,9 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "true_sky_rms_no_backlash_mrad": round(float(geometry["rms_mrad"]), 3),
         "true_sky_rms_accepted_mrad": (None if sky["accepted_rms_mrad"] is None
                                        else round(sky["accepted_rms_mrad"], 3)),
+        "true_sky_rms_formula1_mrad": round(float(sky["formula1_rms_mrad"]), 3),
+        "true_sky_rms_formula1_accepted_mrad": (None if sky["formula1_accepted_rms_mrad"] is None
+                                                else round(sky["formula1_accepted_rms_mrad"], 3)),
         "true_tracking_rms_mrad": round(tracking["rms_mrad"], 3),
         "true_tracking_p95_mrad": round(tracking["p95_mrad"], 3),
         "true_tracking_uncorrected_rms_mrad": round(untracked["rms_mrad"], 3),

@@ -1,11 +1,13 @@
-"""Judge a calibrated model honestly: its true tracking error over a year of sun positions.
+"""Judge a calibrated model honestly: its true pointing error over a year of sun positions.
 
 For every sun position of the year above ``min_elevation_deg`` the *calibrated* model computes the
 strokes that should put each heliostat on its aim point; the simulator's *true* heliostats
 (hidden errors, gravity sag, drift at the evaluation time, and backlash as it sits while tracking:
 each actuator's last motion in the direction the model's strokes move a few minutes later; no
 repeatability or wind jitter, which a model cannot predict) then show where those strokes really
-send the beam. A model with backlash parameters commands its strokes for that approach.
+send the beam; the error is the angle between that beam and the direction to the aim point (T/GRLM
+formula (1) on the board plane is kept alongside: on a board seen obliquely it overstates the
+miss). A model with backlash parameters commands its strokes for that approach.
 ``backlash="none"`` leaves backlash out (the pure geometry) of the truth and of the model.
 """
 
@@ -30,10 +32,15 @@ class SkyEvaluation:
 
     Attributes
     ----------
-    errors_mrad : (N, T) true tracking error per heliostat and sun position [mrad]; NaN where the
-        model's strokes are out of range or the beam misses the target plane
+    errors_mrad : (N, T) true pointing error per heliostat and sun position [mrad]: the angle
+        between the true beam and the direction from the true mirror centre to the aim point; NaN
+        where the model's strokes are out of range or the beam misses the target plane
     rms_mrad, p95_mrad : (N,) per heliostat over its valid sun positions [mrad]
     field_rms_mrad, field_p95_mrad : float, over all heliostats and sun positions [mrad]
+    errors_formula1_mrad : (N, T) the same misses by T/GRLM formula (1) on the board plane (distance
+        on the board / slant distance): larger by up to 1/cos(incidence) along the board's oblique
+        direction, e.g. 2.9× at 70° from the board's normal
+    field_formula1_rms_mrad : float, RMS of ``errors_formula1_mrad``
     times_s : (T,) the sun instants [UTC s]
     out_of_range_fraction : (N,) share of sun positions whose strokes the drive cannot reach
     """
@@ -45,6 +52,8 @@ class SkyEvaluation:
     field_p95_mrad: float
     times_s: np.ndarray
     out_of_range_fraction: np.ndarray
+    errors_formula1_mrad: np.ndarray | None = None
+    field_formula1_rms_mrad: float = float("nan")
 
 
 def year_sun_times(site, year: int = 2026, step_days: float = 7.0, step_min: float = 30.0,
@@ -97,6 +106,7 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
         aim_enu = np.array([t.center_enu_m for t in targets], dtype=float)
     t_eval = truth.start_s if t_eval_s is None else float(t_eval_s)
     errors = np.full((truth.n, len(sun_enu)), np.nan)
+    errors_f1 = np.full((truth.n, len(sun_enu)), np.nan)
     outside = np.zeros(truth.n)
     sun_later = None
     if backlash == "tracking":
@@ -114,16 +124,22 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
         beam = truth.beam(np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), sun, t_eval, approach=approach,
                           jitter=False)
         _, hit, _ = truth.spots(beam, targets)
-        err = optics.tracking_error_mrad(hit, aim_enu, truth.nominal.pivots_enu)
+        angle = 1000.0 * optics.angle_between_rad(beam.direction_enu, aim_enu - beam.origin_enu)
+        err = np.where(np.all(np.isfinite(hit), axis=-1), angle, np.nan)
         errors[:, k] = np.where(sol.in_range, err, np.nan)
+        errors_f1[:, k] = np.where(sol.in_range, optics.tracking_error_mrad(hit, aim_enu, truth.nominal.pivots_enu),
+                                   np.nan)
         outside += ~sol.in_range
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(errors**2, axis=1))
         p95 = np.nanpercentile(errors, 95, axis=1)
     flat = errors[np.isfinite(errors)]
+    flat_f1 = errors_f1[np.isfinite(errors_f1)]
     return SkyEvaluation(
         errors_mrad=errors, rms_mrad=rms, p95_mrad=p95,
         field_rms_mrad=float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
         field_p95_mrad=float(np.percentile(flat, 95)) if flat.size else float("nan"),
         times_s=times_s, out_of_range_fraction=outside / max(len(sun_enu), 1),
+        errors_formula1_mrad=errors_f1,
+        field_formula1_rms_mrad=float(np.sqrt(np.mean(flat_f1**2))) if flat_f1.size else float("nan"),
     )
