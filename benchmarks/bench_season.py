@@ -53,6 +53,7 @@ WORLDS = ("ideal", "real", *WITHOUT)
 def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng) -> tuple:
     """Strokes (K, 2), suns (K, 3), spots (K, 3) of heliostat ``i``: the nominal model's strokes for
     each aim, the true beam's spot on that aim's board."""
+    from helicalib.geometry.heliostat import tracking_approach
     from helicalib.geometry.sun import sun_at_site
 
     suns = np.asarray(sun_at_site(cfg.site, times).vector_enu).reshape(-1, 3)
@@ -65,8 +66,7 @@ def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng)
         every = np.tile(s, (truth.n, 1))
         approach = None
         if world.startswith("real"):  # the campaign approaches each actuator in its tracking direction
-            d = np.sign(nominal.strokes_for_aim(later[k], aim).strokes_mm[0] - s)
-            approach = np.tile(np.where(np.isfinite(d) & (d != 0), d, 1.0), (truth.n, 1))
+            approach = np.tile(tracking_approach(s, nominal.strokes_for_aim(later[k], aim).strokes_mm[0]), (truth.n, 1))
         beam = truth.beam(every, sun, float(times[k]), approach=approach, jitter=False,
                           stroke_noise_mm=(truth.repeat_noise_mm(np.full(truth.n, k)) if world.startswith("real")
                                            else None))

@@ -34,7 +34,7 @@ from helicalib.flux.visit import cleanliness_from_visit
 from helicalib.geometry import errors as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import strokes_in_range
-from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
 from helicalib.store.records import Observation
 from helicalib.vision.frames import decode_frame
 from helicalib.vision.marks import find_marks
@@ -176,8 +176,7 @@ def tracking_direction(model: HeliostatModel, sun, aim_enu: np.ndarray, t_s: flo
     unknown). ``sun(t_s)`` returns the sun vector first."""
     s0 = model.strokes_for_aim(sun(t_s)[0], aim_enu).strokes_mm[0]
     s1 = model.strokes_for_aim(sun(t_s + APPROACH_LEAD_S)[0], aim_enu).strokes_mm[0]
-    d = np.sign(s1 - s0)
-    return np.where(np.isfinite(d) & (d != 0), d, 1.0)
+    return tracking_approach(s0, s1)
 
 
 def approach_and_hold(ctx: VisitContext, strokes_mm: np.ndarray, aim_enu: np.ndarray

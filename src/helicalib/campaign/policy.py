@@ -26,7 +26,7 @@ from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import planner as planner_mod
 from helicalib.geometry import errors as em
 from helicalib.geometry import optics
-from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
 
 FIELD_CURSOR = "*"
 """``Book.cursor`` key of the heliostat that last went on any board (field-wide round robin)."""
@@ -377,10 +377,8 @@ def tracking_corrections(cfg, nominal: HeliostatModel, calibrated: HeliostatMode
     """
     aim = np.asarray(cfg.tower.receiver_aim_enu_m, dtype=float)
     nom = nominal.strokes_for_aim(sun_enu, aim)
-    approach = None
-    if sun_later_enu is not None:
-        d = np.sign(nominal.strokes_for_aim(sun_later_enu, aim).strokes_mm - nom.strokes_mm)
-        approach = np.where(np.isfinite(d) & (d != 0), d, 1.0)
+    approach = (None if sun_later_enu is None
+                else tracking_approach(nom.strokes_mm, nominal.strokes_for_aim(sun_later_enu, aim).strokes_mm))
     cal = calibrated.strokes_for_aim(sun_enu, aim, approach)
     corr = cal.strokes_mm - nom.strokes_mm
     d = nominal.drives

@@ -222,6 +222,7 @@ def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s
     """
     from helicalib.campaign.policy import TRACKING_REFRESH_S, tracking_corrections
     from helicalib.geometry import optics
+    from helicalib.geometry.heliostat import tracking_approach
     from helicalib.sim.evaluate import TRACKING_LEAD_S
 
     nominal = truth.nominal
@@ -239,8 +240,8 @@ def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s
         if not np.all(nom.in_range[rows]):
             continue
         # backlash as it sits while tracking: each actuator last moved the way its strokes go next
-        d = np.sign(nominal.strokes_for_aim(sun_table.vector_enu(t + TRACKING_LEAD_S), aim).strokes_mm - nom.strokes_mm)
-        approach = np.where(np.isfinite(d) & (d != 0), d, 1.0)
+        approach = tracking_approach(nom.strokes_mm,
+                                     nominal.strokes_for_aim(sun_table.vector_enu(t + TRACKING_LEAD_S), aim).strokes_mm)
         beam = truth.beam(np.where(nom.in_range[:, None], nom.strokes_mm + corr, 0.0), sun, t, approach=approach,
                           jitter=False)
         want = optics.unit(aim - beam.origin_enu)

@@ -180,6 +180,13 @@ class HeliostatModel:
                            reachable=reachable)
 
 
+def tracking_approach(strokes_now_mm: np.ndarray, strokes_later_mm: np.ndarray) -> np.ndarray:
+    """Direction (±1) in which each actuator moves between two stroke sets of a tracking heliostat
+    (the approach its backlash sits in while tracking); +1 where it stands still or is unknown."""
+    d = np.sign(np.asarray(strokes_later_mm, dtype=float) - np.asarray(strokes_now_mm, dtype=float))
+    return np.where(np.isfinite(d) & (d != 0), d, 1.0)
+
+
 def stroke_sweep(model: HeliostatModel, sun_enu: np.ndarray, aim_enu: np.ndarray) -> dict[str, np.ndarray]:
     """Strokes each heliostat needs for its aim at many sun positions, and their margins.
 

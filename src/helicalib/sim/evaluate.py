@@ -19,7 +19,7 @@ import numpy as np
 
 from helicalib.geometry import errors as em
 from helicalib.geometry import optics
-from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
 
 TRACKING_LEAD_S = 300.0
@@ -113,13 +113,13 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
         if len(times_s) != len(sun_enu):
             raise ValueError("backlash='tracking' needs the times of the sun positions (times_s)")
         sun_later = np.asarray(sun_at_site(truth.cfg.site, times_s + TRACKING_LEAD_S).vector_enu, float).reshape(-1, 3)
+    dead_bands = bool(np.any(model.params[:, [em.index(n) for n in em.BACKLASH]]))
     for k, sun in enumerate(sun_enu):
         sol = model.strokes_for_aim(sun, aim_enu)
         approach = None
         if sun_later is not None:
-            d = np.sign(model.strokes_for_aim(sun_later[k], aim_enu).strokes_mm - sol.strokes_mm)
-            approach = np.where(np.isfinite(d) & (d != 0), d, 1.0)
-            if np.any(model.params[:, [em.index(n) for n in em.BACKLASH]]):  # the model's own dead band
+            approach = tracking_approach(sol.strokes_mm, model.strokes_for_aim(sun_later[k], aim_enu).strokes_mm)
+            if dead_bands:  # the model's own dead bands, for that arrival
                 sol = model.strokes_for_aim(sun, aim_enu, approach)
         beam = truth.beam(np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), sun, t_eval, approach=approach,
                           jitter=False)
