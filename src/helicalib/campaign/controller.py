@@ -31,7 +31,6 @@ from helicalib.devices.protocols import Camera, Plant
 from helicalib.devices.registers import HeliostatState
 from helicalib.errors import HelicalibError, MeasurementError, PlantError
 from helicalib.flux.visit import cleanliness_from_visit
-from helicalib.geometry import errors as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import strokes_in_range
 from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
@@ -209,15 +208,11 @@ def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float, on_board: b
     """The model's strokes for ``aim_enu`` at ``t_s``; on the board, for the tracking-direction
     arrival of :func:`approach_and_hold` (the model's dead bands)."""
     sun_vec = ctx.sun(t_s)[0]
-    approach = tracking_direction(ctx.model, ctx.sun, aim_enu, t_s) if on_board and _has_backlash(ctx.model) else None
+    approach = tracking_direction(ctx.model, ctx.sun, aim_enu, t_s) if on_board and ctx.model.has_dead_bands else None
     sol = ctx.model.strokes_for_aim(sun_vec, aim_enu, approach)
     if not bool(sol.in_range[0]):
         raise VisitAborted("aim_out_of_range", f"{ctx.heliostat_id}: the strokes for this aim point lie outside the drive's range now")
     return sol.strokes_mm[0]
-
-
-def _has_backlash(model: HeliostatModel) -> bool:
-    return bool(np.any(model.params[:, [em.index(n) for n in em.BACKLASH]]))
 
 
 def _grab(ctx: VisitContext):

@@ -112,6 +112,11 @@ class HeliostatModel:
 
     # -- forward ------------------------------------------------------------------------
     @property
+    def has_dead_bands(self) -> bool:
+        """Whether any heliostat has a non-zero backlash parameter (then ``approach`` matters)."""
+        return bool(np.any(self.params[:, [em.index(n) for n in em.BACKLASH]]))
+
+    @property
     def mirror_offset_m(self) -> np.ndarray:
         return self.drives.mirror_offset_m
 

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from helicalib.geometry import errors as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
@@ -113,7 +112,7 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
         if len(times_s) != len(sun_enu):
             raise ValueError("backlash='tracking' needs the times of the sun positions (times_s)")
         sun_later = np.asarray(sun_at_site(truth.cfg.site, times_s + TRACKING_LEAD_S).vector_enu, float).reshape(-1, 3)
-    dead_bands = bool(np.any(model.params[:, [em.index(n) for n in em.BACKLASH]]))
+    dead_bands = model.has_dead_bands
     for k, sun in enumerate(sun_enu):
         sol = model.strokes_for_aim(sun, aim_enu)
         approach = None
