@@ -134,11 +134,20 @@ class Links(HTMLParser):
     def __init__(self):
         super().__init__()
         self.links: list[str] = []
+        self.ids: set[str] = set()
 
     def handle_starttag(self, tag, attrs):
         for k, v in attrs:
             if k in ("href", "src") and v:
                 self.links.append(v)
+            if k == "id" and v:
+                self.ids.add(v)
+
+
+def page_ids(page: Path) -> set[str]:
+    parser = Links()
+    parser.feed(page.read_text(encoding="utf-8"))
+    return parser.ids
 
 
 def check_links(index: Path) -> int:
@@ -153,7 +162,10 @@ def check_links(index: Path) -> int:
         parser.feed(page.read_text(encoding="utf-8"))
         for link in parser.links:
             assert not re.match(r"^[a-z]+://", link), f"{page.name}: external resource {link}"
-            target = (page.parent / link).resolve()
+            link, _, anchor = link.partition("#")
+            target = (page.parent / link).resolve() if link else page
+            if anchor:
+                assert anchor in page_ids(target), f"{page.name}: no id {anchor!r} in {target.name}"
             assert target.is_file(), f"{page.name}: broken link {link}"
             if target.suffix == ".png":
                 img = cv2.imread(str(target))
@@ -274,13 +286,17 @@ def test_sheet_has_fit_verdict_corrections_and_frames(built):
     assert "2 valid points, 5 needed" in page and "not accepted" in page
 
 
-def test_partly_failed_banner(built):
+def test_banner_lists_what_to_act_on(built):
     _db, index, rep = built
     st = rep["status"]
-    assert st["partly_failed"] and not st["empty"] and st["level"] == "partly_failed"
-    text = " ".join(st["messages"])
-    assert "fault" in text and "stowed" in text and "no_spot" in text
-    assert "Partly failed campaign" in index.read_text()
+    assert st["partly_failed"] and not st["empty"] and st["level"] == "action"
+    actions, info = " ".join(st["actions"]), " ".join(st["information"])
+    assert "fault" in actions and "H0003" in actions  # the fault event names its heliostat
+    assert "not accepted" in actions and "H0002" in actions and "no verdict" in actions and "H0021" in actions
+    assert "stowed" in info and "no_spot" in info  # information, not an action
+    assert st["messages"] == st["actions"] + st["information"]
+    page = index.read_text()
+    assert 'class="banner action"' in page and "To act on" in page
 
 
 def test_empty_campaign_says_so(tmp_path):

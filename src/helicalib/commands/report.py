@@ -17,6 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
     p.add_argument("--no-frames", action="store_true", help="do not draw each heliostat's latest frames (faster)")
     p.add_argument("--jobs", type=int, default=None, help="processes drawing the heliostat sheets (default: CPUs, max 4)")
+    p.add_argument("--timezone", default=None, help="the site's clock shown beside UTC: an IANA zone (Asia/Shanghai) or "
+                   "an offset (+08:00); default: local mean solar time from the site's longitude")
     p.add_argument("--json", action="store_true", help="print report.json's summary and status on stdout")
     p.set_defaults(func=run)
 
@@ -29,7 +31,7 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     index = build_report(args.database, args.out, args.campaign, field_config=args.field, images_dir=args.images,
-                         frames=not args.no_frames, jobs=args.jobs)
+                         frames=not args.no_frames, jobs=args.jobs, timezone=args.timezone)
     rep = json.loads((index.parent / "report.json").read_text())
     if args.json:
         print(json.dumps({"index": str(index), "status": rep["status"], "summary": rep["summary"],
@@ -38,6 +40,9 @@ def run(args) -> int:
     s = rep["summary"]
     print(f"{index}  ({s['heliostats']} heliostats, {s['accepted']} accepted, {s['visits']} visits; "
           f"built in {time.perf_counter() - t0:.1f} s)")
-    for m in rep["status"]["messages"]:
+    st = rep["status"]
+    for m in st.get("actions", st["messages"]):
         print(f"  ! {m}")
+    for m in st.get("information", []):
+        print(f"  - {m}")
     return 0

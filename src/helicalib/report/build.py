@@ -22,8 +22,10 @@ from pathlib import Path
 from helicalib.report import figures as F
 from helicalib.report import html, plots
 from helicalib.report.data import CampaignData, load_campaign
-from helicalib.report.grlm import tracking_test
+from helicalib.report.grlm import spec_of, tracking_test
+from helicalib.report.measures import glossary
 from helicalib.report.sheets import acceptance_spans, heliostat_sheet
+from helicalib.report.sitetime import SiteTime, site_time
 
 
 def _campaign_info(data: CampaignData) -> dict | None:
@@ -50,19 +52,29 @@ def _file_names(ids: list[str]) -> dict[str, str]:
     return out
 
 
-def compute(data: CampaignData) -> dict:
+def limits(data: CampaignData) -> dict:
+    """The limits the glossary names: the field config's, else the paper's values."""
+    cfg = data.cfg
+    return {"max_rms_mrad": float(cfg.acceptance.max_rms_mrad) if cfg is not None else F.DEFAULT_MAX_RMS_MRAD,
+            "min_points": int(cfg.acceptance.min_points) if cfg is not None else 5,
+            "loop_threshold_mrad": F.loop_threshold_mrad(data),
+            "grlm_threshold_mrad": float(spec_of(cfg)["threshold_mrad"])}
+
+
+def compute(data: CampaignData, site: SiteTime | None = None) -> dict:
     """Every campaign-level figure of the report (no per-heliostat sheet), as one JSON-ready dict."""
     from helicalib import __version__
 
     visits = F.visit_table(data)
     summ = F.summary(data, visits)
+    site = site if site is not None else site_time(data.cfg)
     return {
         "schema": "helicalib-report/1",
         "helicalib": __version__,
         "generated_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
         "database": str(data.db_path),
         "campaign": _campaign_info(data),
-        "status": F.banner(data, summ),
+        "status": F.banner(data, summ, visits),
         "summary": summ,
         "field_map": F.field_map(data),
         "progress": F.progress(data, visits),
@@ -71,11 +83,14 @@ def compute(data: CampaignData) -> dict:
         "acceptance": acceptance_spans(data),
         "washing": F.washing(data),
         "events": F.events_log(data),
+        "glossary": glossary(limits(data)),
+        "limits": limits(data),
+        "time_zone": site.to_json(),
     }
 
 
 def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_config=None, images_dir=None,
-                 frames: bool = True, jobs: int | None = None) -> Path:
+                 frames: bool = True, jobs: int | None = None, timezone: str | None = None) -> Path:
     """Write the report of one campaign (default: the newest) into ``out_dir``; returns ``index.html``.
 
     Parameters
@@ -94,31 +109,36 @@ def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_conf
         Draw each heliostat's latest before/after frames (the slowest part on big fields).
     jobs : int, optional
         Processes drawing the heliostat sheets (default: the CPU count, at most 4; 1 = serial).
+    timezone : str, optional
+        The site's clock shown beside UTC: an IANA zone name or an offset such as ``+08:00``
+        (default: the field config's, else local mean solar time from the site's longitude).
     """
     t_start = time.perf_counter()
     out = Path(out_dir)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     (out / "heliostats").mkdir(parents=True, exist_ok=True)
     data = load_campaign(db_path, campaign_id, field_config, images_dir)
-    rep = compute(data)
+    site = site_time(data.cfg, timezone)
+    rep = compute(data, site)
     t_figures = time.perf_counter()
 
     images = {"field_map": plots.plot_field_map(rep["field_map"], out / "plots" / "field_map.png"),
-              "progress": plots.plot_progress(rep["progress"], out / "plots" / "progress.png"),
+              "progress": plots.plot_progress(rep["progress"], out / "plots" / "progress.png", site),
               "figure_3": plots.plot_figure_3(rep["tracking_test"], out / "plots" / "grlm_figure3.png")}
     for number, key in ((6, "wind"), (7, "dni"), (8, "cleanliness")):
-        images[f"pass_{key}"] = plots.plot_pass_rate(rep["pass_rate"][key], out / "plots" / f"pass_rate_{key}.png", number)
+        images[f"pass_{key}"] = plots.plot_pass_rate(rep["pass_rate"][key], out / "plots" / f"pass_rate_{key}.png",
+                                                     number, rep["pass_rate"]["threshold_mrad"])
     images = {k: v.relative_to(out).as_posix() for k, v in images.items()}
     t_plots = time.perf_counter()
 
-    rep["heliostats"] = _write_sheets(data, rep, out, frames, jobs)
+    rep["heliostats"] = _write_sheets(data, rep, out, frames, jobs, site)
     t_sheets = time.perf_counter()
     rep["timing_s"] = {"figures": round(t_figures - t_start, 3), "campaign_plots": round(t_plots - t_figures, 3),
                        "sheets": round(t_sheets - t_plots, 3), "heliostats": len(rep["heliostats"]),
                        "total": round(time.perf_counter() - t_start, 3)}
     (out / "report.json").write_text(json.dumps(rep, indent=1, ensure_ascii=False, default=_json_default))
     index = out / "index.html"
-    index.write_text(html.index_page(rep, images, rep["heliostats"]), encoding="utf-8")
+    index.write_text(html.index_page(rep, images, rep["heliostats"], site), encoding="utf-8")
     return index
 
 
@@ -139,7 +159,8 @@ _JOB: dict = {}
 """The sheet job a forked worker inherits (set just before the pool forks)."""
 
 
-def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: int | None = None) -> list[dict]:
+def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: int | None = None,
+                  site=None) -> list[dict]:
     """Each heliostat's plot, frames, JSON and page; returns the sheet summaries for ``report.json``.
 
     With ``jobs`` > 1 (default: the CPU count, at most 4) and a field of at least
@@ -154,10 +175,13 @@ def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: 
     visits_of: dict[str, dict] = {}
     for v in data.visits:
         visits_of.setdefault(v.heliostat_id, {})[v.id] = v
+    history: dict[str, list] = {}
+    for v in data.verdict_history:
+        history.setdefault(v.heliostat_id, []).append(v)
     _JOB.clear()
     _JOB.update(
         data=data, rep=rep, out=out, frames=frames, names=_file_names(data.heliostat_ids),
-        errors=F.present_errors(data), visits_of=visits_of,
+        errors=F.present_errors(data), visits_of=visits_of, history=history, site=site,
         groups={str(k): g for k, g in obs.groupby("heliostat_id")} if len(obs) else {}, empty=obs.iloc[0:0],
         targets={h.heliostat_id: h.target_id for h in data.heliostats},
         max_error=float(valid["error_mrad"].max()) if len(valid) else 0.0,
@@ -189,11 +213,11 @@ def _sheet_chunk(ids: list[str]) -> list[dict]:
     t0 = data.campaign.started_s if data.campaign is not None else 0.0
     summaries = []
     with SheetPlotter(rep["acceptance"], F.loop_threshold_mrad(data), (t0, data.end_s), j["max_error"],
-                      j["max_placements"]) as plotter:
+                      j["max_placements"], j["site"]) as plotter:
         for hid in ids:
             stem = j["names"][hid]
             sheet = heliostat_sheet(data, hid, j["targets"][hid], j["groups"].get(hid, j["empty"]), j["errors"].get(hid),
-                                    per_tt.get(hid), j["visits_of"].get(hid, {}))
+                                    per_tt.get(hid), j["visits_of"].get(hid, {}), j["history"].get(hid, ()))
             plot = plotter.draw(sheet, out / "heliostats" / f"{stem}.png")
             frames_info = None
             if j["frames"] and sheet["latest_frames"] is not None:
@@ -205,7 +229,7 @@ def _sheet_chunk(ids: list[str]) -> list[dict]:
             (out / "heliostats" / f"{stem}.json").write_text(
                 json.dumps(sheet, indent=1, ensure_ascii=False, default=_json_default))
             (out / "heliostats" / f"{stem}.html").write_text(
-                html.sheet_page(sheet, plot.name, frames_info, f"{stem}.json"), encoding="utf-8")
+                html.sheet_page(sheet, plot.name, frames_info, f"{stem}.json", j["site"], rep["limits"]), encoding="utf-8")
             summary = {k: v for k, v in sheet.items() if k not in ("observation_rows",)}
             summary.update(href=f"heliostats/{stem}.html", json=f"heliostats/{stem}.json",
                            plot=f"heliostats/{plot.name}",

@@ -7,7 +7,8 @@ Every dictionary here is written unchanged into ``report.json`` and drawn by
   at least one VALID observation of the visit has ``error_mrad < loop_threshold_mrad``;
 * a visit's **conditions** are the wind, DNI and cleanliness of its first observation that
   recorded them (failure records carry none; such visits are counted as ``n_unknown``);
-* a heliostat's **present tracking error** is the error of its newest valid observation;
+* a heliostat's **latest placement error** (``present_error_mrad``) is the placement error of its newest
+  valid observation (:mod:`helicalib.report.measures` names every error measure);
 * **stowed** time runs from each ``stow`` event to the next ``resume``, **gated** time from each
   ``gated`` event to the next ``ungated``, in daylight only (sun above the low band's lower edge,
   as the runner gates); an interval still open ends at the campaign's end.
@@ -16,6 +17,7 @@ Every dictionary here is written unchanged into ``report.json`` and drawn by
 from __future__ import annotations
 
 import math
+import re
 from collections import Counter
 from typing import Any
 
@@ -26,6 +28,9 @@ from helicalib.report.data import CampaignData
 
 DEFAULT_LOOP_THRESHOLD_MRAD = 3.5
 """Used for the pass rate only when the campaign's field config cannot be read (the paper's value)."""
+
+DEFAULT_MAX_RMS_MRAD = 1.2
+"""The paper's acceptance limit, used only when the campaign's field config cannot be read."""
 
 PAPER_PASS_RATE = 0.60
 """The paper's figure: about 60 % correction pass rate in good conditions."""
@@ -171,39 +176,112 @@ def summary(data: CampaignData, visits: pd.DataFrame) -> dict:
     }
 
 
-def banner(data: CampaignData, summ: dict) -> dict:
-    """Whether the campaign is empty or partly failed, and one sentence per finding."""
-    msgs: list[str] = []
+NO_RESULT_OUTCOMES = ("fault", "invalid", "aborted", "refused", "interrupted")
+"""Visit outcomes without a usable result (the other outcomes: ``converged``, ``not_converged``, ``running``)."""
+
+OFF_TRACKING = re.compile(r"back to tracking[^:]*failed")
+"""A fault event whose reason says a heliostat could not be sent back to tracking."""
+
+
+def _listed(ids: list[str], limit: int = 12) -> str:
+    shown = ", ".join(ids[:limit])
+    return shown + (f" and {len(ids) - limit} more" if len(ids) > limit else "")
+
+
+def _event_heliostat(ev) -> str | None:
+    """The heliostat an event concerns: its own column, else a leading ``H0007:`` in its reason."""
+    if ev.heliostat_id:
+        return ev.heliostat_id
+    m = re.match(r"\s*([^\s:]+):", ev.reason or "")
+    return m.group(1) if m else None
+
+
+def banner(data: CampaignData, summ: dict, visits: pd.DataFrame | None = None) -> dict:
+    """What the crew must act on, and what is only information.
+
+    ``level`` is ``'empty'`` (nothing recorded), ``'action'`` (at least one item in ``actions``) or
+    ``'ok'`` (nothing to act on). Actions: heliostats not accepted or without a verdict, fault
+    events, heliostats that could not be sent back to tracking, a field still stowed at the end, an
+    unfinished campaign, an unreadable field config. Information: invalid observations (and
+    whether their visits recovered), visits without a usable result, stows, gated hours.
+    ``messages`` is ``actions + information``; ``partly_failed`` is ``level == 'action'``.
+    """
     if data.campaign is None:
-        return {"empty": True, "partly_failed": False, "level": "empty",
-                "messages": ["This database holds no campaign: nothing was recorded."]}
+        msg = "This database holds no campaign: nothing was recorded."
+        return {"empty": True, "partly_failed": False, "level": "empty", "headline": "Empty database.",
+                "actions": [msg], "information": [], "messages": [msg], "not_accepted": [], "no_verdict": [],
+                "off_tracking": []}
+    actions: list[str] = []
+    info: list[str] = []
     empty = summ["visits"] == 0 and summ["observations"] == 0
     if empty:
-        msgs.append("This campaign recorded no visit and no observation: there is nothing to judge yet.")
+        actions.append("This campaign recorded no visit and no observation: there is nothing to judge yet.")
     if data.campaign.status == "running":
-        msgs.append("The campaign is unfinished (status 'running'): the figures are those recorded so far.")
-    failed = {k: n for k, n in summ["visits_by_outcome"].items()
-              if k not in ("converged", "valid", "not_converged", "running")}
-    if failed:
-        msgs.append("Visits that gave no usable result: " + ", ".join(f"{n} {k}" for k, n in failed.items()) + ".")
-    if summ["invalid_by_reason"]:
-        msgs.append(f"{summ['observations'] - summ['valid_observations']} of {summ['observations']} observations are "
-                    "invalid: " + ", ".join(f"{n} {k}" for k, n in summ["invalid_by_reason"].items()) + ".")
-    ev = summ["events_by_kind"]
-    if ev.get("fault"):
-        msgs.append(f"{ev['fault']} fault event(s) were recorded (see the event log).")
-    if ev.get("stow"):
-        msgs.append(f"The field was stowed {ev['stow']} time(s) for {summ['stowed_hours']:g} h in all.")
+        actions.append("The campaign is unfinished (status 'running'): the figures are those recorded so far.")
+    ids = data.heliostat_ids
+    not_accepted = [h for h in ids if (v := data.verdicts.get(h)) is not None and not v.accepted]
+    no_verdict = [h for h in ids if h not in data.verdicts]
+    if not_accepted:
+        first = [f"{h} ({data.verdicts[h].reasons[0]})" if data.verdicts[h].reasons else h for h in not_accepted]
+        actions.append(f"{len(not_accepted)} of {len(ids)} heliostats not accepted: {_listed(first, 8)}.")
+    if no_verdict and not empty:
+        actions.append(f"{len(no_verdict)} of {len(ids)} heliostats have no verdict (no valid visit yet): "
+                       f"{_listed(no_verdict)}.")
+    faults = [ev for ev in data.events if ev.kind == "fault"]
+    off = sorted({h for ev in faults if OFF_TRACKING.search(ev.reason or "") and (h := _event_heliostat(ev))})
+    if off:
+        actions.append(f"{len(off)} heliostat(s) could not be sent back to tracking; check them at the plant: "
+                       f"{_listed(off)}.")
+    if faults:
+        concerned = sorted({h for ev in faults if (h := _event_heliostat(ev)) in set(ids)})
+        actions.append(f"{len(faults)} fault event(s) were recorded" + (f" (heliostats {_listed(concerned)})"
+                                                                        if concerned else "")
+                       + "; see the event log.")
+    kinds = [ev.kind for ev in sorted(data.events, key=lambda e: (e.time_s, e.id)) if ev.kind in ("stow", "resume")]
+    if kinds and kinds[-1] == "stow":
+        actions.append("The field was still stowed for wind when the campaign's record ends.")
     if data.cfg is None:
-        msgs.append(f"Field map, acceptance bands and thresholds are limited: {data.config_note}.")
-    partly = (not empty) and bool(failed or summ["invalid_by_reason"] or ev.get("fault") or ev.get("stow"))
-    level = "empty" if empty else ("partly_failed" if partly else "ok")
-    return {"empty": empty, "partly_failed": partly, "level": level, "messages": msgs}
+        actions.append(f"Field map, acceptance bands and thresholds are limited: {data.config_note} "
+                       "(give the report the field config with --field).")
+    n_obs, n_valid = summ["observations"], summ["valid_observations"]
+    if summ["invalid_by_reason"]:
+        reasons = ", ".join(f"{n} {k}" for k, n in summ["invalid_by_reason"].items())
+        sentence = f"{n_obs - n_valid} of {n_obs} observations were invalid ({reasons})"
+        obs = data.observations
+        lost = []
+        if visits is not None and len(visits) and len(obs):
+            bad = set(obs.loc[~obs["valid"] & obs["visit_id"].notna(), "visit_id"].astype(int))
+            lost = visits[visits["visit_id"].isin(bad) & (visits["n_valid"] == 0)]
+        if len(lost) == 0:
+            sentence += ": every visit they occurred in still gave a valid point (the loop measured again)."
+        else:
+            sentence += f": {len(lost)} of their visits gave no valid point (see below)."
+        info.append(sentence)
+    failed = {k: n for k, n in summ["visits_by_outcome"].items() if k in NO_RESULT_OUTCOMES}
+    if failed:
+        info.append("Visits without a usable result: " + ", ".join(f"{n} {k}" for k, n in failed.items())
+                    + ".")
+    ev = summ["events_by_kind"]
+    if ev.get("stow"):
+        info.append(f"The field was stowed for wind {ev['stow']} time(s), {summ['stowed_hours']:g} h in all.")
+    if summ.get("gated_hours"):
+        info.append(f"Calibration was gated by the weather for {summ['gated_hours']:g} daylight hours.")
+    level = "empty" if empty else ("action" if actions else "ok")
+    if level == "ok":
+        accepted = summ["accepted"]
+        headline = f"Nothing to act on: {accepted} of {len(ids)} heliostats accepted, no fault recorded."
+    elif level == "action":
+        headline = f"{len(actions)} thing{'s' if len(actions) != 1 else ''} to act on."
+    else:
+        headline = "Empty campaign."
+    return {"empty": empty, "partly_failed": level == "action", "level": level, "headline": headline,
+            "actions": actions, "information": info, "messages": actions + info, "not_accepted": not_accepted,
+            "no_verdict": no_verdict, "off_tracking": off}
 
 
 # ---------------------------------------------------------------------------------------- field map
 def present_errors(data: CampaignData) -> dict[str, float]:
-    """Each heliostat's present tracking error: its newest valid observation's error [mrad]."""
+    """Each heliostat's latest placement error: its newest valid observation's error [mrad]."""
     obs = data.observations
     if not len(obs):
         return {}
@@ -221,7 +299,8 @@ def heliostat_status(data: CampaignData, hid: str) -> str:
 
 
 def field_map(data: CampaignData) -> dict:
-    """Positions (east, north) [m], acceptance status and present error of every enrolled heliostat."""
+    """Positions (east, north) [m], acceptance status, acceptance error and latest placement error of every
+    enrolled heliostat."""
     errors = present_errors(data)
     rows = []
     positions = {}
@@ -232,13 +311,15 @@ def field_map(data: CampaignData) -> dict:
         rows.append({"id": h.heliostat_id, "target": h.target_id,
                      "east_m": num(p[0], 3) if p else None, "north_m": num(p[1], 3) if p else None,
                      "status": heliostat_status(data, h.heliostat_id),
+                     "acceptance_error_mrad": num(v.rms_mrad) if (v := data.verdicts.get(h.heliostat_id)) else None,
                      "present_error_mrad": num(errors.get(h.heliostat_id))})
     towers = None
     if data.cfg is not None:
         towers = {"tower_east_m": num(data.cfg.tower.receiver_aim_enu_m[0], 3),
                   "tower_north_m": num(data.cfg.tower.receiver_aim_enu_m[1], 3)}
+    limit = float(data.cfg.acceptance.max_rms_mrad) if data.cfg is not None else DEFAULT_MAX_RMS_MRAD
     return {"available": bool(positions), "note": "" if positions else data.config_note,
-            "heliostats": rows, "tower": towers}
+            "heliostats": rows, "tower": towers, "acceptance_limit_mrad": limit}
 
 
 # ---------------------------------------------------------------------------------------- washing

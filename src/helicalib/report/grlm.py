@@ -60,7 +60,55 @@ def clause_8_2(errors_mrad, wind_ms, spec: dict) -> dict:
     out = _test(np.asarray(errors_mrad, dtype=float), np.asarray(wind_ms, dtype=float), _spec_model(spec)).to_json()
     for b in out["bins"]:
         b["fraction"] = num(b["fraction"])
-    return out
+    return explain(out)
+
+
+NO_DATA = "no data at this wind (not a failure)"
+"""What a clause 8.2 wind bin without a measurement says."""
+
+BIN_STATUS = {True: "met", False: "not met", None: "no data"}
+"""A bin's ``status`` by its ``pass`` (None: no first placement at that wind)."""
+
+
+def _bin_name(b: dict) -> str:
+    return f"{b['wind_ms']:g} m/s ({b['low_ms']:g}–{b['high_ms']:g} m/s)"
+
+
+def explain(verdict: dict) -> dict:
+    """Add plain sentences to a clause 8.2 verdict (:func:`clause_8_2`), per bin and overall.
+
+    Each bin gains ``status`` (``'met'``, ``'not met'``, ``'no data'``) and ``text``; a bin without
+    a point says :data:`NO_DATA`. The verdict gains ``measured_ms`` and ``missing_ms`` (bin centres
+    with and without data), ``summary`` (one sentence saying which bins were measured and how they
+    did, and which are missing) and ``short`` (the same in a few words, for table cells).
+    """
+    thr = verdict["threshold_mrad"]
+    for b in verdict["bins"]:
+        b["status"] = BIN_STATUS[b["pass"]]
+        if b["pass"] is None:
+            b["text"] = f"{_bin_name(b)}: {NO_DATA}"
+        else:
+            b["text"] = (f"{_bin_name(b)}: {b['within']} of {b['n']} first placements within {thr:g} mrad "
+                         f"({100 * b['fraction']:.1f} %, needs more than {100 * b['required']:g} %): {b['status']}")
+    measured = [b for b in verdict["bins"] if b["pass"] is not None]
+    missing = [b for b in verdict["bins"] if b["pass"] is None]
+    verdict["measured_ms"] = [b["wind_ms"] for b in measured]
+    verdict["missing_ms"] = [b["wind_ms"] for b in missing]
+    said = "; ".join(f"{b['wind_ms']:g} m/s {b['status']} ({b['within']}/{b['n']})" for b in measured)
+    names = [f"{b['wind_ms']:g} m/s" for b in missing]
+    lacking = (", ".join(names[:-1]) + " and " + names[-1]) if len(names) > 1 else "".join(names)
+    if verdict["verdict"] == "pass":
+        summary = f"Passes clause 8.2 in every wind bin: {said}."
+    elif verdict["verdict"] == "fail":
+        summary = f"Fails clause 8.2: {said}." + (f" No data at {lacking} (not a failure)." if missing else "")
+    elif measured:
+        summary = (f"Not judged yet: no data at {lacking}, winds the campaign has not met (not a failure). "
+                   f"Measured: {said}.")
+    else:
+        summary = f"Not judged yet: no first placement at any clause 8.2 wind ({lacking}); not a failure."
+    verdict["summary"] = summary
+    verdict["short"] = ", ".join(f"{b['wind_ms']:g} m/s {b['status']}" for b in verdict["bins"])
+    return verdict
 
 
 def figure_3(errors_mrad, wind_ms, threshold_mrad: float, step_ms: float = 1.0, max_ms: float = 14.0) -> dict:

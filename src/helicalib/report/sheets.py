@@ -133,9 +133,25 @@ def cleanliness_history(obs: pd.DataFrame, limit: float | None) -> dict:
             "needs_washing": None if present is None or limit is None else bool(present < limit)}
 
 
+def coverage_complete(reasons) -> bool:
+    """Whether a verdict found the bands and windows covered (its only reasons, if any, are about the RMS).
+
+    The campaign judges the acceptance error out of sample (leave-one-visit-out) only then; before,
+    its RMS is over the points' stored placement errors (``campaign.policy``)."""
+    return all(str(r).startswith("RMS") for r in reasons)
+
+
+def verdict_history(verdicts) -> list[dict]:
+    """A heliostat's verdicts, oldest first: time, accepted, acceptance error and whether it was provisional."""
+    return [{"time_s": num(v.time_s, 1), "time_utc": iso(v.time_s), "accepted": v.accepted, "n_points": v.n_points,
+             "rms_mrad": num(v.rms_mrad), "coverage_complete": coverage_complete(v.reasons)} for v in verdicts]
+
+
 def heliostat_sheet(data: CampaignData, hid: str, target_id: str, obs: pd.DataFrame, present_error: float | None,
-                    tracking: dict | None, visits_by_id: dict) -> dict:
-    """One heliostat's sheet: status, verdict with reasons, fit, corrections, observations, frames."""
+                    tracking: dict | None, visits_by_id: dict, history=()) -> dict:
+    """One heliostat's sheet: status, verdict with reasons, fit, corrections, observations, frames.
+
+    ``history``: the heliostat's verdicts, oldest first (its acceptance error over the campaign)."""
     v = data.verdicts.get(hid)
     valid = obs[obs["valid"] & obs["error_mrad"].notna()] if len(obs) else obs
     n_visits = sum(1 for x in visits_by_id.values() if x.heliostat_id == hid)  # visits_by_id: this heliostat's
@@ -143,7 +159,8 @@ def heliostat_sheet(data: CampaignData, hid: str, target_id: str, obs: pd.DataFr
         "id": hid, "target": target_id, "status": heliostat_status(data, hid),
         "verdict": None if v is None else {"accepted": v.accepted, "time_utc": iso(v.time_s), "n_points": v.n_points,
                                            "rms_mrad": num(v.rms_mrad), "reasons": list(v.reasons),
-                                           "details": v.details},
+                                           "details": v.details, "coverage_complete": coverage_complete(v.reasons)},
+        "verdict_history": verdict_history(history),
         "visits": n_visits, "observations": int(len(obs)), "valid_observations": int(len(valid)),
         "present_error_mrad": num(present_error),
         "valid_rms_mrad": num(float((valid["error_mrad"] ** 2).mean() ** 0.5)) if len(valid) else None,
