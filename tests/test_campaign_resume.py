@@ -177,12 +177,18 @@ def test_check_reports_the_present_error(plant):
     r = subprocess.run([sys.executable, "-m", "helicalib", "check", str(field), "--heliostat", "H0001", "--arm",
                         "--json", "--hours", "3"], capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stderr
-    rows = json.loads(r.stdout)
+    lines = [json.loads(line) for line in r.stdout.splitlines()]  # JSON lines: every line parses
+    assert lines[0]["event"] == "campaign" and lines[-1]["event"] == "summary"
+    assert {"visit", "measurement", "visit_end"} <= {line["event"] for line in lines}
+    rows = lines[-1]["rechecks"]
     assert [row["heliostat"] for row in rows] == ["H0001"]
     assert rows[0]["visits"] >= 1
     # this database holds no earlier calibration of H0001, so the check places it with the nominal
     # model, and the simulated plant's hidden errors put it mrads off (a calibrated one would not be)
     assert rows[0]["present_error_mrad"] is not None and rows[0]["present_error_mrad"] > 0.5
+    # printed beside the acceptance limit, with the verdict that follows from the two
+    assert rows[0]["limit_mrad"] == 1.2
+    assert rows[0]["verdict"].startswith("in spec" if rows[0]["present_error_mrad"] <= 1.2 else "out of spec")
     con = sqlite3.connect(tmp / "campaign.db")
     modes = [m for (m,) in con.execute("SELECT mode FROM campaigns")]
     con.close()

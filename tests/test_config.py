@@ -22,7 +22,10 @@ def test_demo_config_loads(demo_field_path):
     assert all(cfg.drives[h.drive].kind == "tilt-roll" for h in cfg.heliostats)
     assert {c.target for c in cfg.cameras} == {"T1", "T2"}
     assert cfg.heliostat_index("H0003") == 2
-    assert cfg.database_path.parent == demo_field_path.parent.resolve()
+    # relative storage paths resolve next to the config file (FIELD_CONFIG.md); the shipped one keeps
+    # its data out of field_config/, in runs/demo_north/ at the repository root
+    assert cfg.database_path.resolve() == (demo_field_path.parent / "../runs/demo_north/helicalib.db").resolve()
+    assert cfg.database_path.parent.resolve() != demo_field_path.parent.resolve()
 
 
 def test_config_objects_are_frozen(demo_field_path):

@@ -21,6 +21,7 @@ heliostat is returned to tracking.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 
@@ -65,13 +66,16 @@ class VisitSettings:
     max_jitter_mrad: float = 2.0
     """With several after frames: their spot centres' RMS spread, as an angle seen from the
     heliostat, above which the measurement is refused ("jitter")."""
+    max_capture_skew_s: float = 5.0
+    """A frame whose capture time lies further than this outside the plant time around its grab
+    is refused ("capture_time") [plant s]: its sun would be another sun."""
 
     @classmethod
     def from_config(cls, cfg) -> VisitSettings:
         c = cfg.calibration
         return cls(c.loop_threshold_mrad, c.max_iterations, c.after_frames, c.spot_method, c.settle_timeout_s,
                    reflectivity_clean=c.reflectivity_clean, approach_mm=c.approach_mm,
-                   max_jitter_mrad=c.max_jitter_mrad)
+                   max_jitter_mrad=c.max_jitter_mrad, max_capture_skew_s=c.max_capture_skew_s)
 
 
 @dataclass
@@ -103,6 +107,20 @@ class VisitContext:
     """Direction (2,) of each actuator's last motion (±1; 0 not known) after the last hold: where
     the backlash left the mirror. Recorded with each observation for the error model's dead bands."""
     before_path: str | None = None
+    time_slack_s: Callable[[], float] | None = None
+    """How far the plant time read by ``now`` may be off [plant s] (the clock's uncertainty),
+    added to the capture-time tolerance."""
+
+
+@dataclass(frozen=True)
+class Left:
+    """How a heliostat left the board: ``error`` is None when the plant took the command back to
+    tracking (whether it reached state 1 is confirmed by the runner), else what failed;
+    ``corrections_mm`` are the tracking corrections written with that command (None: the plant
+    kept its own)."""
+
+    error: str | None = None
+    corrections_mm: np.ndarray | None = None
 
 
 @dataclass
@@ -115,6 +133,8 @@ class VisitOutcome:
     final_error_mrad: float | None = None
     observations: list[Observation] = field(default_factory=list)
     model: HeliostatModel | None = None
+    left: Left | None = None
+    """How the heliostat left the board (None: the visit has not left it)."""
 
 
 class VisitAborted(HelicalibError):
@@ -123,6 +143,16 @@ class VisitAborted(HelicalibError):
     def __init__(self, code: str, message: str):
         super().__init__(message)
         self.code = code
+
+
+class CaptureTimeError(MeasurementError):
+    """A frame whose capture time disagrees with the plant clock; the frame is kept for the record."""
+
+    reason = "capture_time"
+
+    def __init__(self, message: str, frame):
+        super().__init__(message)
+        self.frame = frame
 
 
 def _in_range(ctx: VisitContext, strokes_mm: np.ndarray) -> bool:
@@ -216,7 +246,17 @@ def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float, on_board: b
 
 
 def _grab(ctx: VisitContext):
+    """One frame and its image; refused (:class:`CaptureTimeError`) unless its capture time lies
+    within ``max_capture_skew_s`` (plus the clock's uncertainty) of the plant time around the grab."""
+    t0 = ctx.now()
     frame = ctx.camera.grab()
+    t1 = ctx.now()
+    slack = ctx.settings.max_capture_skew_s + (ctx.time_slack_s() if ctx.time_slack_s is not None else 0.0)
+    t = float(frame.capture_time_s)
+    if not (math.isfinite(t) and t0 - slack <= t <= t1 + slack):
+        off = f"{t - t1:+.6g} s from" if math.isfinite(t - t1) else "nowhere near"
+        raise CaptureTimeError(f"{ctx.heliostat_id}: the camera's capture time {t:.6g} lies {off} the plant time "
+                               f"of the grab (tolerance {slack:.1f} s): is the camera's clock set?", frame)
     return frame, decode_frame(frame.data, expected_shape=None)
 
 
@@ -282,18 +322,18 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     except (PlantError, MeasurementError) as err:
         code = "plant_error" if isinstance(err, PlantError) else getattr(err, "reason", "camera_error")
         out.status, out.reason = "fault", code
-        _record_failure(ctx, code, str(err))
+        _record_failure(ctx, code, str(err), frame=err.frame if isinstance(err, CaptureTimeError) else None)
     except Exception as err:  # noqa: BLE001 - e.g. a full disk: the beam must still leave the board
         code = f"error_{type(err).__name__}"
         out.status, out.reason = "fault", code
         _record_failure(ctx, code, f"{ctx.heliostat_id}: {type(err).__name__}: {err}")
-    yield from leave_board(ctx)
+    out.left = yield from leave_board(ctx)
     return out
 
 
 def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, iteration):
     """One "after" measurement at the held strokes; always returns an Observation (recorded)."""
-    frames, images, reason, message = [], [], None, ""
+    frames, images, reason, message, refused = [], [], None, "", []
     for _ in range(ctx.settings.after_frames):
         try:
             f, img = _grab(ctx)
@@ -301,6 +341,8 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
             images.append(img)
         except MeasurementError as err:
             reason, message = getattr(err, "reason", "bad_frame"), str(err)
+            if isinstance(err, CaptureTimeError):
+                refused.append(err.frame.data)  # kept with the observation that refuses it
             break
         if ctx.settings.after_frames > 1:
             yield 1.0
@@ -323,7 +365,8 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
     )
     if reason is not None:
         obs = Observation(valid=False, reason=reason, message=message, **base)
-        obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame), after_frames=[f.data for f in frames])
+        obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame),
+                            after_frames=[f.data for f in frames] + refused)
         return _with_id(obs, obs_id)
     # the jitter limit as an angle: a far heliostat's beam wanders as many metres for less mrad
     distance_m = float(np.linalg.norm(np.asarray(ctx.target.center_enu_m, dtype=float) - ctx.model.pivots_enu[0]))
@@ -409,7 +452,7 @@ def _next_search_aim(target, obs: Observation, aim_enu: np.ndarray, search: list
     return target.uvw_to_enu(search.pop(0)) if search else None
 
 
-def _record_failure(ctx: VisitContext, code: str, message: str) -> None:
+def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> None:
     t = ctx.now()
     sun_vec, az, el, rising = ctx.sun(t)
     obs = Observation(campaign_id=ctx.campaign_id, heliostat_id=ctx.heliostat_id, target_id=ctx.target.id,
@@ -419,16 +462,17 @@ def _record_failure(ctx: VisitContext, code: str, message: str) -> None:
                       strokes_read_mm=None, sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az),
                       sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message)
     try:
-        ctx.record(obs)
+        ctx.record(obs, **({} if frame is None else {"before_frame": frame.data}))
     except Exception:  # noqa: BLE001 - recording the failure must not stop the beam leaving the board
         pass
 
 
-def leave_board(ctx: VisitContext) -> Generator[float, None, str | None]:
+def leave_board(ctx: VisitContext) -> Generator[float, None, Left]:
     """Back to standby (beam off the board, never across the receiver), then to tracking.
 
-    Returns None, or what failed on the way back to tracking (the heliostat then stays where it
-    is: holding at standby, or on the board if even that move failed)."""
+    Returns a :class:`Left`: what failed on the way back to tracking (the heliostat then stays
+    where it is: holding at standby, or on the board if even that move failed; the runner retries
+    the return), or the corrections written with the track command."""
     try:
         standby = ctx.target.uvw_to_enu(np.asarray(ctx.target.standby_uvw_m))
         sol = ctx.model.strokes_for_aim(ctx.sun(ctx.now())[0], standby)
@@ -442,8 +486,9 @@ def leave_board(ctx: VisitContext) -> Generator[float, None, str | None]:
             corrections = ctx.corrections(ctx.model)
         except Exception:  # noqa: BLE001 - keep the plant's corrections rather than write doubtful ones
             corrections = None
+    corrections = None if corrections is None else np.asarray(corrections, dtype=float)
     try:  # None: the plant keeps the corrections it has
-        ctx.plant.track(ctx.index, None if corrections is None else np.asarray(corrections, dtype=float))
+        ctx.plant.track(ctx.index, corrections)
     except PlantError as err:
-        return f"back to tracking failed: {err}"
-    return None
+        return Left(error=f"back to tracking failed: {err}")
+    return Left(corrections_mm=corrections)

@@ -18,7 +18,10 @@ from __future__ import annotations
 
 import datetime as dt
 import signal
+import sys
 import threading
+import traceback
+from dataclasses import dataclass, field
 
 from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner
 from helicalib.errors import HelicalibError
@@ -35,32 +38,58 @@ def _rate(clock) -> float:
     return float(rate) if rate else 1.0
 
 
+def _guarded(runner: CampaignRunner, what: str, fn) -> None:
+    """Run one job step; any failure becomes ONE fault event (never a traceback per retry).
+
+    A :class:`HelicalibError` is the plant or a device saying no: its line is the whole story. Any
+    other exception is a bug: its line names the type, and its traceback goes once to
+    ``<database>.errors.log`` beside the database.
+    """
+    try:
+        fn()
+    except HelicalibError as err:
+        _fault(runner, f"{what}: {err}")
+    except Exception as err:  # noqa: BLE001 - a job must never die, nor print a traceback each retry
+        log = runner.store.path.with_name(runner.store.path.name + ".errors.log")
+        try:
+            with open(log, "a", encoding="utf-8") as fh:
+                fh.write(f"--- {dt.datetime.now(dt.timezone.utc).isoformat()} {what}\n{traceback.format_exc()}\n")
+        except OSError:
+            pass
+        _fault(runner, f"{what}: internal error {type(err).__name__}: {err} (traceback in {log})")
+
+
+def _fault(runner: CampaignRunner, reason: str) -> None:
+    try:
+        runner.event("fault", reason)
+    except Exception:  # noqa: BLE001 - even the store may be gone (full disk): say it on stderr, once a line
+        print(f"helicalib: fault (not recorded): {reason}", file=sys.stderr, flush=True)
+
+
 def _tick_job(runner: CampaignRunner, lock: threading.Lock) -> None:
     if not lock.acquire(blocking=False):
         return
     try:
-        runner.tick(runner.clock.now_s())
-    except HelicalibError as err:  # a job must never die: record and go on
-        runner.store.record_event(campaign_id=runner.campaign_id, time_s=runner.clock.now_s(), kind="fault",
-                                  reason=f"tick: {err}")
+        _guarded(runner, "tick", lambda: runner.tick(runner.clock.now_s()))
     finally:
         lock.release()
 
 
 def _weather_job(runner: CampaignRunner, lock: threading.Lock) -> None:
     with lock:
-        runner._poll_weather(runner.clock.now_s())
+        _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s()))
 
 
 def _daylight_job(runner: CampaignRunner, scheduler, lock: threading.Lock) -> None:
-    with lock:
+    def job():
         now = runner.clock.now_s()
         _vec, _az, el, rising = runner.sun(now)
-        kind = "note"
-        runner.store.record_event(campaign_id=runner.campaign_id, time_s=now, kind=kind,
-                                  reason=f"sun at {el:.1f}° ({'rising' if rising else 'setting'}): day "
-                                         f"{'opens' if rising else 'closes'}")
-    schedule_daylight(runner, scheduler, lock)
+        runner.event("note", f"sun at {el:.1f}° ({'rising' if rising else 'setting'}): day "
+                             f"{'opens' if rising else 'closes'}", time_s=now)
+
+    with lock:
+        _guarded(runner, "daylight", job)
+    _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
 
 
 def schedule_daylight(runner: CampaignRunner, scheduler, lock) -> None:
@@ -79,16 +108,35 @@ def schedule_daylight(runner: CampaignRunner, scheduler, lock) -> None:
                       id="helicalib-daylight", replace_existing=True, misfire_grace_time=None)
 
 
-def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event | None = None, done=None) -> None:
-    """Run ``runner`` on APScheduler until plant time ``until_s``, ``done()`` is true, or SIGINT/SIGTERM/``stop_event``."""
+@dataclass
+class LiveResult:
+    """How a live run ended: ``reason`` ("until", "done", "stopped"); heliostats left off tracking."""
+
+    reason: str
+    off_tracking: list[str] = field(default_factory=list)
+
+
+def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event | None = None, done=None,
+             output=None) -> LiveResult:
+    """Run ``runner`` on APScheduler until plant time ``until_s``, ``done()`` is true, or SIGINT/SIGTERM/``stop_event``.
+
+    ``output`` (see :mod:`.console`) gets every event and, twice a second, a snapshot. A first
+    Ctrl-C stops cleanly: the step in progress ends (plant requests become single attempts), the
+    beams on the boards leave via standby and every return to tracking is checked; a second Ctrl-C
+    leaves at once.
+    """
     import logging
 
     from apscheduler.schedulers.background import BackgroundScheduler
 
-    # a tick still running when the next is due is skipped by design (max_instances=1): not news
-    logging.getLogger("apscheduler").setLevel(logging.ERROR)
+    # a tick still running when the next is due is skipped by design (max_instances=1): not news;
+    # a lost plant is one fault line of ours, not pymodbus's own log lines
+    logging.getLogger("apscheduler").setLevel(logging.CRITICAL)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     stop = stop_event or threading.Event()
     lock = threading.Lock()
+    if output is not None:
+        runner.listeners.append(output.on_event)
     rate = _rate(runner.clock)
     scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
     common = dict(replace_existing=True, coalesce=True, max_instances=1, misfire_grace_time=None)
@@ -97,13 +145,22 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                       **common)
     scheduler.add_job(_tick_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, TICK_PLANT_S / rate),
                       args=[runner, lock], id="helicalib-tick", **common)
-    schedule_daylight(runner, scheduler, lock)
+    _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
     previous = {}
+    signals = {"n": 0}
+
+    def on_signal(*_):
+        signals["n"] += 1
+        stop.set()
+        if signals["n"] > 1:
+            raise KeyboardInterrupt
+
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+            previous[sig] = signal.signal(sig, on_signal)
     scheduler.start()
     last = {"now": None}
+    result = LiveResult("stopped")
 
     def plant_now() -> float | None:
         """Plant time, or None while the plant does not answer (the jobs retry; nothing stops)."""
@@ -113,16 +170,63 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
             return None
         return last["now"]
 
+    def show() -> None:
+        if output is None or not lock.acquire(timeout=0.2):
+            return
+        try:
+            output.on_snapshot(runner.snapshot(runner.safe_now()[0]))
+        except Exception:  # noqa: BLE001 - a view must never stop the campaign
+            pass
+        finally:
+            lock.release()
+
     try:
-        while not stop.is_set() and not (done is not None and done()):
+        if output is not None:
+            output.start()
+        while not stop.is_set():
+            if done is not None and done():
+                result.reason = "done"
+                break
             now = plant_now()
             if now is not None and now >= until_s:
+                result.reason = "until"
                 break
-            stop.wait(min(1.0, max(0.05, 5.0 / rate)))
-    finally:
-        scheduler.shutdown(wait=True)
-        with lock:
+            show()
+            stop.wait(min(0.5, max(0.05, 5.0 / rate)))
+        stopping = _say(output, "stopping: finishing the step in progress, then every beam on a board leaves via its "
+                                "standby point and goes back to tracking (Ctrl-C again to leave at once)"
+                        if result.reason == "stopped" else None)
+        if stopping and hasattr(runner.plant, "hurry"):
+            runner.plant.hurry()
+        scheduler.shutdown(wait=False)
+        waited = 0.0
+        while not lock.acquire(timeout=1.0):
+            waited += 1.0
+            if waited % 5 == 0:
+                _say(output, f"stopping: still waiting for the step in progress ({waited:.0f} s; a plant or camera "
+                             "request)")
+        try:
             now = plant_now()
-            runner.shutdown(now if now is not None else (last["now"] or until_s))
+            active = len(runner.active)
+            if active:
+                _say(output, f"stopping: {active} heliostat(s) leaving their boards via standby")
+            result.off_tracking = runner.shutdown(now if now is not None else (last["now"] or until_s))
+        finally:
+            lock.release()
+        show()
+    finally:
+        if output is not None:
+            output.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if output is not None and output.on_event in runner.listeners:
+            runner.listeners.remove(output.on_event)
+    return result
+
+
+def _say(output, text: str | None) -> bool:
+    if text is None:
+        return False
+    if output is not None:
+        output.message(text)
+    return True

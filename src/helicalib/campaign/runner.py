@@ -15,6 +15,8 @@ wake-up time comes. Every observation goes to the store as soon as it is made.
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,13 +25,15 @@ from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import policy
 from helicalib.campaign.controller import (
     APPROACH_LEAD_S,
+    Left,
     VisitContext,
     VisitOutcome,
     VisitSettings,
     leave_board,
     run_visit,
 )
-from helicalib.devices.registers import FieldCommand
+from helicalib.campaign.events import STORED, BoardState, RunEvent, Snapshot
+from helicalib.devices.registers import FieldCommand, HeliostatState
 from helicalib.errors import HelicalibError, PlantError
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable
@@ -40,6 +44,23 @@ PLANNER_TICK_S = 30.0
 """Plant seconds between planner ticks while a target is free."""
 SHARE_REACH_S = 1800.0
 """A borrowed board must be within the heliostat's stroke range now and this much later [plant s]."""
+RETURN_CHECK_S = 10.0
+"""Plant seconds after a track command before the plant's state is read to confirm tracking."""
+RETURN_RETRY_S = 30.0
+"""Plant seconds between attempts to bring a heliostat back to tracking that the plant has not confirmed."""
+
+
+@dataclass
+class Returning:
+    """A heliostat sent back to tracking whose state 1 the plant has not confirmed yet."""
+
+    since_s: float
+    next_check_s: float
+    corrections_mm: object = None
+    attempts: int = 1
+    failed: bool = False
+    """True once a return failed (then its confirmation is news: an event says so)."""
+    last_error: str = ""
 
 
 @dataclass
@@ -111,6 +132,14 @@ class CampaignRunner:
         self._nominal_one: dict[str, HeliostatModel] = {}
         self._clean_cache: dict[str, tuple[float, float | None]] = {}
         self.corrections: dict[str, np.ndarray | None] = {hid: None for hid in self.ids}
+        self.listeners: list[Callable[[RunEvent], None]] = []
+        """Called with every :class:`RunEvent` after the fact (views, JSON lines); must not raise."""
+        self.returning: dict[str, Returning] = {}
+        self._flagged: set[str] = set()  # newest stored off_tracking not yet followed by back_to_tracking
+        self._boards: dict[str, BoardState] = {}
+        self._band_cache: tuple[float, str] = (-math.inf, "")
+        self._last_gate = None
+        self._clock_ok = True
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
@@ -139,17 +168,111 @@ class CampaignRunner:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
         self.store.close_interrupted_visits(self.campaign_id, now)
+        # heliostats the last process left off tracking: a visit it was killed in, or a return the
+        # plant never confirmed (its newest off_tracking event has no back_to_tracking after it)
+        last = {}
+        for e in self.store.events(campaign_id=self.campaign_id):
+            if e.kind in ("off_tracking", "back_to_tracking") and e.heliostat_id in self._index:
+                last[e.heliostat_id] = e.kind
+        self._flagged = {h for h, k in last.items() if k == "off_tracking"}
+        stranded = {v.heliostat_id for v in running} | self._flagged
         if self.armed:
-            for v in running:
-                try:
-                    self.plant.track(self.cfg.heliostat_index(v.heliostat_id), None)
-                except PlantError as err:
-                    self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
-                                            reason=f"{v.heliostat_id}: back to tracking after restart failed: {err}")
+            for hid in sorted(stranded & set(self._index)):
+                self._send_back(hid, None, now, why="left off tracking by the previous run")
         # stowed by THIS campaign for wind (its newest stow/resume event is a stow): stay stowed until
         # the wind allows; a plant stowed by its own logic (night, its own wind protection) is left alone
         marks = [e.kind for e in self.store.events(campaign_id=self.campaign_id) if e.kind in ("stow", "resume")]
         self.stowed = bool(marks) and marks[-1] == "stow"
+
+    # ------------------------------------------------------------------ events
+    def safe_now(self) -> tuple[float, str]:
+        """(plant time, ``"plant"``), or the controller's own extrapolation of it and ``"controller"``
+        when the plant's clock cannot be read (records made during an outage still get a time)."""
+        try:
+            return self.clock.now_s(), "plant"
+        except HelicalibError:
+            return self.clock.estimate_s(), "controller"
+
+    def event(self, kind: str, reason: str, heliostat_id: str | None = None, target_id: str | None = None,
+              data: dict | None = None, time_s: float | None = None) -> RunEvent:
+        """Record an event after the fact: to the store when its kind lasts (:data:`STORED`), then to
+        every listener. ``time_s`` None: now, from the plant clock or, if that fails, the controller's."""
+        source = "plant"
+        if time_s is None:
+            time_s, source = self.safe_now()
+        ev = RunEvent(time_s=float(time_s), kind=kind, reason=reason, heliostat_id=heliostat_id, target_id=target_id,
+                      data=dict(data or {}), clock=source)
+        if kind == "off_tracking" and heliostat_id is not None:
+            self._flagged.add(heliostat_id)
+        elif kind == "back_to_tracking":
+            self._flagged.discard(heliostat_id)
+        if kind in STORED:
+            self.store.record_event(campaign_id=self.campaign_id, time_s=ev.time_s, kind=kind, reason=reason,
+                                    heliostat_id=heliostat_id, data=dict(ev.data, clock=source) if source != "plant"
+                                    else ev.data or None)
+        for listener in list(self.listeners):
+            listener(ev)
+        return ev
+
+    def _record(self, obs, **frames) -> int:
+        """Store an observation (frames first), then tell the listeners."""
+        obs_id = self.store.record_observation(obs, **frames)
+        if obs.iteration >= 0:
+            self._boards[obs.target_id] = BoardState(
+                obs.target_id, obs.heliostat_id, obs.iteration, obs.error_mrad if obs.valid else None,
+                self._boards.get(obs.target_id, BoardState(obs.target_id)).since_s)
+        if self.listeners:
+            text = f"{obs.error_mrad:.2f} mrad" if obs.valid and obs.error_mrad is not None else f"invalid: {obs.reason}"
+            self.event("measurement", f"{obs.heliostat_id} on {obs.target_id}, placement {obs.iteration}: {text}",
+                       obs.heliostat_id, obs.target_id, time_s=obs.capture_time_s,
+                       data={"iteration": obs.iteration, "valid": obs.valid, "error_mrad": obs.error_mrad,
+                             "observation": obs_id})
+        return obs_id
+
+    # ------------------------------------------------------------------ back to tracking
+    def _send_back(self, hid: str, corrections, now: float, why: str) -> None:
+        """Send ``hid`` back to tracking and keep it in :attr:`returning` until the plant confirms."""
+        ret = self.returning.get(hid) or Returning(since_s=now, next_check_s=now)
+        ret.corrections_mm = corrections
+        try:
+            self.plant.track(self.cfg.heliostat_index(hid), corrections)
+        except PlantError as err:
+            ret.failed = True
+            ret.last_error = str(err)
+            ret.next_check_s = now + RETURN_RETRY_S
+            self.returning[hid] = ret
+            if ret.attempts == 1:
+                self.event("off_tracking", f"{hid}: not back to tracking ({why}): {err}; retrying every "
+                                           f"{RETURN_RETRY_S:.0f} s until the plant confirms", hid)
+            return
+        ret.next_check_s = now + RETURN_CHECK_S
+        self.returning[hid] = ret
+
+    def _check_returns(self, now: float) -> None:
+        """Confirm or retry every return to tracking that is due (state 1 read from the plant)."""
+        busy = {h for (_w, h, _g, _c) in self.active.values()}
+        for hid in [h for h, r in self.returning.items() if r.next_check_s <= now and h not in busy]:
+            ret = self.returning[hid]
+            try:
+                state = self.plant.status(self.cfg.heliostat_index(hid)).state
+            except PlantError as err:
+                ret.last_error, ret.next_check_s = str(err), now + RETURN_RETRY_S
+                continue
+            if state == HeliostatState.TRACKING or (state == HeliostatState.STOWED and self.stowed):
+                del self.returning[hid]
+                if ret.failed or hid in self._flagged:
+                    self.event("back_to_tracking", f"{hid}: tracking again (confirmed by the plant after "
+                                                   f"{ret.attempts} attempt(s), {now - ret.since_s:.0f} s)", hid)
+                continue
+            if state == HeliostatState.MOVING:
+                ret.next_check_s = now + RETURN_CHECK_S
+                continue
+            ret.attempts += 1
+            if not ret.failed:
+                ret.failed = True
+                self.event("off_tracking", f"{hid}: the plant reports state {state.name.lower()} after a return to "
+                                           f"tracking; sending it again every {RETURN_RETRY_S:.0f} s until it tracks", hid)
+            self._send_back(hid, ret.corrections_mm, now, why=f"state {state.name.lower()}")
 
     # ------------------------------------------------------------------ sun
     def sun(self, t_s: float):
@@ -176,6 +299,8 @@ class CampaignRunner:
             self._poll_weather(now)
         if now - self.last_refresh_s >= policy.TRACKING_REFRESH_S:
             self._refresh_tracking(now)
+        if self.returning and self.armed:
+            self._check_returns(now)
         due = [tid for tid, (wake, *_rest) in self.active.items() if wake <= now]
         for tid in due:
             self._step(tid, now)
@@ -188,6 +313,7 @@ class CampaignRunner:
                     self._start_visit(tid, now)
         wakes = [w for (w, *_r) in self.active.values()]
         wakes.append(self.last_poll_s + WEATHER_POLL_S)
+        wakes.extend(r.next_check_s for r in self.returning.values())
         if [t for t in self.cfg.targets if t.id not in self.active] and not self.stowed:
             if gate is not None and not gate.open and gate.night:
                 wakes.append(max(now + PLANNER_TICK_S, gate.next_open_s))
@@ -215,7 +341,7 @@ class CampaignRunner:
         try:
             w = self.plant.weather()
         except PlantError as err:
-            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault", reason=f"weather: {err}")
+            self.event("fault", f"weather: {err}")
             return
         self.last_weather = w
         g = gating_mod.gate_field(w.wind_ms, w.dni_wm2, self.cfg.gating, stowed=self.stowed)
@@ -226,36 +352,37 @@ class CampaignRunner:
                 if self.armed:
                     self.plant.field_command(FieldCommand.RESUME_TRACKING)
                 self.stowed = False
-                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="resume", reason=g.reason)
+                self.event("resume", g.reason)
             except PlantError as err:
-                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault", reason=f"resume: {err}")
+                self.event("fault", f"resume: {err}")
 
     def _stow(self, now: float, reason: str) -> None:
         if not self.armed:  # reads and plans only: say what it would do
-            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="note",
-                                    reason=f"not armed: would stow the field ({reason})")
+            self.event("note", f"not armed: would stow the field ({reason})", time_s=now)
             self.stowed = True
             return
         try:
             self.plant.field_command(FieldCommand.STOW_ALL)
         except PlantError as err:
-            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault", reason=f"stow: {err}")
+            self.event("fault", f"stow: {err}")
             return
         self.stowed = True
-        self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="stow", reason=reason)
+        self.event("stow", reason)
         for tid in list(self.active):
             _wake, _hid, gen, ctx = self.active.pop(tid)
             gen.close()
             self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="field stowed for wind")
+            self.event("visit_end", f"{ctx.heliostat_id} off {tid}: aborted (field stowed for wind)", ctx.heliostat_id,
+                       tid, data={"outcome": "aborted"})
 
     def _gate(self, now: float):
         _vec, _az, el, _rising = self.sun(now)
         gate = policy.field_gate(self.cfg, self.last_weather, el, now, self.sun, stowed=self.stowed)
         if self._gate_reason != (gate.open, gate.night):
             if not gate.night:
-                self.store.record_event(campaign_id=self.campaign_id, time_s=now,
-                                        kind="ungated" if gate.open else "gated", reason=gate.reason)
+                self.event("ungated" if gate.open else "gated", gate.reason, time_s=now)
             self._gate_reason = (gate.open, gate.night)
+        self._last_gate = gate
         return gate
 
     # ------------------------------------------------------------------ visits
@@ -279,8 +406,7 @@ class CampaignRunner:
             return
         hid = choice
         if not self.armed:
-            self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="note",
-                                    reason=f"not armed: would send {hid} to {target_id}")
+            self.event("note", f"not armed: would send {hid} to {target_id}", hid, target_id, time_s=now)
             self.book.visiting(hid, now)
             self.book.h[hid].cooldown_until_s = now + policy.COOLDOWN_VALID_S
             return
@@ -290,15 +416,21 @@ class CampaignRunner:
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
             index=self.cfg.heliostat_index(hid), target=self.cfg.target(target_id), camera_config=cams[0],
             camera=self.cameras[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
-            model=self.models[hid], settings=self.settings, record=self.store.record_observation,
+            model=self.models[hid], settings=self.settings, record=self._record,
             save_frame=self.store.save_frame,
             on_valid=lambda obs, hid=hid: self._refit(hid, obs),
             corrections=lambda model, hid=hid: self._corrections(hid, model),
+            time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
         self.book.visiting(hid, now)
+        self.returning.pop(hid, None)  # the visit commands it now; it ends with its own return
+        self._boards[target_id] = BoardState(target_id, hid, None, None, now)
         gen = run_visit(ctx)
         self.active[target_id] = (now, hid, gen, ctx)
         self.stats.visits += 1
+        self.event("visit", f"{hid} onto {target_id}" + ("" if self.cfg.heliostat(hid).target == target_id
+                                                         else f" (lent; its own board {self.cfg.heliostat(hid).target} is busy)"),
+                   hid, target_id, time_s=now)
 
     def _reaches(self, hid: str, target_id: str, now: float) -> bool:
         """Whether ``hid``'s model puts both the standby point and the centre of ``target_id``
@@ -342,11 +474,9 @@ class CampaignRunner:
             self._finish(target_id, stop.value, now)
             return
         except Exception as err:  # noqa: BLE001 - a visit must never take the campaign down
-            self._finish(target_id, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}"), now)
-            try:  # the visit could not leave by itself: back to tracking, keeping the plant's corrections
-                self.plant.track(ctx.index, None)
-            except PlantError:
-                pass
+            # the visit could not leave by itself: back to tracking, keeping the plant's corrections
+            self._finish(target_id, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}: {err}"), now)
+            self._send_back(hid, None, now, why="the visit failed")
             return
         self.active[target_id] = (now + float(wait), hid, gen, ctx)
 
@@ -365,6 +495,7 @@ class CampaignRunner:
                              iterations=out.iterations, first_error_mrad=out.first_error_mrad,
                              final_error_mrad=out.final_error_mrad)
         self.book.visited(hid, now, out)
+        was = self.book.accepted(hid)
         verdict = policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now, self.models[hid])
         self.store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
                                   accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
@@ -372,6 +503,39 @@ class CampaignRunner:
                                   details={"rising_ok": verdict.rising_ok, "setting_ok": verdict.setting_ok,
                                            "window_counts": list(verdict.window_counts)})
         self.book.set_verdict(hid, verdict)
+        errs = "" if out.first_error_mrad is None else (
+            f", {out.first_error_mrad:.2f} mrad" if out.iterations <= 1 else
+            f", {out.first_error_mrad:.2f} -> {out.final_error_mrad:.2f} mrad in {out.iterations} placements")
+        self.event("visit_end", f"{hid} off {target_id}: {out.status} ({out.reason}){errs}", hid, target_id,
+                   time_s=now, data={"outcome": out.status, "iterations": out.iterations,
+                                     "first_error_mrad": out.first_error_mrad, "final_error_mrad": out.final_error_mrad})
+        self._after_leaving(hid, out.left, now)
+        if verdict.accepted != was:
+            rms = "" if verdict.rms_mrad is None else f", acceptance error {verdict.rms_mrad:.2f} mrad"
+            text = "accepted" if verdict.accepted else f"no longer accepted: {(verdict.reasons or ('',))[0]}"
+            self.event("verdict", f"{hid} {text} ({verdict.n_points} points{rms})", hid, time_s=now,
+                       data={"accepted": verdict.accepted, "n_points": verdict.n_points, "rms_mrad": verdict.rms_mrad})
+
+    def _after_leaving(self, hid: str, left: Left | None, now: float) -> None:
+        """What a heliostat's leaving the board did, recorded after the fact: the corrections the
+        plant took (an event), or a failed return to tracking (retried until the plant confirms)."""
+        if left is None:
+            self._send_back(hid, self.corrections[hid], now, why="the visit ended without leaving the board")
+        elif left.error is not None:
+            self.returning[hid] = self.returning.get(hid) or Returning(since_s=now, next_check_s=now + RETURN_RETRY_S)
+            ret = self.returning[hid]
+            ret.failed, ret.last_error, ret.corrections_mm = True, left.error, self.corrections[hid]
+            ret.next_check_s = now + RETURN_RETRY_S
+            self.event("off_tracking", f"{hid}: {left.error}; retrying every {RETURN_RETRY_S:.0f} s until the "
+                                       "plant confirms it tracks", hid)
+        else:
+            if left.corrections_mm is not None and not (self.corrections[hid] is not None and
+                                                        np.array_equal(left.corrections_mm, self.corrections[hid])):
+                self.corrections[hid] = left.corrections_mm
+                c = left.corrections_mm
+                self.event("tracking_written", f"{hid}: tracking corrections {c[0]:+.2f}, {c[1]:+.2f} mm", hid)
+            self.returning[hid] = Returning(since_s=now, next_check_s=now + RETURN_CHECK_S,
+                                            corrections_mm=self.corrections[hid])
 
     def _corrections(self, hid: str, model: HeliostatModel) -> np.ndarray | None:
         """Tracking corrections to write as the visit ends; None keeps what the plant has."""
@@ -383,10 +547,7 @@ class CampaignRunner:
         corr = policy.tracking_corrections(self.cfg, self.nominal_of(hid), model, sun_ahead, sun_later)[0]
         if not np.all(np.isfinite(corr)):
             return self.corrections[hid]
-        self.corrections[hid] = corr
-        self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="tracking_written",
-                                reason=f"{hid}: tracking corrections {corr[0]:+.2f}, {corr[1]:+.2f} mm")
-        return corr
+        return corr  # recorded (and kept) once the plant has taken it: see _after_leaving
 
     def _refresh_tracking(self, now: float) -> None:
         """Rewrite the tracking corrections of every calibrated heliostat not in a visit.
@@ -408,6 +569,7 @@ class CampaignRunner:
         calibrated = self.nominal.subset(rows).with_params(np.vstack([self.models[h].params for h in ids]))
         later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
         corr = policy.tracking_corrections(self.cfg, self.nominal.subset(rows), calibrated, vec, later)
+        failed = []
         for hid, c in zip(ids, corr):
             if not np.all(np.isfinite(c)):
                 continue
@@ -415,8 +577,11 @@ class CampaignRunner:
                 self.plant.track(self.cfg.heliostat_index(hid), c)
                 self.corrections[hid] = c
             except PlantError as err:
-                self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
-                                        reason=f"{hid}: tracking corrections not written: {err}")
+                failed.append((hid, err))
+        if failed:  # one line for a dead plant, not one per heliostat
+            names = ", ".join(h for h, _e in failed[:5]) + (f" and {len(failed) - 5} more" if len(failed) > 5 else "")
+            self.event("fault", f"tracking corrections not written for {len(failed)} heliostat(s) ({names}): "
+                                f"{failed[0][1]}", failed[0][0] if len(failed) == 1 else None)
 
     def _refit(self, hid: str, obs) -> HeliostatModel:
         self.book.add(obs)
@@ -434,17 +599,20 @@ class CampaignRunner:
         """Re-check mode: every heliostat has been visited and no visit is under way."""
         return not self.active and all(self.book.h[hid].visits > 0 for hid in self.ids)
 
-    def shutdown(self, now: float) -> None:
+    def shutdown(self, now: float) -> list[str]:
         """Stop every visit under way; each heliostat leaves its board as a finished visit does:
         the beam to the board's standby point first (never across the receiver), then back to
         tracking with the corrections last written (the visits' legs run side by side on the
-        clock; each move is bounded by ``settle_timeout_s``). A failure is recorded as a fault
-        event; if the clock itself fails, the rest go straight back to tracking."""
+        clock; each move is bounded by ``settle_timeout_s``). Then every return to tracking not yet
+        confirmed is checked once. Returns the heliostats left off tracking: each has an
+        ``off_tracking`` event, and the next run on this database retries them first."""
         leaving = []
         for tid in list(self.active):
             _wake, hid, gen, ctx = self.active.pop(tid)
             gen.close()
             self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
+            self.event("visit_end", f"{hid} off {tid}: aborted (campaign stopped), leaving via standby", hid, tid,
+                       data={"outcome": "aborted"})
             ctx.corrections = lambda _model, hid=hid: self.corrections[hid]
             leaving.append([now, hid, ctx, leave_board(ctx)])
         while leaving:
@@ -457,18 +625,84 @@ class CampaignRunner:
                     t = self.clock.now_s()
                 leaving.append([t + float(leg.send(None)), hid, ctx, leg])
             except StopIteration as done:
-                if done.value:
-                    self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
-                                            reason=f"{hid}: {done.value}")
+                self._after_leaving(hid, done.value, self.safe_now()[0])
             except HelicalibError as err:  # no clock: straight back to tracking, as before a stop
                 for _w, h, c, g in [[wake, hid, ctx, leg], *leaving]:
                     g.close()
-                    try:
-                        self.plant.track(c.index, self.corrections[h])
-                    except PlantError as err2:
-                        self.store.record_event(campaign_id=self.campaign_id, time_s=now, kind="fault",
-                                                reason=f"{h}: back to tracking failed: {err2} (clock: {err})")
+                    self._send_back(h, self.corrections[h], self.safe_now()[0], why=f"stopping without a clock: {err}")
                 leaving = []
+        return self._confirm_returns_once()
+
+    def _confirm_returns_once(self) -> list[str]:
+        """At a stop: read each unconfirmed return once; a heliostat neither tracking nor on its way
+        is recorded ``off_tracking`` (the next run retries it). Returns those heliostats."""
+        if not self.armed:
+            return []
+        stranded = []
+        for hid, ret in sorted(self.returning.items()):
+            try:
+                state = self.plant.status(self.cfg.heliostat_index(hid)).state
+            except PlantError as err:
+                state, ret.last_error = None, str(err)
+            if state in (HeliostatState.TRACKING, HeliostatState.MOVING) or (
+                    state == HeliostatState.STOWED and self.stowed):
+                continue
+            stranded.append(hid)
+            what = ret.last_error if state is None else f"state {state.name.lower()}"
+            self.event("off_tracking", f"{hid}: not confirmed back to tracking when the controller stopped "
+                                       f"({what}); the next run retries it first", hid)
+        self.returning.clear()
+        return stranded
+
+    # ------------------------------------------------------------------ what a view shows
+    def snapshot(self, now: float) -> Snapshot:
+        """The campaign's state at plant time ``now`` (read-only; call it where no tick runs)."""
+        boards = []
+        for t in self.cfg.targets:
+            if t.id in self.active:
+                b = self._boards.get(t.id, BoardState(t.id, self.active[t.id][1]))
+                boards.append(b if b.heliostat_id == self.active[t.id][1] else BoardState(t.id, self.active[t.id][1]))
+            else:
+                boards.append(BoardState(t.id))
+        el = self.sun(now)[2]
+        gate = self._last_gate
+        w = self.last_weather
+        accepted = sum(1 for hid in self.ids if self.book.accepted(hid))
+        return Snapshot(
+            time_s=now, campaign_id=self.campaign_id, armed=self.armed, rate=float(self.clock.rate),
+            boards=tuple(boards), wind_ms=None if w is None else w.wind_ms, dni_wm2=None if w is None else w.dni_wm2,
+            stowed=self.stowed, gate_open=None if gate is None else gate.open,
+            gate_reason="" if gate is None else gate.reason, night=bool(gate is not None and gate.night),
+            sun_elevation_deg=el, heliostats=len(self.ids), accepted=accepted, in_progress=len(self.active),
+            waiting=len(self.ids) - accepted - len(self.active), visits=self.stats.visits,
+            valid_visits=self.stats.valid_visits, next_band=self._next_band(now),
+            off_tracking=tuple(sorted(set(self.returning) & self._flagged | {h for h, r in self.returning.items()
+                                                                               if r.failed})))
+
+    def _next_band(self, now: float) -> str:
+        """The rising or setting low band (the paper's scarce 5–15°): "rising band now (until 07:10 UTC)"
+        or "setting band in 3.2 h"; recomputed at most once a plant minute."""
+        if now - self._band_cache[0] < 60.0:
+            return self._band_cache[1]
+        lo, hi = self.cfg.acceptance.low_band_deg
+        t = now
+        inside = lambda el: lo <= el <= hi  # noqa: E731
+        _v, _az, el, rising = self.sun(t)
+        if inside(el):
+            end = t
+            while inside(self.sun(end)[2]) and end < now + 86400.0:
+                end += 120.0
+            text = f"{'rising' if rising else 'setting'} band now, {(end - now) / 3600.0:.1f} h left"
+        else:
+            text = "no band within 2 days"
+            while t < now + 2 * 86400.0:
+                t += 300.0
+                _v, _az, el, rising = self.sun(t)
+                if inside(el):
+                    text = f"{'rising' if rising else 'setting'} band in {(t - now) / 3600.0:.1f} h"
+                    break
+        self._band_cache = (now, text)
+        return text
 
     # ------------------------------------------------------------------ summary
     def accepted(self) -> list[str]:

@@ -52,6 +52,11 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
     db_path = out_dir / "helicalib.db"
     # durable=False: WAL with synchronous=NORMAL, still loses nothing on kill -9 (only on power loss)
     store = Store.open(db_path, "images", durable=False)  # relative to the database: OUT/images
+    try:
+        store.take_ownership(f"simulate {cfg.source or ''}")
+    except BaseException:
+        store.close()
+        raise
     resumed = store.unfinished_campaign(mode="simulate")
     if resumed is not None:
         campaign_id = resumed.id
@@ -82,6 +87,7 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
             clock.sleep(store_resume_time(store, campaign_id, start_s) - clock.now_s())
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=heliostat_ids,
                                 planner=planner, refine=refine)
+        store.remove_orphan_frames(campaign_id)  # after the runner closed the interrupted visits
         wall0 = time.perf_counter()
         runner.run_until(end_s, progress=progress)
         wall = time.perf_counter() - wall0

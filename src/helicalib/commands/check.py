@@ -4,16 +4,22 @@ from __future__ import annotations
 
 import argparse
 
+from helicalib.commands.run import _positive_days
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("check", help="re-check one or more heliostats now and report their present error",
-                       description="Visit each named heliostat once (whatever its acceptance) and report its present "
-                                   "first-placement tracking error. Without --arm nothing is written to the plant.")
+                       description="Visit each named heliostat once (whatever its acceptance) and print its present "
+                                   "error (the beam's angle at the first placement, with its newest fitted model) "
+                                   "beside the acceptance limit, and a verdict. Without --arm nothing is written to "
+                                   "the plant. See docs/running.md.")
     p.add_argument("field", help="field config YAML")
     p.add_argument("--heliostat", required=True, help="heliostat id, or several separated by commas")
     p.add_argument("--arm", action="store_true", help="allow writes to the plant")
-    p.add_argument("--hours", type=float, default=2.0, help="give up after this many plant hours (default 2)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--hours", type=_positive_days, default=2.0, help="give up after this many plant hours (default 2)")
+    p.add_argument("--json", action="store_true",
+                   help="JSON lines on stdout: one per event, a status line every 5 s, a final summary with each "
+                        "heliostat's present error, limit and verdict")
     p.set_defaults(func=run)
 
 

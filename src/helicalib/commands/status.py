@@ -28,7 +28,7 @@ def run(args) -> int:
     path = args.db[len("sqlite:///"):] if args.db.startswith("sqlite:///") else args.db
     if not Path(path).is_file():
         raise ConfigError(f"{args.db}: no such database file")
-    store = Store.open(path)
+    store = Store.open(path, readonly=True)  # a reader: never creates, migrates, writes or deletes anything
     try:
         campaigns = store.campaigns()
         if not campaigns:
@@ -37,15 +37,19 @@ def run(args) -> int:
         camp = store.campaign(args.campaign) if args.campaign is not None else campaigns[-1]
         rows = store.progress(camp.id)
         events = store.events(camp.id)
+        owner = store.owner()
     finally:
         store.close()
     accepted = sum(1 for r in rows if r["accepted"])
+    state = shown_status(camp.status, owner)
     if args.json:
-        print(json.dumps({"campaign": camp.id, "name": camp.name, "status": camp.status, "accepted": accepted,
-                          "heliostats": rows, "stows": sum(e.kind == "stow" for e in events)}, indent=2, default=list))
+        print(json.dumps({"campaign": camp.id, "name": camp.name, "mode": camp.mode, "status": state,
+                          "owner": owner, "accepted": accepted, "heliostats": rows,
+                          "stows": sum(e.kind == "stow" for e in events),
+                          "off_tracking": off_tracking(events)}, indent=2, default=list))
         return 0
     console = Console()
-    table = Table(title=f"campaign {camp.id}: {camp.name} ({camp.status}) — {accepted}/{len(rows)} accepted")
+    table = Table(title=f"campaign {camp.id}: {camp.name} ({state}) — {accepted}/{len(rows)} accepted")
     for col in ("heliostat", "target", "visits", "valid", "last error mrad", "RMS mrad", "verdict"):
         table.add_column(col, justify="right" if col not in ("heliostat", "target", "verdict") else "left")
     for r in rows:
@@ -54,7 +58,28 @@ def run(args) -> int:
         table.add_row(r["heliostat_id"], r["target_id"], str(r["visits"]), str(r["valid"]), fmt(r["last_error_mrad"]),
                       fmt(r["rms_mrad"]), verdict)
     console.print(table)
+    stranded = off_tracking(events)
+    if stranded:
+        console.print(f"[red]not confirmed back to tracking[/]: {', '.join(stranded)} (the next run retries them)")
     stows = [e for e in events if e.kind == "stow"]
     if stows:
         console.print(f"{len(stows)} wind stow(s); last: {stows[-1].reason}")
     return 0
+
+
+def shown_status(status: str, owner: str | None) -> str:
+    """A campaign's status as the crew should read it: ``running`` only while a process runs it."""
+    if status == "running" and owner is None:
+        return "interrupted: no process runs it (killed?); run it again to resume"
+    if owner is not None:
+        return f"running ({owner})" if status == "running" else f"{status}; database in use by {owner}"
+    return status
+
+
+def off_tracking(events) -> list[str]:
+    """Heliostats whose newest off_tracking event has no back_to_tracking after it."""
+    last = {}
+    for e in events:
+        if e.kind in ("off_tracking", "back_to_tracking") and e.heliostat_id:
+            last[e.heliostat_id] = e.kind
+    return sorted(h for h, k in last.items() if k == "off_tracking")

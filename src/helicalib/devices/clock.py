@@ -19,6 +19,7 @@ class SystemClock:
     """UTC from the computer's clock; ``sleep`` waits real seconds."""
 
     rate = 1.0
+    uncertainty_s = 0.0
 
     def __init__(self, source: Callable[[], float] = time.time, sleeper: Callable[[float], None] = time.sleep):
         self._source = source
@@ -27,6 +28,8 @@ class SystemClock:
     def now_s(self) -> float:
         """Now [UTC s]."""
         return float(self._source())
+
+    estimate_s = now_s
 
     def sleep(self, seconds: float) -> None:
         if seconds > 0:
@@ -48,7 +51,9 @@ class PlantClock:
         Real sleep [s] (``time.sleep``).
 
     A plant time that runs backwards between reads is refused (:class:`PlantError`); ``now_s``
-    never decreases.
+    never decreases. :attr:`uncertainty_s` is how far the extrapolation may be off: half the
+    plant seconds the last read of the plant's time took on the wire (the read answers somewhere
+    inside that span).
     """
 
     def __init__(self, plant, resync_s: float = 30.0, source: Callable[[], float] = time.monotonic,
@@ -61,17 +66,31 @@ class PlantClock:
         self._t0: float | None = None
         self._m0 = 0.0
         self.rate = 1.0
+        self.uncertainty_s = 0.0
         self._last = -float("inf")
 
     def sync(self) -> float:
         """Read the plant's time and rate now; returns the plant time [UTC s]."""
+        m_before = float(self._source())
         t, rate = self._plant.plant_time()
-        m = float(self._source())
+        m_after = float(self._source())
         with self._lock:
             if self._t0 is not None and t < self._last - 1.0:
                 raise PlantError(f"plant time went backwards: {t:.3f} after {self._last:.3f}")
-            self._t0, self._m0, self.rate = float(t), m, float(rate)
+            # the plant read its clock somewhere between the request and the answer: take the middle
+            self._t0, self._m0, self.rate = float(t), 0.5 * (m_before + m_after), float(rate)
+            self.uncertainty_s = 0.5 * float(rate) * (m_after - m_before)
         return float(t)
+
+    def estimate_s(self) -> float:
+        """Plant time extrapolated from the last read, without asking the plant (the controller's
+        own clock, for records made while the plant does not answer); the computer's UTC before
+        any read."""
+        m = float(self._source())
+        with self._lock:
+            if self._t0 is None:
+                return time.time()
+            return max(self._t0 + self.rate * (m - self._m0), self._last)
 
     def now_s(self) -> float:
         """Plant time now [UTC s]."""

@@ -52,13 +52,27 @@ class ModbusLink:
         First wait before a retry [s], doubled each time up to ``backoff_max_s``.
     sleep : callable
         Waits real seconds between retries (injected; ``time.sleep``).
+    down_s : float
+        After a request failed all its attempts, further requests fail at once for this many real
+        seconds (the plant is down: a tick that asks 500 heliostats must not wait 500 timeouts),
+        then the next one tries again.
+    monotonic : callable
+        Real time source for ``down_s`` (injected; ``time.monotonic``).
+
+    :meth:`hurry` (a stopping controller) makes every later request a single attempt.
     """
 
     def __init__(self, host: str, port: int, unit: int = 1, timeout_s: float = 2.0, retries: int = 3,
-                 backoff_s: float = 0.2, backoff_max_s: float = 5.0, sleep: Callable[[float], None] = time.sleep):
+                 backoff_s: float = 0.2, backoff_max_s: float = 5.0, sleep: Callable[[float], None] = time.sleep,
+                 down_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic):
         self.host, self.port, self.unit = host, int(port), int(unit)
         self.timeout_s, self.retries = float(timeout_s), int(retries)
         self.backoff_s, self.backoff_max_s = float(backoff_s), float(backoff_max_s)
+        self.down_s = float(down_s)
+        self._monotonic = monotonic
+        self._down_until = -math.inf
+        self._down_reason = ""
+        self._hurry = False
         self._sleep = sleep
         self._lock = threading.RLock()
         self._client: ModbusTcpClient | None = None
@@ -86,10 +100,18 @@ class ModbusLink:
             self._client = None
             self.reconnects += 1
 
+    def hurry(self) -> None:
+        """From now on one attempt per request, no back-off (the controller is stopping)."""
+        self._hurry = True
+
     def _call(self, what: str, fn: Callable[[ModbusTcpClient], object]):
+        if self._monotonic() < self._down_until:
+            raise PlantError(f"plant {self.name}: {what} not sent: the plant did not answer a moment ago "
+                             f"({self._down_reason})")
         delay = self.backoff_s
         last = "no attempt"
-        for attempt in range(self.retries + 1):
+        attempts = 1 if self._hurry else self.retries + 1
+        for attempt in range(attempts):
             if attempt:
                 self._sleep(delay)
                 delay = min(delay * 2, self.backoff_max_s)
@@ -109,8 +131,11 @@ class ModbusLink:
                 code = int(getattr(rr, "exception_code", 0) or 0)
                 name = EXCEPTION_NAMES.get(code, "unknown")
                 raise PlantError(f"plant {self.name}: {what} refused: Modbus exception {code} ({name})")
+            self._down_until = -math.inf
             return rr
-        raise PlantError(f"plant {self.name}: {what} failed after {self.retries + 1} attempts ({last})")
+        self._down_until = self._monotonic() + self.down_s
+        self._down_reason = last
+        raise PlantError(f"plant {self.name}: {what} failed after {attempts} attempt{'s' * (attempts > 1)} ({last})")
 
     def read(self, address: int, count: int, what: str) -> list[int]:
         """``count`` holding registers from ``address``; ``what`` names them in errors."""
@@ -183,6 +208,11 @@ class ModbusPlant:
         limits = np.array([[a.stroke_range_mm for a in cfg.drive_of(h.id).actuators] for h in cfg.heliostats])
         return cls(cfg.plant.scs, cfg.plant.weather_endpoint, len(cfg.heliostats), armed=armed,
                    heliostat_ids=[h.id for h in cfg.heliostats], stroke_limits_mm=limits, **kw)
+
+    def hurry(self) -> None:
+        """One attempt per request from now on (a stopping controller must not wait out retries)."""
+        self.scs.hurry()
+        self.weather_link.hurry()
 
     def close(self) -> None:
         self.scs.close()

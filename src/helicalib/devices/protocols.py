@@ -48,9 +48,16 @@ class Frame:
 
 @runtime_checkable
 class Clock(Protocol):
-    """Plant time. ``sleep`` waits for plant seconds (a virtual clock just advances)."""
+    """Plant time. ``sleep`` waits for plant seconds (a virtual clock just advances).
+
+    ``estimate_s`` never asks the plant (the controller's own extrapolation, for records made
+    while the plant does not answer); ``uncertainty_s`` is how far ``now_s`` may be off [plant s]."""
+
+    uncertainty_s: float
 
     def now_s(self) -> float: ...
+
+    def estimate_s(self) -> float: ...
 
     def sleep(self, seconds: float) -> None: ...
 

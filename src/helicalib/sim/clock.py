@@ -32,9 +32,14 @@ class VirtualClock:
         self._listeners: list[Callable[[float], None]] = []
         self._lock = threading.Lock()
 
+    uncertainty_s = 0.0
+    """A virtual clock is exact."""
+
     def now_s(self) -> float:
         """Current plant time [UTC s]."""
         return self._now_s
+
+    estimate_s = now_s
 
     def sleep(self, seconds: float) -> None:
         """Advance plant time by ``seconds`` (negative values are refused)."""
@@ -82,9 +87,13 @@ class RateClock:
         self._sleeper = sleeper
         self._t0 = float(source())
 
+    uncertainty_s = 0.0
+
     def now_s(self) -> float:
         """Current plant time [UTC s]."""
         return self.start_s + self.rate * (float(self._source()) - self._t0)
+
+    estimate_s = now_s
 
     def sleep(self, seconds: float) -> None:
         """Wait until ``seconds`` of plant time have passed."""

@@ -2,7 +2,8 @@
 
 A frame is written to a temporary file in its final directory, flushed (and fsync'ed when
 ``durable``), then renamed into place: a reader never sees half a PNG, and a process killed
-mid-write leaves at most a ``*.tmp`` file that the next :func:`clean_temporary` removes. The store
+mid-write leaves at most a ``*.tmp`` file that the database's next owner removes
+(:meth:`~helicalib.store.sqlite.Store.take_ownership`; readers never delete anything). The store
 writes frames BEFORE the database row that points to them.
 """
 
@@ -91,12 +92,14 @@ def write_atomic(path: Path, data: bytes, *, durable: bool = True) -> None:
             os.close(fd)
 
 
-def frame_relpath(campaign_id: int, heliostat_id: str, visit_id: int | None, iteration: int,
-                  capture_time_s: float, kind: str) -> Path:
-    """Relative path of a frame: ``c<campaign>/<heliostat>/<t_ms>_v<visit>_i<iteration>_<kind>.png``."""
-    t_ms = int(round(float(capture_time_s) * 1000.0))
+def frame_relpath(campaign_id: int, heliostat_id: str, visit_id: int | None, iteration: int, kind: str) -> Path:
+    """Relative path of a frame: ``c<campaign>/<heliostat>/v<visit>_i<iteration>_<kind>.png``.
+
+    Built only from the controller's own numbers (campaign, visit, iteration) and a sanitised
+    heliostat id: never from what a device reports (a camera's capture time of 1e300 once made
+    every name too long). The capture time is in the observation's row."""
     visit = "x" if visit_id is None else str(int(visit_id))
-    return Path(f"c{int(campaign_id)}") / safe_name(heliostat_id) / f"{t_ms}_v{visit}_i{int(iteration)}_{safe_name(kind)}.png"
+    return Path(f"c{int(campaign_id)}") / safe_name(heliostat_id)[:64] / f"v{visit}_i{int(iteration)}_{safe_name(kind)}.png"
 
 
 def unique_path(images_dir: Path, rel: Path) -> Path:

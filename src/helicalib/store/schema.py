@@ -144,6 +144,28 @@ MIGRATIONS: dict[int, tuple[str, ...]] = {
 """Statements that take a database from the version before the key to the key's version."""
 
 
+def check_schema(conn: sqlite3.Connection, where: str) -> int:
+    """The schema version of an existing database, checked without writing anything (readers).
+
+    Raises :class:`ConfigError` for an empty file, a file that is not a helicalib database, one of
+    a newer version, and one of an older version (a campaign command migrates it; a reader may not).
+    """
+    tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    if not tables:
+        raise ConfigError(f"{where}: empty database, no helicalib campaign in it")
+    if "schema_version" not in tables:
+        raise ConfigError(f"{where}: not a helicalib database (tables {sorted(tables)[:5]} but no schema_version)")
+    row = conn.execute("SELECT version FROM schema_version").fetchone()
+    version = int(row[0]) if row else 0
+    if version > SCHEMA_VERSION:
+        raise ConfigError(
+            f"{where}: database schema version {version} is newer than this helicalib's ({SCHEMA_VERSION}); upgrade helicalib")
+    if version < SCHEMA_VERSION:
+        raise ConfigError(f"{where}: database schema version {version} is older than this helicalib's "
+                          f"({SCHEMA_VERSION}); a campaign command (run, check, simulate) migrates it, a reader does not")
+    return version
+
+
 def ensure_schema(conn: sqlite3.Connection, where: str) -> int:
     """Create the tables of an empty database or check the version of an existing one.
 

@@ -23,7 +23,7 @@ from helicalib.errors import ConfigError
 from helicalib.store import frames as _frames
 from helicalib.store.observation_rows import OBSERVATION_COLUMNS, observation_from_row, observation_to_row
 from helicalib.store.records import Campaign, CampaignHeliostat, Event, Fit, Observation, Verdict, Visit
-from helicalib.store.schema import ensure_schema
+from helicalib.store.schema import check_schema, ensure_schema
 
 FrameData = bytes | np.ndarray
 
@@ -61,24 +61,31 @@ class Store:
     def __init__(self, conn: sqlite3.Connection, path: Path, images_dir: Path, durable: bool):
         self._conn = conn
         self._lock = threading.RLock()
+        self._lock_file = None
         self.path = path
         self.images_dir = images_dir
         self.durable = durable
 
     # ------------------------------------------------------------------ opening
     @classmethod
-    def open(cls, path: str | Path, images_dir: str | Path | None = None, *, durable: bool = True) -> "Store":
+    def open(cls, path: str | Path, images_dir: str | Path | None = None, *, durable: bool = True,
+             readonly: bool = False) -> "Store":
         """Create the database at ``path`` or reopen it.
 
         Parameters
         ----------
         path : str or Path
-            Database file; a ``sqlite:///`` URL is accepted too. Parent directories are created.
+            Database file; a ``sqlite:///`` URL is accepted too. Parent directories are created
+            (not with ``readonly``).
         images_dir : str or Path, optional
             Frames directory; default ``images`` beside the database. Relative paths are taken
             relative to the database's directory.
         durable : bool
             See :class:`Store`.
+        readonly : bool
+            A reader (``status``, ``report``): the file must exist and be a helicalib database of
+            this schema version; nothing is created, migrated, written or deleted, so a reader can
+            open the database of a running campaign at any time.
 
         Raises
         ------
@@ -89,10 +96,12 @@ class Store:
         if text.startswith("sqlite:///"):
             text = text[len("sqlite:///"):]
         db = Path(text)
-        db.parent.mkdir(parents=True, exist_ok=True)
         images = Path(images_dir) if images_dir is not None else Path("images")
         if not images.is_absolute():
             images = db.parent / images
+        if readonly:
+            return cls(_connect_readonly(db), db, images, durable)
+        db.parent.mkdir(parents=True, exist_ok=True)
         try:
             conn = sqlite3.connect(db, timeout=30.0, check_same_thread=False)
             conn.execute("PRAGMA journal_mode=WAL")
@@ -101,13 +110,65 @@ class Store:
             ensure_schema(conn, str(db))
         except sqlite3.DatabaseError as exc:
             raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
-        _frames.clean_temporary(images)
         return cls(conn, db, images, durable)
 
+    # ------------------------------------------------------------------ ownership
+    def take_ownership(self, what: str = "campaign") -> int:
+        """Become the one process that runs campaigns on this database; clean what a killed owner left.
+
+        Takes an exclusive lock on ``<database>.lock`` (held until :meth:`close`; the kernel
+        releases it when the process dies, even by ``kill -9``), then removes the ``*.tmp`` frame
+        files a killed writer left. Only an owner deletes anything: readers never do. Returns how
+        many temporary files were removed.
+
+        Raises
+        ------
+        ConfigError
+            Another process holds the database (its pid and what it runs are named).
+        """
+        self._lock_file = _owner_lock(self.lock_path, what)
+        return _frames.clean_temporary(self.images_dir)
+
+    @property
+    def lock_path(self) -> Path:
+        return self.path.with_name(self.path.name + ".lock")
+
+    def owner(self) -> str | None:
+        """Who holds the database now ("pid 123: run"), or None when no campaign process runs on it."""
+        return _lock_holder(self.lock_path)
+
+    def remove_orphan_frames(self, campaign_id: int) -> int:
+        """Delete the frames of a campaign that no observation points to; returns how many.
+
+        A visit saves its "before" frame when it starts and the observation that points to it at
+        its first measurement; a process killed in between leaves the frame alone on disk. The owner
+        calls this after :meth:`close_interrupted_visits`, when no visit of the campaign runs.
+        """
+        if self._lock_file is None:
+            raise RuntimeError("remove_orphan_frames needs take_ownership() first")
+        folder = self.images_dir / f"c{int(campaign_id)}"
+        if not folder.is_dir():
+            return 0
+        referenced = set()
+        for before, after in self._read("SELECT before_frame_path, after_frame_paths_json FROM observations"
+                                        " WHERE campaign_id = ?", (int(campaign_id),)):
+            if before:
+                referenced.add(before)
+            referenced.update(json.loads(after or "[]"))
+        removed = 0
+        for f in folder.rglob("*.png"):
+            if f.relative_to(self.images_dir).as_posix() not in referenced:
+                f.unlink(missing_ok=True)
+                removed += 1
+        return removed
+
     def close(self) -> None:
-        """Close the connection (every write is already committed)."""
+        """Close the connection (every write is already committed) and release the ownership."""
         with self._lock:
             self._conn.close()
+            if self._lock_file is not None:
+                self._lock_file.close()
+                self._lock_file = None
 
     def __enter__(self) -> "Store":
         return self
@@ -148,8 +209,12 @@ class Store:
         return cid
 
     def finish_campaign(self, campaign_id: int, ended_s: float, status: str = "finished") -> None:
-        """Mark a campaign ended (it is then no longer resumed)."""
+        """Mark a campaign ended: ``finished`` (its end time came) or ``stopped`` (Ctrl-C, SIGTERM)."""
         self._write("UPDATE campaigns SET ended_s = ?, status = ? WHERE id = ?", (float(ended_s), status, int(campaign_id)))
+
+    def reopen_campaign(self, campaign_id: int) -> None:
+        """Mark a campaign ``running`` again (a run resumes it)."""
+        self._write("UPDATE campaigns SET ended_s = NULL, status = 'running' WHERE id = ?", (int(campaign_id),))
 
     def campaign(self, campaign_id: int) -> Campaign:
         rows = self._read("SELECT * FROM campaigns WHERE id = ?", (int(campaign_id),))
@@ -208,11 +273,13 @@ class Store:
     # ------------------------------------------------------------------ observations
     def save_frame(self, frame: FrameData, *, campaign_id: int, heliostat_id: str, visit_id: int | None,
                    iteration: int, capture_time_s: float, kind: str) -> str:
-        """Write one frame as PNG (atomically) and return its path relative to ``images_dir``."""
+        """Write one frame as PNG (atomically) and return its path relative to ``images_dir``.
+
+        ``capture_time_s`` is the camera's (untrusted) stamp: it is not part of the file name."""
         data = _frames.to_png_bytes(frame)
         with self._lock:
             rel = _frames.unique_path(self.images_dir, _frames.frame_relpath(
-                campaign_id, heliostat_id, visit_id, iteration, capture_time_s, kind))
+                campaign_id, heliostat_id, visit_id, iteration, kind))
             _frames.write_atomic(self.images_dir / rel, data, durable=self.durable)
         return rel.as_posix()
 
@@ -375,6 +442,57 @@ class Store:
 
 
 # ---------------------------------------------------------------------- helpers
+def _connect_readonly(db: Path) -> sqlite3.Connection:
+    """A read-only connection (``mode=ro``): never creates, migrates or writes the file."""
+    if not db.is_file():
+        raise ConfigError(f"{db}: no such database file")
+    try:
+        conn = sqlite3.connect(f"{db.resolve().as_uri()}?mode=ro", uri=True, timeout=30.0,
+                               check_same_thread=False)
+        check_schema(conn, str(db))
+    except sqlite3.DatabaseError as exc:
+        raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
+    return conn
+
+
+def _owner_lock(path: Path, what: str):
+    """An exclusive ``flock`` on ``path`` (created), with ``pid: what`` written in it; the open file."""
+    import fcntl
+    import os
+
+    fh = open(path, "a+")
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip() or "another process"
+        fh.close()
+        raise ConfigError(f"{path.with_suffix('')}: in use by helicalib ({holder}); one campaign process per "
+                          "database: stop it first") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(f"pid {os.getpid()}: {what}\n")
+    fh.flush()
+    return fh
+
+
+def _lock_holder(path: Path) -> str | None:
+    """What holds ``path``'s lock, or None (the file is only opened for reading, never created)."""
+    import fcntl
+
+    try:
+        fh = open(path)
+    except OSError:
+        return None
+    with fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            return fh.read().strip() or "another process"
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+        return None
+
+
 def _opt(value: float | None) -> float | None:
     return None if value is None else float(value)
 

@@ -1,0 +1,237 @@
+"""What a live run shows its crew: a rich terminal view, plain log lines, or JSON lines.
+
+Three outputs of the same :class:`~helicalib.campaign.events.RunEvent` stream and
+:class:`~helicalib.campaign.events.Snapshot` s (``helicalib run`` / ``check`` pick one):
+
+* :class:`TerminalView`: a rich ``Live`` panel on a terminal: plant time and rate, the gate
+  (wind, DNI, stowed and why), each board with the heliostat on it, its placement and last
+  error, the accepted / in-progress / waiting counts with the next low band, and the newest
+  events with their reasons;
+* :class:`LineLog`: one line per event (a log file, systemd's journal, a CI log), and a status
+  line every :attr:`LineLog.status_every_s` real seconds;
+* :class:`JsonLines`: ``--json``: one JSON object per line on stdout for each event, a
+  ``status`` line every :attr:`JsonLines.status_every_s` real seconds, and a final ``summary``.
+
+Events arrive from the scheduler's thread, snapshots from the main thread; every method is
+cheap and never raises into the campaign.
+"""
+
+from __future__ import annotations
+
+import collections
+import datetime as dt
+import json
+import sys
+import threading
+import time
+from typing import Any
+
+from helicalib.campaign.events import RunEvent, Snapshot, iso_local, iso_utc
+
+
+def site_timezone(site) -> dt.timezone:
+    """The site's local mean solar time (longitude / 15° h, to the minute): the field config names no
+    civil time zone, and the sun's day is what a crew plans by."""
+    minutes = round(float(site.longitude_deg) * 4.0)
+    return dt.timezone(dt.timedelta(minutes=minutes), f"local solar UTC{minutes / 60:+.2f}h")
+
+
+def _clock(t_s: float, tz: dt.tzinfo) -> str:
+    utc = dt.datetime.fromtimestamp(t_s, tz=dt.timezone.utc)
+    local = dt.datetime.fromtimestamp(t_s, tz=tz)
+    return f"{utc:%Y-%m-%d %H:%M:%S} UTC ({local:%H:%M} local)"
+
+
+def _fmt(x: float | None, unit: str = "", nd: int = 1) -> str:
+    return "—" if x is None else f"{x:.{nd}f}{unit}"
+
+
+def gate_text(s: Snapshot) -> str:
+    """The gate in words: why calibration runs or waits."""
+    if s.stowed:
+        return f"STOWED for wind ({s.gate_reason or 'wind above the stow limit'})"
+    if s.gate_open is None:
+        return "no weather reading yet"
+    if s.night:
+        return f"night: {s.gate_reason}"
+    return ("open: " if s.gate_open else "paused: ") + s.gate_reason
+
+
+class LineLog:
+    """One line per event on ``stream`` (stderr by default): for logs, journals and CI."""
+
+    status_every_s = 60.0
+
+    def __init__(self, tz: dt.tzinfo, stream=None, monotonic=time.monotonic):
+        self.tz, self.stream, self._mono = tz, stream or sys.stderr, monotonic
+        self._last_status = -float("inf")
+        self._lock = threading.Lock()
+
+    def _print(self, text: str) -> None:
+        with self._lock:
+            print(text, file=self.stream, flush=True)
+
+    def message(self, text: str) -> None:
+        self._print(text)
+
+    def on_event(self, ev: RunEvent) -> None:
+        stamp = iso_utc(ev.time_s).replace("+00:00", "Z") + (" (controller clock)" if ev.clock != "plant" else "")
+        self._print(f"{stamp} {ev.kind:<16} {ev.reason}")
+
+    def on_snapshot(self, s: Snapshot) -> None:
+        if self._mono() - self._last_status < self.status_every_s:
+            return
+        self._last_status = self._mono()
+        boards = ", ".join(f"{b.target_id}: {b.heliostat_id or 'free'}" for b in s.boards)
+        self._print(f"{iso_utc(s.time_s).replace('+00:00', 'Z')} status           {s.accepted}/{s.heliostats} "
+                    f"accepted, {s.in_progress} in progress, {s.waiting} waiting; {s.visits} visits; "
+                    f"{gate_text(s)}; {boards}; {s.next_band}")
+
+    def start(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+
+class JsonLines:
+    """``--json``: one JSON object per line on stdout (events, periodic status, the final summary)."""
+
+    status_every_s = 5.0
+
+    def __init__(self, tz: dt.tzinfo, stream=None, monotonic=time.monotonic):
+        self.tz, self.stream, self._mono = tz, stream or sys.stdout, monotonic
+        self._last_status = -float("inf")
+        self._lock = threading.Lock()
+
+    def emit(self, obj: dict[str, Any]) -> None:
+        with self._lock:
+            try:
+                self.stream.write(json.dumps(obj, default=str) + "\n")
+                self.stream.flush()
+            except BrokenPipeError:  # a reader that went away (| head) must not stop the campaign
+                pass
+
+    def message(self, text: str) -> None:
+        self.emit({"event": "message", "reason": text})
+
+    def on_event(self, ev: RunEvent) -> None:
+        self.emit(ev.to_json(self.tz))
+
+    def on_snapshot(self, s: Snapshot) -> None:
+        if self._mono() - self._last_status < self.status_every_s:
+            return
+        self._last_status = self._mono()
+        self.emit(s.to_json(self.tz))
+
+    def start(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+
+class TerminalView:
+    """A rich ``Live`` view of the campaign on a terminal, refreshed from the newest snapshot."""
+
+    def __init__(self, tz: dt.tzinfo, title: str, console=None, events_shown: int = 12):
+        from rich.console import Console
+
+        self.tz, self.title = tz, title
+        self.console = console or Console(stderr=True)
+        self.events: collections.deque[tuple[str, RunEvent]] = collections.deque(maxlen=events_shown)
+        self.snap: Snapshot | None = None
+        self.note = ""
+        self._live = None
+        self._real0 = time.monotonic()
+        self._plant0: float | None = None
+
+    def start(self) -> None:
+        from rich.live import Live
+
+        self._live = Live(self._render(), console=self.console, refresh_per_second=4, transient=False,
+                          get_renderable=self._render)
+        self._live.start()
+
+    def stop(self) -> None:
+        if self._live is not None:
+            self._live.stop()
+            self._live = None
+
+    def message(self, text: str) -> None:
+        self.note = text
+        if self._live is None:
+            self.console.print(text)
+
+    def on_event(self, ev: RunEvent) -> None:
+        if ev.kind != "measurement" or not ev.data.get("valid", True):
+            self.events.append((_style(ev), ev))
+
+    def on_snapshot(self, s: Snapshot) -> None:
+        if self._plant0 is None:
+            self._plant0, self._real0 = s.time_s, time.monotonic()
+        self.snap = s
+
+    def _render(self):
+        from rich.console import Group
+        from rich.panel import Panel
+        from rich.table import Table
+        from rich.text import Text
+
+        s = self.snap
+        if s is None:
+            return Panel(Text("connecting to the plant …"), title=self.title)
+        head = Table.grid(padding=(0, 2))
+        head.add_column(style="bold")
+        head.add_column()
+        elapsed = max(time.monotonic() - self._real0, 1e-6)
+        rate = (s.time_s - (self._plant0 or s.time_s)) / elapsed
+        head.add_row("plant time", f"{_clock(s.time_s, self.tz)}   rate {s.rate:g}x (seen {rate:.0f}x)   "
+                                   f"sun {s.sun_elevation_deg:.1f}°")
+        head.add_row("mode", "[green]ARMED[/]: calibrating" if s.armed else
+                     "[yellow]not armed[/]: reading and planning only, nothing written to the plant")
+        style = "red" if s.stowed else ("green" if s.gate_open else "yellow")
+        weather = "" if "wind" in s.gate_reason else (f"   wind {_fmt(s.wind_ms, ' m/s')}   "
+                                                      f"DNI {_fmt(s.dni_wm2, ' W/m²', 0)}")
+        head.add_row("gate", f"[{style}]{gate_text(s)}[/]{weather}")
+        head.add_row("progress", f"[bold]{s.accepted}[/]/{s.heliostats} accepted · {s.in_progress} on boards · "
+                                 f"{s.waiting} waiting · {s.visits} visits ({s.valid_visits} valid) · {s.next_band}")
+        if s.off_tracking:
+            head.add_row("[red]off tracking[/]", "[red]" + ", ".join(s.off_tracking) + "[/] (retrying until the "
+                                                 "plant confirms state 1)")
+        boards = Table(box=None, expand=False, header_style="bold")
+        for col in ("board", "heliostat", "placement", "last error [mrad]", "on board for"):
+            boards.add_column(col)
+        for b in s.boards:
+            since = "" if b.since_s is None else f"{(s.time_s - b.since_s) / 60.0:.1f} min"
+            boards.add_row(b.target_id, b.heliostat_id or "[dim]free[/]",
+                           "—" if b.iteration is None else str(b.iteration + 1), _fmt(b.last_error_mrad, "", 2), since)
+        log = Table(box=None, show_header=False, expand=True)
+        log.add_column(no_wrap=True, style="dim", width=9)
+        log.add_column(no_wrap=True, width=16)
+        log.add_column(overflow="fold", ratio=1)
+        for style_, ev in list(self.events):
+            t = dt.datetime.fromtimestamp(ev.time_s, tz=self.tz).strftime("%H:%M:%S")
+            log.add_row(t + ("*" if ev.clock != "plant" else ""), f"[{style_}]{ev.kind}[/]", ev.reason)
+        parts = [head, Text(""), boards, Text(""), Panel(log, title="events (local time; * controller clock)")]
+        if self.note:
+            parts.append(Text(self.note, style="bold yellow"))
+        return Panel(Group(*parts), title=self.title)
+
+
+def _style(ev: RunEvent) -> str:
+    return {"fault": "red", "off_tracking": "red", "stow": "red", "gated": "yellow", "note": "yellow",
+            "verdict": "green", "back_to_tracking": "green", "ungated": "green",
+            "measurement": "yellow"}.get(ev.kind, "cyan")
+
+
+def make_output(kind: str, tz: dt.tzinfo, title: str):
+    """``"json"``, ``"lines"`` or ``"terminal"``."""
+    if kind == "json":
+        return JsonLines(tz)
+    if kind == "lines":
+        return LineLog(tz)
+    return TerminalView(tz, title)
+
+
+__all__ = ["JsonLines", "LineLog", "TerminalView", "make_output", "site_timezone", "gate_text", "iso_local"]
