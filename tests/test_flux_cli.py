@@ -103,7 +103,13 @@ def test_flux_command_cleanliness(files, demo_field_path, capsys):
     expected = 900 * 4.5 * 4.5 * 0.93 * c["cos_incidence"] * c["attenuation"]
     assert c["expected_clean_power_w"] == pytest.approx(expected, rel=1e-4)
     assert c["cleanliness"] == pytest.approx(c["power_w"] / expected, rel=1e-3)
-    assert 60 < c["slant_range_m"] < 110
+    # the beam lands at the map's flux-weighted centre (the beam's centre CUV within the documented 10 mm) and
+    # leaves from the mirror centre, within the drive's mirror offset of the heliostat's pivot
+    cfg = load_field_config(demo_field_path)
+    spot = np.asarray(cfg.target("T1").uvw_to_enu(np.asarray(CUV)))
+    assert c["aim_enu_m"] == pytest.approx(list(spot), abs=0.01)
+    pivot_range = float(np.linalg.norm(spot - np.asarray(cfg.heliostat("H0007").position_enu_m)))
+    assert abs(c["slant_range_m"] - pivot_range) <= cfg.drive_of("H0007").mirror_offset_m + 0.01
 
 
 def test_missing_frame_and_bad_flux_yaml_are_one_line_errors(files, demo_field_path, tmp_path, capsys):
@@ -134,9 +140,17 @@ def test_flux_yaml_files_are_resolved_and_checked(tmp_path):
         load_flux_calibration(tmp_path / "F2.yaml")
 
 
-def test_shipped_flux_demo_loads(demo_field_path):
+def test_shipped_flux_demo_is_the_simulated_demo_camera(demo_field_path):
+    """flux_demo.yaml describes camera C1 as the simulated plant renders it (default scenario)."""
+    from helicalib.sim.scenario import Scenario
+
     fc = load_flux_calibration(demo_field_path.parent / "flux_demo.yaml")
-    assert fc.fe_wm2_per_grey() == pytest.approx(2.312)  # the paper's worked value, by eq. (2)
-    data = load_correction_data(fc)
-    assert data.dark_grey == 4.2 and data.response.k1_grey_per_input == pytest.approx(1.0)
-    assert data.response.linearise(np.array(217.5)) == pytest.approx(244.2)
+    sc = Scenario()
+    assert fc.camera == "C1"
+    assert fc.fe_wm2_per_grey() == pytest.approx(1.0 / (sc.camera.board_albedo * sc.camera.gain_counts_per_wm2),
+                                                 rel=1e-6)
+    assert fc.cleanliness.reflectivity_clean == sc.optics.reflectivity
+    assert fc.cleanliness.atmosphere == "none"            # the simulated plant renders no attenuation
+    data = load_correction_data(fc)                       # a linear, offset-free, uniform, Lambertian camera
+    assert data.dark_grey is None and data.response is None and data.flat_factors is None
+    assert fc.corrections.non_lambertian is None

@@ -3,17 +3,12 @@ its Fe on the HTTP camera) and ``calibration.reflectivity_clean``; the simulated
 
 from __future__ import annotations
 
-import shutil
-from pathlib import Path
-
 import pytest
 import yaml
 
 from helicalib.config import load_field_config
 from helicalib.devices.camera_http import cameras_from_config
 from helicalib.errors import ConfigError
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_reflectivity_clean_defaults_and_is_checked(demo_data, write_field):
@@ -30,7 +25,8 @@ def test_http_cameras_get_fe_from_their_flux_yaml(demo_data, write_field, tmp_pa
     (tmp_path / "flux").mkdir()
     (tmp_path / "flux" / "c2.yaml").write_text(yaml.safe_dump(
         {"fe": {"value_wm2_per_grey": 3.1}, "cleanliness": {"reflectivity_clean": 0.9, "atmosphere": "hazy"}}))
-    shutil.copy(ROOT / "field_config" / "flux_demo.yaml", tmp_path / "flux" / "c1.yaml")
+    (tmp_path / "flux" / "c1.yaml").write_text(yaml.safe_dump(
+        {"fe": {"two_radiometer": {"ea_wm2": 462.4, "eb_wm2": 100.0, "eb_prime_wm2": 95.0, "gav_grey": 190.0}}}))
     demo_data["cameras"][0]["flux_calibration"] = "flux/c1.yaml"   # two radiometers: Fe = Ea·Eb'/(Eb·Gav)
     demo_data["cameras"][1]["flux_calibration"] = "flux/c2.yaml"
     cfg = load_field_config(write_field(demo_data))

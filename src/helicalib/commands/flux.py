@@ -108,6 +108,7 @@ def run(args) -> int:
     from helicalib.flux.corrections import incidence_angle_deg, view_angles_deg
     from helicalib.flux.grid import board_grid
     from helicalib.flux.measure import auto_cell_m, measure_flux
+    from helicalib.flux.visit import MAX_EDGE_FRACTION
     from helicalib.vision.marks import find_marks
 
     fc = load_flux_calibration(args.calibration)
@@ -163,7 +164,7 @@ def run(args) -> int:
         "corrections": res.corrections,
     }
     if args.dni_wm2 is not None or args.time:
-        out["cleanliness"] = _cleanliness(args, fc, cfg, target, heliostat, fm.power_w)
+        out["cleanliness"] = _cleanliness(args, fc, cfg, target, heliostat, fm)
     if args.plot:
         from helicalib.flux.fluxmap import plot_flux_map
 
@@ -187,14 +188,21 @@ def run(args) -> int:
         c = out["cleanliness"]
         print(f"clean     {c['cleanliness']:.3f} (measured {c['power_w'] / 1000:.3f} kW / expected clean "
               f"{c['expected_clean_power_w'] / 1000:.3f} kW)")
+        if c["edge_fraction"] is not None and c["edge_fraction"] > MAX_EDGE_FRACTION and args.intercept == 1.0:
+            print(f"WARNING   the spot reaches the board edge (edge fraction {c['edge_fraction']:.3f}): power is lost "
+                  "off the board, the cleanliness is low unless --intercept says how much")
     if args.plot:
         print(f"plot      {args.plot}")
     return 0
 
 
-def _cleanliness(args, fc, cfg, target, heliostat, power_w) -> dict:
+def _cleanliness(args, fc, cfg, target, heliostat, fm) -> dict:
+    """The cleanliness estimate as the campaign makes it (``flux.visit``): the beam lands at the map's
+    flux-weighted centre, from the mirror centre of the nominal model that sends it there."""
     from helicalib.errors import ConfigError
     from helicalib.flux.cleanliness import atmospheric_attenuation, cos_incidence, estimate_cleanliness, expected_power_w
+    from helicalib.flux.visit import edge_fraction
+    from helicalib.geometry import optics
     from helicalib.geometry.sun import parse_time, sun_position
 
     if cfg is None or heliostat is None or args.time is None or args.dni_wm2 is None:
@@ -204,18 +212,26 @@ def _cleanliness(args, fc, cfg, target, heliostat, power_w) -> dict:
     site = cfg.site
     sun = sun_position(parse_time(args.time), site.latitude_deg, site.longitude_deg, site.altitude_m,
                        site.pressure_hpa_effective, site.temperature_c)
-    pos = np.asarray(heliostat.position_enu_m)
-    aim = np.asarray(target.center_enu_m)
-    cos_i = float(cos_incidence(np.asarray(sun.vector_enu), pos, aim))
-    slant = float(np.linalg.norm(aim - pos))
+    s = np.asarray(sun.vector_enu, dtype=float)
+    centre = np.asarray(fm.centre_uv_m, dtype=float)
+    aim = np.asarray(target.uvw_to_enu(centre) if np.all(np.isfinite(centre)) else target.center_enu_m, dtype=float)
+    drive = cfg.drive_of(heliostat.id)
+    pivot = np.asarray(heliostat.position_enu_m, dtype=float)
+    mirror = optics.mirror_centre(pivot, optics.aim_normal(pivot, s, aim, drive.mirror_offset_m), drive.mirror_offset_m)
+    cos_i = float(cos_incidence(s, mirror, aim))
+    slant = float(np.linalg.norm(aim - mirror))
     tau = float(atmospheric_attenuation(slant, fc.cleanliness.atmosphere))
-    area = float(np.prod(cfg.drive_of(heliostat.id).mirror_size_m))
+    area = float(np.prod(drive.mirror_size_m))
     rho = fc.cleanliness.reflectivity_clean
+    edge = edge_fraction(fm.flux_wm2, fm.grid.cell_m)
     return {
         "heliostat": heliostat.id, "dni_wm2": args.dni_wm2, "mirror_area_m2": round(area, 4),
-        "reflectivity_clean": rho, "cos_incidence": round(cos_i, 6), "slant_range_m": round(slant, 2),
+        "reflectivity_clean": rho, "aim_enu_m": [round(float(x), 3) for x in aim],
+        "cos_incidence": round(cos_i, 6), "slant_range_m": round(slant, 2),
         "attenuation": round(tau, 6), "atmosphere": fc.cleanliness.atmosphere, "intercept": args.intercept,
-        "power_w": round(power_w, 2),
+        "edge_fraction": None if np.isnan(edge) else round(edge, 4),
+        "power_w": round(fm.power_w, 2),
         "expected_clean_power_w": round(float(expected_power_w(args.dni_wm2, area, rho, cos_i, tau, args.intercept)), 2),
-        "cleanliness": round(float(estimate_cleanliness(power_w, args.dni_wm2, area, rho, cos_i, tau, args.intercept)), 5),
+        "cleanliness": round(float(estimate_cleanliness(fm.power_w, args.dni_wm2, area, rho, cos_i, tau,
+                                                        args.intercept)), 5),
     }

@@ -18,7 +18,7 @@ as used by DELSOL/SolarPILOT (Leary & Hankins 1979), with slant range S in metre
     τ = exp(−1.106e-4·S)                       (S >  1000 m)
 
 and the hazy-day (5 km visibility) polynomial ``τ = 0.98707 − 2.748e-4·S + 3.394e-8·S²``, given
-for S <= 1000 m only.
+for S <= 1000 m only. ``none`` is τ = 1: no attenuation (the simulated plant renders none).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ __all__ = [
     "gaussian_intercept",
 ]
 
-Atmosphere = Literal["clear", "hazy"]
+Atmosphere = Literal["clear", "hazy", "none"]
 
 
 def atmospheric_attenuation(slant_range_m: np.ndarray | float, model: Atmosphere = "clear") -> np.ndarray | float:
@@ -46,8 +46,8 @@ def atmospheric_attenuation(slant_range_m: np.ndarray | float, model: Atmosphere
     ----------
     slant_range_m : float or np.ndarray, shape (...)
         Distance mirror centre → aim point [m], >= 0.
-    model : {"clear", "hazy"}
-        23 km visibility (default) or 5 km visibility (valid to 1000 m).
+    model : {"clear", "hazy", "none"}
+        23 km visibility (default), 5 km visibility (valid to 1000 m), or no attenuation (τ = 1).
 
     Returns
     -------
@@ -63,8 +63,10 @@ def atmospheric_attenuation(slant_range_m: np.ndarray | float, model: Atmosphere
         if np.any(s > 1000.0):
             raise ValueError("the hazy-day attenuation polynomial is given for slant ranges up to 1000 m only")
         tau = 0.98707 - 2.748e-4 * s + 3.394e-8 * s**2
+    elif model == "none":
+        tau = np.ones_like(s)
     else:
-        raise ValueError(f"unknown atmosphere model {model!r}; expected 'clear' or 'hazy'")
+        raise ValueError(f"unknown atmosphere model {model!r}; expected 'clear', 'hazy' or 'none'")
     return float(tau) if tau.ndim == 0 else tau
 
 

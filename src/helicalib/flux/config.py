@@ -137,7 +137,7 @@ class ComponentErrors(_Model):
 
 class CleanlinessModel(_Model):
     reflectivity_clean: float = Fraction
-    atmosphere: Literal["clear", "hazy"] = "clear"
+    atmosphere: Literal["clear", "hazy", "none"] = "clear"
 
 
 class FluxCalibration(_Model):

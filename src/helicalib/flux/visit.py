@@ -193,9 +193,9 @@ def cleanliness_from_visit(before: np.ndarray, after: np.ndarray, marks, target,
         σ of a Gaussian spot on the board [m]: the intercept is then
         :func:`~helicalib.flux.cleanliness.gaussian_intercept` at the measured centre. None: the spot
         must lie wholly on the board (the edge test) and the intercept is 1.
-    atmosphere : {"clear", "hazy"} or None
-        Atmospheric attenuation model over the slant range; None: no attenuation (τ = 1, e.g. the
-        simulated plant).
+    atmosphere : {"clear", "hazy", "none"} or None
+        Atmospheric attenuation model over the slant range; None or "none": no attenuation (τ = 1,
+        e.g. the simulated plant).
     min_dni_wm2 : float
         Below this DNI no estimate is made [W/m²].
     max_edge_fraction : float
