@@ -36,7 +36,7 @@ def run(args) -> int:
     from helicalib.sim.clock import RateClock
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import load_scenario
-    from helicalib.sim.server import FaultInjector, PlantServer
+    from helicalib.sim.server import MODBUS, FaultInjector, PlantServer, PortInUseError
 
     if not args.rate > 0:
         raise ConfigError(f"--rate {args.rate}: must be > 0")
@@ -58,8 +58,10 @@ def run(args) -> int:
         signal.signal(sig, lambda *_: stop.set())
     try:
         server.start()
-    except OSError as exc:
-        raise ConfigError(f"sim-plant: cannot bind on 127.0.0.1 ({exc}); choose --port/--camera-port") from None
+    except PortInUseError as exc:
+        option = "--port" if exc.kind == MODBUS else "--camera-port"
+        raise ConfigError(f"{exc} (another sim-plant or plant server?); choose another with {option}, "
+                          f"0 picks a free one") from None
     print(f"sim-plant: {plant.n} heliostats, scenario '{scenario.name}', seed {scenario.seed}, rate {args.rate}x, "
           f"plant time starts {datetime.fromtimestamp(start_s, tz=timezone.utc).isoformat()}")
     for p in server.modbus_ports:

@@ -13,8 +13,10 @@ returns the true state of every heliostat (strokes, state, true tracking error w
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
 import random
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -28,10 +30,46 @@ from pymodbus.exceptions import NoSuchIdException
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 
+from helicalib.errors import ConfigError
 from helicalib.sim.camera import SimCamera, encode_png
 from helicalib.sim.modbus_map import PlantRegisters
 
 LOOPBACK = "127.0.0.1"
+MODBUS = "Modbus TCP"
+CAMERA_HTTP = "camera HTTP"
+
+
+class PortInUseError(ConfigError):
+    """A port the plant server must listen on is taken; ``kind`` (:data:`MODBUS` or :data:`CAMERA_HTTP`)
+    and ``port`` say which."""
+
+    def __init__(self, kind: str, port: int):
+        self.kind = kind
+        self.port = int(port)
+        super().__init__(f"{kind} port {port} on {LOOPBACK} is in use")
+
+
+def bind_error(kind: str, port: int, exc: OSError) -> ConfigError:
+    """The one-line error for a listener that could not bind ``port``."""
+    if exc.errno == errno.EADDRINUSE:
+        return PortInUseError(kind, port)
+    if exc.errno == errno.EACCES:
+        return ConfigError(f"{kind} port {port} on {LOOPBACK}: permission denied (ports below 1024 need privileges)")
+    return ConfigError(f"{kind} port {port} on {LOOPBACK}: cannot listen ({exc.strerror or exc})")
+
+
+def check_port_free(kind: str, port: int) -> None:
+    """Raise :func:`bind_error`'s error if ``port`` cannot be bound on loopback as a server binds it
+    (``SO_REUSEADDR``, as asyncio and ``http.server`` do). Port 0 always can. pymodbus swallows the
+    reason of a failed listen, so its ports are probed first."""
+    if int(port) == 0:
+        return
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((LOOPBACK, int(port)))
+        except OSError as exc:
+            raise bind_error(kind, port, exc) from None
 
 
 @dataclass
@@ -204,6 +242,17 @@ class PlantServer:
 
     # -- lifecycle --------------------------------------------------------------------------
     def start(self) -> PlantServer:
+        """Listen on every port; raises :class:`PortInUseError` (or another one-line
+        :class:`ConfigError`) naming the port that cannot be bound, with nothing left listening."""
+        for port in self._want_modbus:
+            check_port_free(MODBUS, port)
+        try:
+            return self._start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def _start(self) -> PlantServer:
         ready = threading.Event()
         errors: list[BaseException] = []
 
@@ -227,7 +276,7 @@ class PlantServer:
                 errors.append(exc)
                 ready.set()
                 return
-            ready.set()
+            loop.call_soon(ready.set)                # set once the loop runs: stop() can then reach it
             loop.run_forever()
             loop.close()
 
@@ -236,9 +285,14 @@ class PlantServer:
         self._threads.append(t)
         ready.wait(10)
         if errors:
+            for port in self._want_modbus:           # taken since the first probe: say which
+                check_port_free(MODBUS, port)
             raise RuntimeError(f"Modbus server did not start: {errors[0]}")
         for want, group in self._camera_groups.items():
-            httpd = ThreadingHTTPServer((LOOPBACK, want), _make_http_handler(self, group))
+            try:
+                httpd = ThreadingHTTPServer((LOOPBACK, want), _make_http_handler(self, group))
+            except OSError as exc:
+                raise bind_error(CAMERA_HTTP, want, exc) from None
             httpd.daemon_threads = True
             self.camera_ports[want] = httpd.server_address[1]
             th = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.1}, name="sim-http", daemon=True)
@@ -256,11 +310,18 @@ class PlantServer:
             async def down():
                 for srv in self._modbus:
                     await srv.shutdown()
-            fut = asyncio.run_coroutine_threadsafe(down(), self._loop)
-            try:
-                fut.result(5)
-            finally:
-                self._loop.call_soon_threadsafe(self._loop.stop)
+            if self._loop.is_running():
+                fut = asyncio.run_coroutine_threadsafe(down(), self._loop)
+                try:
+                    fut.result(5)
+                finally:
+                    self._loop.call_soon_threadsafe(self._loop.stop)
+            else:                                   # its thread gave up while starting: close here
+                for th in self._threads[:1]:
+                    th.join(5)
+                if not self._loop.is_closed():
+                    self._loop.run_until_complete(down())
+                    self._loop.close()
         for th in self._threads:
             th.join(5)
 
