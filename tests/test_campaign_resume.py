@@ -159,6 +159,8 @@ def test_without_arm_nothing_is_written(plant):
     con.close()
     assert visits == 0
     assert any(n.startswith("not armed: would send") for n in notes), notes
+    # stopped, and kept apart as a dry run: never shown as running, never resumed as a calibration
+    assert _campaigns(tmp / "campaign.db") == [(1, "dry-run", "stopped")]
     # the plant's side: no heliostat ever processed a command sequence, the field was never commanded
     from helicalib.devices.modbus import ModbusPlant
 
@@ -193,3 +195,81 @@ def test_check_reports_the_present_error(plant):
     modes = [m for (m,) in con.execute("SELECT mode FROM campaigns")]
     con.close()
     assert modes == ["check"]
+
+
+def _cli(field: Path, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "helicalib", *args, str(field)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def _campaigns(db: Path) -> list[tuple]:
+    con = sqlite3.connect(db)
+    try:
+        return con.execute("SELECT id, mode, status FROM campaigns ORDER BY id").fetchall()
+    finally:
+        con.close()
+
+
+def test_run_resumes_the_fields_campaign_and_says_what_it_holds(plant):
+    field, tmp = plant
+    db = tmp / "campaign.db"
+    first = _cli(field, "run", "--arm", "--days", "0.01", "--heliostats", IDS, "--json")
+    assert first.returncode == 0, first.stderr
+    lines = [json.loads(line) for line in first.stdout.splitlines()]  # every line is one JSON object
+    assert lines[0]["event"] == "campaign" and "campaign 1 (armed, new)" in lines[0]["reason"]
+    assert lines[-1]["event"] == "summary" and lines[-1]["status"] == "finished"
+    n_obs = lines[-1]["observations"]
+    # again after its --days ended: the same campaign, resumed, and the first line says what it holds
+    again = _cli(field, "run", "--arm", "--days", "0.005")
+    assert again.returncode == 0, again.stderr
+    head = again.stderr.splitlines()[0]
+    assert head.startswith("campaign 1 (armed, resumed; it was finished): 2 heliostats"), head
+    assert f"{n_obs} observations" in head
+    assert _campaigns(db) == [(1, "live", "finished")]
+    # a new one only when asked
+    new = _cli(field, "run", "--arm", "--days", "0.005", "--new-campaign", "--heliostats", "H0002")
+    assert new.returncode == 0, new.stderr
+    assert new.stderr.startswith("campaign 2 (armed, new): 1 heliostats")
+    assert [c[0] for c in _campaigns(db)] == [1, 2]
+
+
+def test_a_dry_run_is_never_resumed_by_an_armed_run(plant):
+    field, tmp = plant
+    dry = _cli(field, "run", "--days", "0.005", "--heliostats", IDS)
+    assert dry.returncode == 0, dry.stderr
+    assert "dry run: nothing is written to the plant" in dry.stderr.splitlines()[0]
+    armed = _cli(field, "run", "--arm", "--days", "0.005", "--heliostats", IDS)
+    assert armed.returncode == 0, armed.stderr
+    head = armed.stderr.splitlines()[0]
+    assert head.startswith("campaign 2 (armed, new)") and "campaign 1 was a dry run" in head, head
+    assert _campaigns(tmp / "campaign.db") == [(1, "dry-run", "finished"), (2, "live", "finished")]
+
+
+def test_a_field_config_that_does_not_match_the_plant_is_refused_at_start(plant):
+    field, tmp = plant
+    data = yaml.safe_load(field.read_text())
+    data["heliostats"] = data["heliostats"][:-1]
+    short = tmp / "short.yaml"
+    short.write_text(yaml.safe_dump(data, sort_keys=False))
+    r = _cli(short, "run", "--arm", "--days", "0.01")
+    assert r.returncode == 1
+    err = r.stderr.strip()
+    assert len(err.splitlines()) == 1 and "40 heliostats" in err and "39" in err and "refusing to start" in err
+
+
+def test_one_campaign_process_per_database(plant):
+    field, tmp = plant
+    first = _run(field, "--arm")
+    try:
+        _wait_rows(tmp / "campaign.db", 1, first)
+        second = _cli(field, "run", "--arm", "--days", "0.01")
+        status = subprocess.run([sys.executable, "-m", "helicalib", "status", str(tmp / "campaign.db"), "--json"],
+                                capture_output=True, text=True, timeout=60)
+    finally:
+        first.send_signal(signal.SIGKILL)
+        first.wait(10)
+    assert second.returncode == 1 and "in use by helicalib (pid" in second.stderr, second.stderr
+    assert json.loads(status.stdout)["status"].startswith("running (pid")
+    after = subprocess.run([sys.executable, "-m", "helicalib", "status", str(tmp / "campaign.db"), "--json"],
+                           capture_output=True, text=True, timeout=60)
+    assert json.loads(after.stdout)["status"].startswith("interrupted")  # killed: not shown as running

@@ -23,6 +23,8 @@ from helicalib.sim.plant import SimulatedPlant
 from helicalib.sim.scenario import parse_scenario
 from helicalib.store.sqlite import Store
 
+from campaign_helpers import inprocess_campaign
+
 IDS = ["H0001", "H0005", "H0030", "H0040"]
 
 
@@ -50,21 +52,6 @@ def test_beams_that_miss_are_searched_for_within_the_budget(cfg, tmp_path):
     assert found_after_search >= 1
 
 
-def _campaign(cfg, tmp_path, hours: float, seed: int, ids, camera=lambda cam, sim, target: cam, scenario=None,
-              **runner_kw):
-    """A runner on the in-process plant from ``hours`` after local midnight, each board's camera
-    wrapped by ``camera(sim_camera, sim, target)``; returns (runner, sim, store, campaign id, cameras)."""
-    start = default_start_s(cfg) + hours * 3600
-    sim = SimulatedPlant(cfg, parse_scenario({"seed": seed, **(scenario or {})}), start_s=start)
-    clock = VirtualClock(start)
-    clock.on_advance(sim.advance_to)
-    cams = {t.id: camera(SimCamera(sim, cfg.cameras_for(t.id)[0].id), sim, t) for t in cfg.targets}
-    store = Store.open(tmp_path / "c.db", tmp_path / "img")
-    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
-                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
-    return CampaignRunner(cfg, sim, cams, clock, store, cid, heliostat_ids=ids, **runner_kw), sim, store, cid, cams
-
-
 class _BrokenCamera:
     """Answers the before frame, then fails as no camera error class would (a full disk, say)."""
 
@@ -79,7 +66,7 @@ class _BrokenCamera:
 
 
 def test_an_unexpected_failure_returns_the_heliostat_to_tracking(cfg, tmp_path):
-    runner, sim, store, cid, _cams = _campaign(cfg, tmp_path, 9, 3, ["H0001"],
+    runner, sim, store, cid, _cams = inprocess_campaign(cfg, tmp_path, 9, 3, ["H0001"],
                                                camera=lambda cam, _sim, _t: _BrokenCamera(cam))
     runner.run_until(sim.t_s + 1800)
     failures = [o for o in store.observations(campaign_id=cid) if o.reason == "error_OSError"]
@@ -118,7 +105,7 @@ def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_
     (so backlash sits as while tracking); without the approach step (``calibration.approach_mm: 0``)
     many are not."""
     cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"approach_mm": approach_mm})})
-    runner, sim, store, _cid, spies = _campaign(cfg, tmp_path, 8, 5, ["H0001", "H0012", "H0025", "H0038"],
+    runner, sim, store, _cid, spies = inprocess_campaign(cfg, tmp_path, 8, 5, ["H0001", "H0012", "H0025", "H0038"],
                                                 camera=_ApproachSpy)
     assert runner.settings.approach_mm == approach_mm
     runner.run_until(sim.t_s + 2 * 3600)
@@ -152,7 +139,7 @@ def test_each_observation_records_the_approach_the_plant_made(cfg, tmp_path):
     arrive in the tracking direction (``approach_mm: 0``), and the fits then see the dead bands."""
     cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"approach_mm": 0.0})})
     ids = ["H0001", "H0012", "H0025", "H0038"]
-    runner, sim, store, cid, spies = _campaign(cfg, tmp_path, 8, 5, ids, camera=_PlantApproachSpy)
+    runner, sim, store, cid, spies = inprocess_campaign(cfg, tmp_path, 8, 5, ids, camera=_PlantApproachSpy)
     runner.run_until(sim.t_s + 2 * 3600)
     obs = [o for o in store.observations(campaign_id=cid) if o.valid]
     fits = {h: store.latest_fit(h, campaign_id=cid) for h in ids}
@@ -184,7 +171,7 @@ def test_several_after_frames_take_the_sun_at_their_mean_time(cfg, tmp_path):
     """With three after frames the spot is their mean, so the observation's sun (and time) is the
     one at their mean capture time, not at the last frame's."""
     cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"after_frames": 3})})
-    runner, sim, store, cid, spies = _campaign(cfg, tmp_path, 9, 2, ["H0003"],
+    runner, sim, store, cid, spies = inprocess_campaign(cfg, tmp_path, 9, 2, ["H0003"],
                                                camera=lambda cam, _sim, _t: _TimeSpy(cam))
     runner.run_until(sim.t_s + 1800)
     obs = [o for o in store.observations(campaign_id=cid) if o.valid]
@@ -204,9 +191,9 @@ def test_refinement_keeps_boards_busy_and_survives_a_restart(cfg, tmp_path):
     point its 2 h window asks for), and a restarted runner rebuilds the fits' covariances the
     planner ranks by."""
     ids = ["H0001", "H0002", "H0003", "H0021", "H0022"]
-    plain, sim_p, store_p, cid_p, _ = _campaign(cfg, tmp_path / "plain", 11, 8, ids)
+    plain, sim_p, store_p, cid_p, _ = inprocess_campaign(cfg, tmp_path / "plain", 11, 8, ids)
     plain.run_until(sim_p.t_s + 3 * 3600)
-    runner, sim, store, cid, cams = _campaign(cfg, tmp_path / "refine", 11, 8, ids, refine=True)
+    runner, sim, store, cid, cams = inprocess_campaign(cfg, tmp_path / "refine", 11, 8, ids, refine=True)
     runner.run_until(sim.t_s + 3 * 3600)
     n_plain, n_refine = len(store_p.visits(campaign_id=cid_p)), len(store.visits(campaign_id=cid))
     store_p.close()
@@ -350,7 +337,7 @@ def test_a_free_board_takes_heliostats_of_a_busy_one(cfg, tmp_path, planner, sha
     with ``calibration.share_targets: false``, or under round robin (the paper's order), T1 stays idle."""
     field = cfg if share else _own_only(cfg)
     t2 = [h.id for h in cfg.heliostats if h.target == "T2"]
-    runner, sim, store, cid, _ = _campaign(field, tmp_path, 10, 3, t2, planner=planner)
+    runner, sim, store, cid, _ = inprocess_campaign(field, tmp_path, 10, 3, t2, planner=planner)
     runner.run_until(sim.t_s + 0.75 * 3600)
     visits = store.visits(campaign_id=cid)
     on_t1 = [v for v in visits if v.target_id == "T1"]
@@ -383,7 +370,7 @@ def test_the_jitter_limit_of_several_after_frames_is_an_angle(cfg, tmp_path, max
     cal = cfg.calibration.model_copy(update={"after_frames": 3, "max_jitter_mrad": max_jitter_mrad})
     field = cfg.model_copy(update={"calibration": cal})
     windy = {"weather": {"wind": {"mean_ms": 8.0, "diurnal_amplitude_ms": 0.0, "variability_ms": 0.3}}}
-    runner, sim, store, cid, _ = _campaign(field, tmp_path, 10, 6, ["H0001", "H0012", "H0025", "H0038"],
+    runner, sim, store, cid, _ = inprocess_campaign(field, tmp_path, 10, 6, ["H0001", "H0012", "H0025", "H0038"],
                                            scenario=windy)
     assert runner.settings.max_jitter_mrad == max_jitter_mrad
     runner.run_until(sim.t_s + 1.0 * 3600)
@@ -401,7 +388,7 @@ def test_a_campaign_stop_takes_each_beam_to_standby_before_tracking(cfg, tmp_pat
     """``runner.shutdown`` (the end of ``helicalib run``, Ctrl-C) with beams on the boards: each
     heliostat in a visit is first moved so that its beam rests at its board's standby point (seen
     from the plant's side: off the board, near that point), and only then told to track."""
-    runner, sim, store, cid, _ = _campaign(cfg, tmp_path, 10, 2, ["H0001", "H0002", "H0021", "H0022"])
+    runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 10, 2, ["H0001", "H0002", "H0021", "H0022"])
     on_board = {}
     for _ in range(400):  # until some visit holds its beam on the board
         runner.run_until(sim.t_s + 4.0)
@@ -442,7 +429,7 @@ def test_a_campaign_stop_takes_each_beam_to_standby_before_tracking(cfg, tmp_pat
 def test_a_heliostat_goes_to_its_own_board_when_that_is_free(cfg, tmp_path):
     """Both boards free, one heliostat of T2 (an operator's re-check, say): T1 comes first in the
     planner's round of free boards, but lends itself only while T2 is busy, so T2 takes it."""
-    runner, sim, store, cid, _ = _campaign(cfg, tmp_path, 10, 4, ["H0001"], recheck=True)
+    runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 10, 4, ["H0001"], recheck=True)
     assert cfg.heliostat("H0001").target == "T2" and "H0001" in runner._guests["T1"]
     runner.run_until(sim.t_s + 600.0)
     visits = store.visits(campaign_id=cid)

@@ -116,8 +116,8 @@ class VisitContext:
 class Left:
     """How a heliostat left the board: ``error`` is None when the plant took the command back to
     tracking (whether it reached state 1 is confirmed by the runner), else what failed;
-    ``corrections_mm`` are the tracking corrections written with that command (None: the plant
-    kept its own)."""
+    ``corrections_mm`` are the tracking corrections sent with that command (None: the plant keeps
+    its own), written if ``error`` is None."""
 
     error: str | None = None
     corrections_mm: np.ndarray | None = None
@@ -490,5 +490,5 @@ def leave_board(ctx: VisitContext) -> Generator[float, None, Left]:
     try:  # None: the plant keeps the corrections it has
         ctx.plant.track(ctx.index, corrections)
     except PlantError as err:
-        return Left(error=f"back to tracking failed: {err}")
+        return Left(error=f"back to tracking failed: {err}", corrections_mm=corrections)
     return Left(corrections_mm=corrections)

@@ -245,6 +245,7 @@ class CampaignRunner:
                 self.event("off_tracking", f"{hid}: not back to tracking ({why}): {err}; retrying every "
                                            f"{RETURN_RETRY_S:.0f} s until the plant confirms", hid)
             return
+        self._written(hid, corrections)
         ret.next_check_s = now + RETURN_CHECK_S
         self.returning[hid] = ret
 
@@ -521,21 +522,27 @@ class CampaignRunner:
         plant took (an event), or a failed return to tracking (retried until the plant confirms)."""
         if left is None:
             self._send_back(hid, self.corrections[hid], now, why="the visit ended without leaving the board")
-        elif left.error is not None:
+        elif left.error is not None:  # the retry sends the corrections the plant did not take
             self.returning[hid] = self.returning.get(hid) or Returning(since_s=now, next_check_s=now + RETURN_RETRY_S)
             ret = self.returning[hid]
-            ret.failed, ret.last_error, ret.corrections_mm = True, left.error, self.corrections[hid]
+            ret.failed, ret.last_error = True, left.error
+            ret.corrections_mm = left.corrections_mm if left.corrections_mm is not None else self.corrections[hid]
             ret.next_check_s = now + RETURN_RETRY_S
             self.event("off_tracking", f"{hid}: {left.error}; retrying every {RETURN_RETRY_S:.0f} s until the "
                                        "plant confirms it tracks", hid)
         else:
-            if left.corrections_mm is not None and not (self.corrections[hid] is not None and
-                                                        np.array_equal(left.corrections_mm, self.corrections[hid])):
-                self.corrections[hid] = left.corrections_mm
-                c = left.corrections_mm
-                self.event("tracking_written", f"{hid}: tracking corrections {c[0]:+.2f}, {c[1]:+.2f} mm", hid)
+            self._written(hid, left.corrections_mm)
             self.returning[hid] = Returning(since_s=now, next_check_s=now + RETURN_CHECK_S,
                                             corrections_mm=self.corrections[hid])
+
+    def _written(self, hid: str, corrections) -> None:
+        """The plant took ``corrections`` with a track command: keep them, and say so when they are new."""
+        if corrections is None or (self.corrections[hid] is not None and
+                                   np.array_equal(corrections, self.corrections[hid])):
+            return
+        self.corrections[hid] = np.asarray(corrections, dtype=float)
+        c = self.corrections[hid]
+        self.event("tracking_written", f"{hid}: tracking corrections {c[0]:+.2f}, {c[1]:+.2f} mm", hid)
 
     def _corrections(self, hid: str, model: HeliostatModel) -> np.ndarray | None:
         """Tracking corrections to write as the visit ends; None keeps what the plant has."""

@@ -66,7 +66,7 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
     end_s = start_s + days * 86400.0
     with ExitStack() as stack:
         if over_network:
-            plant, cameras, clock, sim = _network_plant(cfg, scenario, start_s, rate, stack)
+            plant, cameras, clock, sim, _server = _network_plant(cfg, scenario, start_s, rate, stack)
         else:
             sim = SimulatedPlant(cfg, scenario, start_s=start_s)
             clock = VirtualClock(start_s)
@@ -108,7 +108,8 @@ def store_resume_time(store: Store, campaign_id: int, start_s: float) -> float:
 
 
 def _network_plant(cfg, scenario, start_s, rate, stack):
-    """Serve the simulated plant on loopback and connect the real clients to it."""
+    """Serve the simulated plant on loopback and connect the real clients to it; returns
+    (plant client, cameras, plant clock, simulated plant, server)."""
     from helicalib.devices.camera_http import HttpCamera
     from helicalib.devices.clock import PlantClock
     from helicalib.devices.modbus import ModbusPlant
@@ -130,7 +131,7 @@ def _network_plant(cfg, scenario, start_s, rate, stack):
     cameras = {t.id: HttpCamera(server.camera_url(cfg.cameras_for(t.id)[0].id), timeout_s=5.0,
                                 fe_wm2_per_grey=simulated_fe(scenario), atmosphere=None) for t in cfg.targets}
     clock = PlantClock(plant)
-    return plant, cameras, clock, sim
+    return plant, cameras, clock, sim, server
 
 
 def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) -> dict:

@@ -443,12 +443,18 @@ class Store:
 
 # ---------------------------------------------------------------------- helpers
 def _connect_readonly(db: Path) -> sqlite3.Connection:
-    """A read-only connection (``mode=ro``): never creates, migrates or writes the file."""
+    """A read-only connection that never creates, migrates, writes or deletes a file.
+
+    While a campaign process owns the database (or its write-ahead log exists), ``mode=ro``: WAL
+    readers see each committed transaction whole, beside the writer. Otherwise nothing can change
+    the file while it is read, and ``immutable=1`` keeps SQLite from creating the ``-wal``/``-shm``
+    files a WAL reader would otherwise leave behind."""
     if not db.is_file():
         raise ConfigError(f"{db}: no such database file")
+    quiet = not db.with_name(db.name + "-wal").exists() and _lock_holder(db.with_name(db.name + ".lock")) is None
     try:
-        conn = sqlite3.connect(f"{db.resolve().as_uri()}?mode=ro", uri=True, timeout=30.0,
-                               check_same_thread=False)
+        conn = sqlite3.connect(f"{db.resolve().as_uri()}?{'immutable=1' if quiet else 'mode=ro'}", uri=True,
+                               timeout=30.0, check_same_thread=False)
         check_schema(conn, str(db))
     except sqlite3.DatabaseError as exc:
         raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
