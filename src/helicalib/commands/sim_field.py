@@ -20,6 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
+    from helicalib.commands._progress import ProgressReporter
     from helicalib.errors import ConfigError
     from helicalib.sim.field import generate_field, write_field
 
@@ -35,8 +36,13 @@ def run(args) -> int:
         raise ConfigError(f"--n {args.n}: expected 1..20000")
     if not 1 <= args.targets <= 12:
         raise ConfigError(f"--targets {args.targets}: expected 1..12")
-    data, rows = generate_field(args.n, parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0,
-                                targets=args.targets, name=args.name)
+    with ProgressReporter("sim-field", None) as bar:
+        def progress(done: int, total: int, candidates: int) -> None:
+            bar.update(done, f"year's stroke checks {100 * done / total:.0f} % ({done} of {total}), "
+                             f"{candidates} candidate positions", total=total)
+
+        data, rows = generate_field(args.n, parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0,
+                                    targets=args.targets, name=args.name, progress=progress)
     cfg = write_field(data, rows, args.out)
     counts = {t.id: sum(1 for h in cfg.heliostats if h.target == t.id) for t in cfg.targets}
     print(f"sim-field: wrote {args.out} and its CSV: {len(cfg.heliostats)} heliostats, tower "

@@ -33,10 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     from helicalib.campaign.simulate import simulate_campaign
+    from helicalib.commands._progress import ProgressReporter, timed_step
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError
     from helicalib.geometry.sun import parse_time, to_unix_seconds
@@ -51,17 +49,15 @@ def run(args) -> int:
     if ids:
         for hid in ids:
             cfg.heliostat(hid)
-    console = Console(stderr=True)
     out = Path(args.out)
-    with Progress(TextColumn("[bold]simulate[/]"), BarColumn(), TextColumn("{task.description}"),
-                  TimeRemainingColumn(), console=console, transient=args.json, disable=not console.is_terminal) as bar:
-        task = bar.add_task("", total=args.days * 86400.0)
+    with ProgressReporter("simulate", args.days * 86400.0, transient=args.json) as bar:
         state = {"t0": None}
 
         def progress(now_s: float) -> None:
             if state["t0"] is None:
                 state["t0"] = now_s
-            bar.update(task, completed=now_s - state["t0"], description=f"day {(now_s - state['t0']) / 86400:.2f}")
+            done = now_s - state["t0"]
+            bar.update(done, lambda: _progress_text(done, args.days, out / "helicalib.db"))
 
         result = simulate_campaign(cfg, out, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
                                    over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
@@ -70,7 +66,8 @@ def run(args) -> int:
     if args.report:
         from helicalib.report.build import build_report
 
-        build_report(result.database, out / "report")
+        with timed_step("simulate", f"building the report in {out / 'report'}"):
+            build_report(result.database, out / "report")
     if args.json:
         print(json.dumps(result.summary, indent=2))
     else:
@@ -84,3 +81,37 @@ def run(args) -> int:
               f"stowed {s['stowed_hours']} h")
         print(f"written {out / 'summary.json'} and {result.database}")
     return 0
+
+
+def _progress_text(done_s: float, days: float, db_path) -> str:
+    """``day 0.42 of 2, 113 visits, 12 accepted`` (the counts read from the campaign's database)."""
+    text = f"day {done_s / 86400:.2f} of {days:g}"
+    counts = campaign_counts(db_path)
+    if counts is not None:
+        text += f", {counts[0]} visits, {counts[1]} accepted"
+    return text
+
+
+def campaign_counts(db_path) -> tuple[int, int] | None:
+    """(visits, heliostats accepted by their latest verdict) of the newest campaign, read-only; None if
+    the database cannot be read yet."""
+    import sqlite3
+
+    try:
+        con = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True, timeout=0.2)
+    except sqlite3.Error:
+        return None
+    try:
+        cid = con.execute("SELECT max(id) FROM campaigns").fetchone()[0]
+        if cid is None:
+            return None
+        visits = con.execute("SELECT count(*) FROM visits WHERE campaign_id = ?", (cid,)).fetchone()[0]
+        accepted = con.execute(
+            "SELECT count(*) FROM verdicts v WHERE v.campaign_id = ? AND v.accepted = 1 AND v.id = "
+            "(SELECT max(w.id) FROM verdicts w WHERE w.campaign_id = v.campaign_id AND w.heliostat_id = v.heliostat_id)",
+            (cid,)).fetchone()[0]
+        return int(visits), int(accepted)
+    except sqlite3.Error:
+        return None
+    finally:
+        con.close()

@@ -68,23 +68,38 @@ def radial_staggered(count: int, r0_m: float, spacing_m: float, half_width_deg: 
 
 
 def feasible_all_year(model: HeliostatModel, aims: list[np.ndarray], sun_enu: np.ndarray,
-                      margin_mm: float = STROKE_MARGIN_MM) -> np.ndarray:
-    """(N,) bool: strokes at least ``margin_mm`` inside the range for every aim (N, 3) and sun (T, 3)."""
+                      margin_mm: float = STROKE_MARGIN_MM, progress=None) -> np.ndarray:
+    """(N,) bool: strokes at least ``margin_mm`` inside the range for every aim (N, 3) and sun (T, 3).
+
+    ``progress(done, total)``, if given, is called after each (aim, sun position) check, with
+    ``total = len(aims) · T``.
+    """
     ok = np.ones(len(model), dtype=bool)
     lo = model.drives.stroke_min_mm + margin_mm
     hi = model.drives.stroke_max_mm - margin_mm
+    total = len(aims) * len(sun_enu)
+    done = 0
     for aim in aims:
         for s in sun_enu:
             st = model.strokes_for_aim(s, aim).strokes_mm
             with np.errstate(invalid="ignore"):
                 ok &= np.all((st >= lo) & (st <= hi), axis=-1)
+            done += 1
+            if progress is not None:
+                progress(done, total)
     return ok
 
 
 def generate_field(n: int, latitude_deg: float, longitude_deg: float, altitude_m: float = 0.0,
                    targets: int = 4, name: str | None = None, step_days: float = 7.0,
-                   step_min: float = 30.0) -> tuple[dict, list[dict]]:
-    """Field config mapping (without ``heliostats_csv``) and heliostat rows of a feasible field."""
+                   step_min: float = 30.0, progress=None) -> tuple[dict, list[dict]]:
+    """Field config mapping (without ``heliostats_csv``) and heliostat rows of a feasible field.
+
+    ``progress(done, total, candidates)``, if given, is called as the year's feasibility checks go:
+    ``done`` of ``total`` checks (one per aim and sun position, for all candidates at once) over every
+    round so far, ``candidates`` the positions checked in this round. ``done`` only grows; a round of
+    extra candidates (when too few were feasible) adds its checks to ``total``.
+    """
     south = latitude_deg < 0
     pole = 180.0 if south else 0.0
     sgn = -1.0 if south else 1.0
@@ -132,6 +147,7 @@ def generate_field(n: int, latitude_deg: float, longitude_deg: float, altitude_m
     rows: list[dict] = []
     want = int(n)
     extra = 1.15
+    checked = 0                                         # checks of the rounds before this one
     while len(rows) < want:
         pts = radial_staggered(int(want * extra) + 10, r0, spacing, pole_azimuth_deg=pole)
         pivots = np.column_stack([pts, np.full(len(pts), 4.3)])
@@ -142,7 +158,12 @@ def generate_field(n: int, latitude_deg: float, longitude_deg: float, altitude_m
         tk = np.clip((frac * targets).astype(int), 0, targets - 1)
         aim_t = np.array([target_list[k]["center_enu_m"] for k in tk], dtype=float)
         aim_r = np.broadcast_to(data["tower"]["receiver_aim_enu_m"], (len(pts), 3))
-        ok = feasible_all_year(model, [aim_t, np.asarray(aim_r, float)], sun)
+        step = None
+        if progress is not None:
+            def step(done, total, before=checked, k=len(pts)):
+                progress(before + done, before + total, k)
+        ok = feasible_all_year(model, [aim_t, np.asarray(aim_r, float)], sun, progress=step)
+        checked += 2 * len(sun)
         good = np.flatnonzero(ok)
         if len(good) >= want:
             good = good[:want]
