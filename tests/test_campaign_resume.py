@@ -273,3 +273,40 @@ def test_one_campaign_process_per_database(plant):
     after = subprocess.run([sys.executable, "-m", "helicalib", "status", str(tmp / "campaign.db"), "--json"],
                            capture_output=True, text=True, timeout=60)
     assert json.loads(after.stdout)["status"].startswith("interrupted")  # killed: not shown as running
+
+
+def test_run_on_a_terminal_shows_the_campaign_moving(plant):
+    """``run --arm`` on a (pseudo-)terminal: the live view, redrawn as the campaign goes."""
+    import os
+    import pty
+    import select
+
+    field, _tmp = plant
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "helicalib", "run", str(field), "--arm", "--heliostats", IDS,
+                             "--days", "1"], stdin=slave, stdout=slave, stderr=slave,
+                            env={**os.environ, "COLUMNS": "140", "LINES": "50", "TERM": "xterm"})
+    os.close(slave)
+    seen = b""
+    try:
+        end = time.monotonic() + 60
+        while time.monotonic() < end and b"visit_end" not in seen:
+            if select.select([master], [], [], 0.5)[0]:
+                try:
+                    seen += os.read(master, 65536)
+                except OSError:
+                    break
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            while select.select([master], [], [], 0.5)[0]:
+                seen += os.read(master, 65536)
+        except OSError:
+            pass
+        proc.wait(60)
+        os.close(master)
+    text = seen.decode("utf-8", "replace")
+    assert "\x1b[" in text  # drawn with terminal control sequences, not plain lines
+    for part in ("plant time", "ARMED", "accepted", "board", "events", "onto", "visit_end"):
+        assert part in text, part
+    assert "stopping:" in text and proc.returncode == 0
