@@ -99,6 +99,24 @@ def test_status_never_deletes_or_writes_anything(tmp_path, capsys):
     assert "interrupted" in capsys.readouterr().out  # 'running' with no process on it
 
 
+def test_report_on_a_running_campaign_leaves_its_frames_alone(cfg, tmp_path):
+    runner, sim, store, cid, _cams = inprocess_campaign(cfg, tmp_path / "run", 9, 3, ["H0001"])
+    runner.run_until(sim.t_s + 900)
+    store.take_ownership("test campaign")  # as run/simulate hold it while they run
+    inflight = store.images_dir / f"c{cid}" / "H0001" / ".v9_i0_after0.png.4242.tmp"
+    inflight.write_bytes(b"half a frame")
+    before = _tree(tmp_path / "run")
+    try:
+        assert main(["report", str(store.path), "--out", str(tmp_path / "report")]) == 0
+        after = _tree(tmp_path / "run")  # while the campaign still holds its database
+    finally:
+        store.close()
+    assert inflight.exists()
+    # every file as it was (SQLite's shared-memory index, c.db-shm, is where WAL readers mark their reads)
+    assert {k: v for k, v in after.items() if k != "c.db-shm"} == {k: v for k, v in before.items() if k != "c.db-shm"}
+    assert (tmp_path / "report" / "index.html").is_file()
+
+
 def test_status_on_an_empty_file_says_so_and_leaves_it_empty(tmp_path, capsys):
     empty = tmp_path / "empty.db"
     empty.write_bytes(b"")

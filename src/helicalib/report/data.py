@@ -139,7 +139,7 @@ def load_campaign(db_path: str | Path, campaign_id: int | None = None, field_con
     db_path = Path(db_path)
     if not db_path.is_file():
         raise ConfigError(f"{db_path}: database not found")
-    store = Store.open(db_path, images_dir, durable=False)
+    store = Store.open(db_path, images_dir, readonly=True)  # a reader: safe beside a running campaign
     try:
         campaigns = store.campaigns()
         if not campaigns:
