@@ -27,7 +27,7 @@ from test_report_build import CFG, FIELD, IDS, T0, _obs, check_links, frames  # 
 
 
 def make(tmp: Path, *, not_accepted=(), clipped=2, winds=(3.5, 4.2), fault=None, finish=True,
-         name="crew.db") -> Path:
+         name="crew.db", off_tracking=()) -> Path:
     """Four heliostats, two visits each (placement errors 1.0 and 0.8 mrad); the first ``clipped``
     heliostats' first visit starts with a clipped frame the loop recovers from. Verdicts accepted
     unless in ``not_accepted`` (then an RMS reason)."""
@@ -58,6 +58,8 @@ def make(tmp: Path, *, not_accepted=(), clipped=2, winds=(3.5, 4.2), fault=None,
                      params={"pedestal_tilt_e_mrad": 0.2}, sigma={"pedestal_tilt_e_mrad": 0.05}, rms_mrad=0.6, n_points=4)
     if fault:
         store.record_event(campaign_id=cid, time_s=T0 + 9 * 3600.0, kind="fault", reason=fault)
+    for t, kind, hid in off_tracking:  # what the runner records when a return to tracking fails / is confirmed
+        store.record_event(campaign_id=cid, time_s=t, kind=kind, heliostat_id=hid, reason=f"{hid}: {kind}")
     if finish:
         store.finish_campaign(cid, T0 + 20 * 3600.0)
     store.close()
@@ -102,11 +104,15 @@ def test_unaccepted_heliostat_is_named_in_the_banner(tmp_path):
 
 
 def test_off_tracking_fault_and_unfinished_campaign_are_actions(tmp_path):
-    _index, rep = build(make(tmp_path, fault="H0002: back to tracking failed: timeout", finish=False), tmp_path / "o")
+    # H0002 left off tracking; H0003 was too, but the plant confirmed it back later
+    stranded = ((T0 + 9 * 3600.0, "off_tracking", "H0002"), (T0 + 9 * 3600.0, "off_tracking", "H0003"),
+                (T0 + 10 * 3600.0, "back_to_tracking", "H0003"))
+    _index, rep = build(make(tmp_path, fault="H0002: weather: timeout", finish=False, off_tracking=stranded),
+                        tmp_path / "o")
     st = rep["status"]
     assert st["level"] == "action" and st["off_tracking"] == ["H0002"]
     text = " ".join(st["actions"])
-    assert "could not be sent back to tracking" in text and "1 fault event" in text and "unfinished" in text
+    assert "not confirmed back to tracking" in text and "1 fault event" in text and "unfinished" in text
 
 
 # ------------------------------------------------------------------------------------ measures

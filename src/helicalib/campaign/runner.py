@@ -47,7 +47,9 @@ SHARE_REACH_S = 1800.0
 RETURN_CHECK_S = 10.0
 """Plant seconds after a track command before the plant's state is read to confirm tracking."""
 RETURN_RETRY_S = 30.0
-"""Plant seconds between attempts to bring a heliostat back to tracking that the plant has not confirmed."""
+"""Plant seconds before the first new attempt to bring back to tracking a heliostat the plant has
+not confirmed; the wait doubles with each attempt, up to :data:`RETURN_RETRY_MAX_S`."""
+RETURN_RETRY_MAX_S = 600.0
 
 
 @dataclass
@@ -61,6 +63,11 @@ class Returning:
     failed: bool = False
     """True once a return failed (then its confirmation is news: an event says so)."""
     last_error: str = ""
+
+    def retry_at(self, now: float) -> float:
+        """When to try again: 30 s after the first attempt, doubling up to 10 min (a heliostat the
+        plant reports faulted or offline is not sent a command every 30 s for a night)."""
+        return now + min(RETURN_RETRY_S * 2.0 ** max(self.attempts - 1, 0), RETURN_RETRY_MAX_S)
 
 
 @dataclass
@@ -239,11 +246,11 @@ class CampaignRunner:
         except PlantError as err:
             ret.failed = True
             ret.last_error = str(err)
-            ret.next_check_s = now + RETURN_RETRY_S
+            ret.next_check_s = ret.retry_at(now)
             self.returning[hid] = ret
             if ret.attempts == 1:
-                self.event("off_tracking", f"{hid}: not back to tracking ({why}): {err}; retrying every "
-                                           f"{RETURN_RETRY_S:.0f} s until the plant confirms", hid)
+                self.event("off_tracking", f"{hid}: not back to tracking ({why}): {err}; retrying until the plant "
+                                           "confirms", hid)
             return
         self._written(hid, corrections)
         ret.next_check_s = now + RETURN_CHECK_S
@@ -257,7 +264,7 @@ class CampaignRunner:
             try:
                 state = self.plant.status(self.cfg.heliostat_index(hid)).state
             except PlantError as err:
-                ret.last_error, ret.next_check_s = str(err), now + RETURN_RETRY_S
+                ret.last_error, ret.next_check_s = str(err), ret.retry_at(now)
                 continue
             if state == HeliostatState.TRACKING or (state == HeliostatState.STOWED and self.stowed):
                 del self.returning[hid]
@@ -272,7 +279,7 @@ class CampaignRunner:
             if not ret.failed:
                 ret.failed = True
                 self.event("off_tracking", f"{hid}: the plant reports state {state.name.lower()} after a return to "
-                                           f"tracking; sending it again every {RETURN_RETRY_S:.0f} s until it tracks", hid)
+                                           "tracking; sending it again until it tracks", hid)
             self._send_back(hid, ret.corrections_mm, now, why=f"state {state.name.lower()}")
 
     # ------------------------------------------------------------------ sun
@@ -527,9 +534,8 @@ class CampaignRunner:
             ret = self.returning[hid]
             ret.failed, ret.last_error = True, left.error
             ret.corrections_mm = left.corrections_mm if left.corrections_mm is not None else self.corrections[hid]
-            ret.next_check_s = now + RETURN_RETRY_S
-            self.event("off_tracking", f"{hid}: {left.error}; retrying every {RETURN_RETRY_S:.0f} s until the "
-                                       "plant confirms it tracks", hid)
+            ret.next_check_s = ret.retry_at(now)
+            self.event("off_tracking", f"{hid}: {left.error}; retrying until the plant confirms it tracks", hid)
         else:
             self._written(hid, left.corrections_mm)
             self.returning[hid] = Returning(since_s=now, next_check_s=now + RETURN_CHECK_S,

@@ -23,6 +23,7 @@ def run(args) -> int:
     from rich.table import Table
 
     from helicalib.errors import ConfigError
+    from helicalib.store.records import off_tracking
     from helicalib.store.sqlite import Store
 
     path = args.db[len("sqlite:///"):] if args.db.startswith("sqlite:///") else args.db
@@ -75,11 +76,3 @@ def shown_status(status: str, owner: str | None) -> str:
         return f"running ({owner})" if status == "running" else f"{status}; database in use by {owner}"
     return status
 
-
-def off_tracking(events) -> list[str]:
-    """Heliostats whose newest off_tracking event has no back_to_tracking after it."""
-    last = {}
-    for e in events:
-        if e.kind in ("off_tracking", "back_to_tracking") and e.heliostat_id:
-            last[e.heliostat_id] = e.kind
-    return sorted(h for h, k in last.items() if k == "off_tracking")

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from helicalib.store.records import off_tracking
 from helicalib.report.data import CampaignData
 
 DEFAULT_LOOP_THRESHOLD_MRAD = 3.5
@@ -179,8 +180,6 @@ def summary(data: CampaignData, visits: pd.DataFrame) -> dict:
 NO_RESULT_OUTCOMES = ("fault", "invalid", "aborted", "refused", "interrupted")
 """Visit outcomes without a usable result (the other outcomes: ``converged``, ``not_converged``, ``running``)."""
 
-OFF_TRACKING = re.compile(r"back to tracking[^:]*failed")
-"""A fault event whose reason says a heliostat could not be sent back to tracking."""
 
 
 def _listed(ids: list[str], limit: int = 12) -> str:
@@ -217,7 +216,10 @@ def banner(data: CampaignData, summ: dict, visits: pd.DataFrame | None = None) -
     if empty:
         actions.append("This campaign recorded no visit and no observation: there is nothing to judge yet.")
     if data.campaign.status == "running":
-        actions.append("The campaign is unfinished (status 'running'): the figures are those recorded so far.")
+        actions.append("The campaign is unfinished (status 'running': a process runs it, or was killed in it): the "
+                       "figures are those recorded so far.")
+    elif data.campaign.status == "stopped":
+        info.append("The campaign was stopped before its end time (Ctrl-C or SIGTERM); running it again resumes it.")
     ids = data.heliostat_ids
     not_accepted = [h for h in ids if (v := data.verdicts.get(h)) is not None and not v.accepted]
     no_verdict = [h for h in ids if h not in data.verdicts]
@@ -228,10 +230,10 @@ def banner(data: CampaignData, summ: dict, visits: pd.DataFrame | None = None) -
         actions.append(f"{len(no_verdict)} of {len(ids)} heliostats have no verdict (no valid visit yet): "
                        f"{_listed(no_verdict)}.")
     faults = [ev for ev in data.events if ev.kind == "fault"]
-    off = sorted({h for ev in faults if OFF_TRACKING.search(ev.reason or "") and (h := _event_heliostat(ev))})
+    off = off_tracking(data.events)
     if off:
-        actions.append(f"{len(off)} heliostat(s) could not be sent back to tracking; check them at the plant: "
-                       f"{_listed(off)}.")
+        actions.append(f"{len(off)} heliostat(s) not confirmed back to tracking when the record ends (the next run "
+                       f"sends them back first); check them at the plant: {_listed(off)}.")
     if faults:
         concerned = sorted({h for ev in faults if (h := _event_heliostat(ev)) in set(ids)})
         actions.append(f"{len(faults)} fault event(s) were recorded" + (f" (heliostats {_listed(concerned)})"

@@ -213,3 +213,14 @@ class Event:
     reason: str
     heliostat_id: str | None = None
     data: dict[str, Any] = field(default_factory=dict)
+
+
+def off_tracking(events) -> list[str]:
+    """Heliostats left off tracking: those whose newest ``off_tracking`` event has no
+    ``back_to_tracking`` after it (a run that stopped before the plant confirmed their return;
+    the next run sends them back first)."""
+    last: dict[str, str] = {}
+    for e in sorted(events, key=lambda e: (e.time_s, e.id or 0)):
+        if e.kind in ("off_tracking", "back_to_tracking") and e.heliostat_id:
+            last[e.heliostat_id] = e.kind
+    return sorted(h for h, k in last.items() if k == "off_tracking")
