@@ -37,7 +37,7 @@ def test_the_terminal_view_shows_boards_gate_counts_and_events(moving):
 
     cfg, events, snap = moving
     console = Console(file=io.StringIO(), width=140, record=True, force_terminal=True)
-    view = TerminalView(site_timezone(cfg.site), "helicalib run · demo", console=console)
+    view = TerminalView(site_timezone(cfg), "helicalib run · demo", console=console)
     for ev in events:
         view.on_event(ev)
     view.on_snapshot(snap)
@@ -46,14 +46,14 @@ def test_the_terminal_view_shows_boards_gate_counts_and_events(moving):
     on_board = [b for b in snap.boards if b.heliostat_id]
     assert on_board and all(b.heliostat_id in text for b in on_board)
     assert f"{snap.accepted}/{snap.heliostats} accepted" in text and snap.next_band in text
-    assert "open: calibration allowed" in text and "UTC" in text and "local" in text
+    assert "open: calibration allowed" in text and "UTC" in text and "site, UTC+0618" in text
     visit_lines = [e.reason for e in events if e.kind == "visit_end"]
     assert visit_lines and visit_lines[-1][:40] in text  # the newest events scroll in, with their reasons
 
 
 def test_log_lines_and_json_lines_carry_every_event(moving):
     cfg, events, snap = moving
-    tz = site_timezone(cfg.site)
+    tz = site_timezone(cfg)
     lines, js = io.StringIO(), io.StringIO()
     log, jl = LineLog(tz, stream=lines), JsonLines(tz, stream=js)
     for ev in events:

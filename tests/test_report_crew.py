@@ -224,7 +224,7 @@ def _texts(fig) -> list[Text]:
 def test_every_figure_text_is_at_least_10_pt_at_the_displayed_size(calm):
     from helicalib.report import plots
     from helicalib.report.sheet_plots import SheetPlotter
-    from helicalib.report.sitetime import site_time
+    from helicalib.geometry.sitetime import site_time
 
     _index, rep = calm
     site = site_time(CFG)
@@ -255,7 +255,7 @@ def _solar(t_s: float) -> str:
 
 def test_local_time_beside_utc_in_tables_and_plots(calm, tmp_path):
     from helicalib.report import plots
-    from helicalib.report.sitetime import site_time
+    from helicalib.geometry.sitetime import site_time
 
     index, rep = calm
     page = index.read_text()
@@ -282,7 +282,7 @@ def test_local_time_beside_utc_in_tables_and_plots(calm, tmp_path):
 def test_bad_time_zone_is_one_clear_error(tmp_path):
     from helicalib.cli import main
     from helicalib.errors import ConfigError
-    from helicalib.report.sitetime import parse_zone
+    from helicalib.geometry.sitetime import parse_zone
 
     assert parse_zone("+08:00")[0].utcoffset(None) == dt.timedelta(hours=8)
     assert parse_zone("UTC-3:30")[0].utcoffset(None) == -dt.timedelta(hours=3, minutes=30)

@@ -27,19 +27,19 @@ import time
 from typing import Any
 
 from helicalib.campaign.events import RunEvent, Snapshot, iso_local, iso_utc
+from helicalib.geometry.sitetime import site_time
 
 
-def site_timezone(site) -> dt.timezone:
-    """The site's local mean solar time (longitude / 15° h, to the minute): the field config names no
-    civil time zone, and the sun's day is what a crew plans by."""
-    minutes = round(float(site.longitude_deg) * 4.0)
-    return dt.timezone(dt.timedelta(minutes=minutes), f"local solar UTC{minutes / 60:+.2f}h")
+def site_timezone(cfg) -> dt.tzinfo:
+    """The site's clock beside UTC, as the report shows it (:func:`helicalib.geometry.sitetime.site_time`:
+    the field config's zone if it gives one, else local mean solar time)."""
+    return site_time(cfg).zone
 
 
 def _clock(t_s: float, tz: dt.tzinfo) -> str:
     utc = dt.datetime.fromtimestamp(t_s, tz=dt.timezone.utc)
     local = dt.datetime.fromtimestamp(t_s, tz=tz)
-    return f"{utc:%Y-%m-%d %H:%M:%S} UTC ({local:%H:%M} local)"
+    return f"{utc:%Y-%m-%d %H:%M:%S} UTC ({local:%H:%M} site, UTC{local:%z})"
 
 
 def _fmt(x: float | None, unit: str = "", nd: int = 1) -> str:
@@ -213,7 +213,7 @@ class TerminalView:
         for style_, ev in list(self.events):
             t = dt.datetime.fromtimestamp(ev.time_s, tz=self.tz).strftime("%H:%M:%S")
             log.add_row(t + ("*" if ev.clock != "plant" else ""), f"[{style_}]{ev.kind}[/]", ev.reason)
-        parts = [head, Text(""), boards, Text(""), Panel(log, title="events (local time; * controller clock)")]
+        parts = [head, Text(""), boards, Text(""), Panel(log, title="events (site time; * controller clock)")]
         if self.note:
             parts.append(Text(self.note, style="bold yellow"))
         return Panel(Group(*parts), title=self.title)

@@ -119,7 +119,7 @@ def live_session(args, mode: str) -> int:
     days = args.days if args.days is not None else 7.0
     if not (math.isfinite(days) and days > 0):
         raise ConfigError(f"--days {args.days}: must be a finite number > 0")
-    tz = site_timezone(cfg.site)
+    tz = site_timezone(cfg)
     as_json = bool(getattr(args, "json", False))
     console = Console(stderr=True)
     output = make_output("json" if as_json else ("terminal" if console.is_terminal else "lines"), tz,

@@ -25,7 +25,7 @@ from helicalib.report.data import CampaignData, load_campaign
 from helicalib.report.grlm import spec_of, tracking_test
 from helicalib.report.measures import glossary
 from helicalib.report.sheets import acceptance_spans, heliostat_sheet
-from helicalib.report.sitetime import SiteTime, site_time
+from helicalib.geometry.sitetime import SiteTime, site_time
 
 
 def _campaign_info(data: CampaignData) -> dict | None:

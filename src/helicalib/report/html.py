@@ -9,7 +9,7 @@ live console can render the same pages from the same figures.
 Filters the templates use: ``v`` (a value: ``—`` for None, floats to 4 significant digits),
 ``pct`` (a fraction as a percentage), ``arrows`` (errors by placement), ``utc`` and ``local``
 (an instant, given as UTC seconds or a ``report.json`` UTC string, in UTC and on the site's
-clock, :mod:`helicalib.report.sitetime`).
+clock, :mod:`helicalib.geometry.sitetime`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Any
 
 from helicalib.report.figures import ROUTINE_EVENTS
 from helicalib.report.measures import MEASURES
-from helicalib.report.sitetime import SiteTime, site_time, utc_seconds
+from helicalib.geometry.sitetime import SiteTime, site_time, utc_seconds
 
 TEMPLATES = Path(__file__).with_name("templates")
 

@@ -10,7 +10,7 @@ Readable at the size the page shows them: figures are at most :data:`MAX_WIDTH_I
 :data:`DPI` (the page's 1200 px column shows them 1:1) and every text is at least
 :data:`MIN_FONT_PT` (:data:`STYLE`). Error axes are named by :mod:`helicalib.report.measures`; each
 limit is drawn only over its own measure. Time axes are UTC below and the site's clock
-(:mod:`helicalib.report.sitetime`) above.
+(:mod:`helicalib.geometry.sitetime`) above.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def to_dates(times_s) -> np.ndarray:
 
 
 def time_axis(ax, site=None, t_ref_s: float | None = None, top: bool = True) -> None:
-    """A UTC date axis below; with ``site`` (:class:`~helicalib.report.sitetime.SiteTime`) and ``top``,
+    """A UTC date axis below; with ``site`` (:class:`~helicalib.geometry.sitetime.SiteTime`) and ``top``,
     the same instants on the site's clock above (its offset at ``t_ref_s``)."""
     loc = mdates.AutoDateLocator(minticks=3, maxticks=7)
     ax.xaxis.set_major_locator(loc)

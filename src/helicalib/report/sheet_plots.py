@@ -51,7 +51,7 @@ class SheetPlotter:
     max_placements : int
         The most placements of any visit (the corrections panel's x range).
     site : SiteTime, optional
-        The site's clock, shown above the time axes (:mod:`helicalib.report.sitetime`).
+        The site's clock, shown above the time axes (:mod:`helicalib.geometry.sitetime`).
     """
 
     def __init__(self, spans: dict, loop_threshold_mrad: float, time_range_s: tuple[float, float],

@@ -98,7 +98,7 @@ def parse_zone(text: str) -> tuple[_dt.tzinfo, str]:
 
 
 def site_time(cfg=None, override: str | None = None) -> SiteTime:
-    """The clock the report shows beside UTC (module docstring: option, field config, solar time)."""
+    """The site's clock shown beside UTC in reports and live views (module docstring: option, field config, solar time)."""
     if override:
         zone, nm = parse_zone(override)
         return SiteTime(zone, nm, f"site time {nm} (given to the report)", "report option")
