@@ -15,7 +15,6 @@ wake-up time comes. Every observation goes to the store as soon as it is made.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
