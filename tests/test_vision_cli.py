@@ -78,12 +78,12 @@ def test_accuracy_from_uv_and_frames(scene, tmp_path, capsys):
     rows = []
     # 4 m/s: 100 rows within, then 8 m/s: 7 of 10 within, 11 m/s: 4 of 10 within  → pass
     for i in range(100):
-        rows.append({"time": f"t{i}", "heliostat": "H0008", "wind_ms": 4.0, "u_m": 2.0e-3 * L, "v_m": 0.0})
+        rows.append({"time": f"2026-06-01T10:{i // 60:02d}:{i % 60:02d}+08:00", "heliostat": "H0008", "wind_ms": 4.0, "u_m": 2.0e-3 * L, "v_m": 0.0})
     for i in range(10):
-        rows.append({"time": f"u{i}", "heliostat": "H0008", "wind_ms": 8.3,
+        rows.append({"time": f"2026-06-02T10:00:{i:02d}+08:00", "heliostat": "H0008", "wind_ms": 8.3,
                      "u_m": (3.0e-3 if i < 7 else 5.0e-3) * L, "v_m": 0.0})
     for i in range(10):
-        rows.append({"time": f"w{i}", "heliostat": "H0008", "wind_ms": 10.6,
+        rows.append({"time": f"2026-06-03T10:00:{i:02d}+08:00", "heliostat": "H0008", "wind_ms": 10.6,
                      "u_m": 0.0, "v_m": (3.0e-3 if i < 4 else 6.0e-3) * L})
     series = tmp_path / "series.csv"
     with series.open("w", newline="") as fh:
@@ -105,8 +105,8 @@ def test_accuracy_from_uv_and_frames(scene, tmp_path, capsys):
     (tmp_path / "broken.png").write_bytes(encode_png(np.zeros((10, 10), np.uint8))[:30])
     fr = tmp_path / "frames.csv"
     fr.write_text("time,heliostat,wind_ms,before,after\n"
-                  f"a,H0008,4.0,{d / 'before.png'},{d / 'after.png'}\n"
-                  f"b,H0008,4.2,{d / 'before.png'},{tmp_path / 'broken.png'}\n")
+                  f"2026-06-01T10:00:00+08:00,H0008,4.0,{d / 'before.png'},{d / 'after.png'}\n"
+                  f"2026-06-01T10:01:00+08:00,H0008,4.2,{d / 'before.png'},{tmp_path / 'broken.png'}\n")
     rc = main(["accuracy", str(fr), "--field", str(field_path), "--json"])
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["valid_rows"] == 1 and out["invalid_reasons"] == {"bad_frame": 1}

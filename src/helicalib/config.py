@@ -18,9 +18,9 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator
 
-from helicalib.errors import ConfigError
+from helicalib.errors import ConfigError, HelicalibError
 
 UNIT_TOLERANCE = 1e-3
 """A given unit vector may differ from length 1 by this much; it is then normalised exactly."""
@@ -33,12 +33,36 @@ def _numbers(n: int):
             raise ValueError(f"expected {n} numbers")
         out = []
         for item in value:
-            if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
-                raise ValueError(f"expected {n} numbers, got {item!r}")
+            if isinstance(item, bool) or not isinstance(item, (int, float)) or not _finite(item):
+                raise ValueError(f"expected {n} finite numbers, got {_short(item)}")
             out.append(float(item))
         return tuple(out)
 
     return BeforeValidator(check)
+
+
+def _finite(x: int | float) -> bool:
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an int too large for a float
+        return False
+
+
+def _short(value: Any, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for one-line messages about arbitrary input."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _nonblank(value: str) -> str:
+    if not value.strip():
+        raise ValueError("expected a non-empty id")
+    if not value.isprintable():
+        raise ValueError(f"expected an id without control characters, got {_short(value)}")
+    return value
+
+
+Id = Annotated[str, AfterValidator(_nonblank)]
 
 
 def _unit(value: tuple[float, ...]) -> tuple[float, ...]:
@@ -59,9 +83,21 @@ Vec2 = Annotated[tuple[float, float], _numbers(2)]
 Vec3 = Annotated[tuple[float, float, float], _numbers(3)]
 PositiveFloat = Annotated[float, Field(gt=0)]
 
+MAX_COORDINATE_M = 100_000.0
+"""Largest plant coordinate [m] (ENU): a field of 100 km is none; larger numbers are typing errors."""
+
+
+def _in_plant(value: tuple[float, ...]) -> tuple[float, ...]:
+    if any(abs(x) > MAX_COORDINATE_M for x in value):
+        raise ValueError(f"coordinates beyond {MAX_COORDINATE_M:g} m from the tower: {value}")
+    return value
+
+
+PointENU = Annotated[Vec3, AfterValidator(_in_plant)]
+
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
 
 
 # ---------------------------------------------------------------------------- sections
@@ -69,9 +105,9 @@ class Site(_Model):
     name: str
     latitude_deg: float = Field(ge=-90, le=90)
     longitude_deg: float = Field(ge=-180, le=180)
-    altitude_m: float
-    pressure_hpa: PositiveFloat | None = None
-    temperature_c: float = 12.0
+    altitude_m: float = Field(ge=-1000, le=10000)
+    pressure_hpa: float | None = Field(default=None, gt=0, le=2000)
+    temperature_c: float = Field(default=12.0, ge=-100, le=100)
 
     @property
     def pressure_hpa_effective(self) -> float:
@@ -84,13 +120,52 @@ class Site(_Model):
 
 
 class Tower(_Model):
-    receiver_aim_enu_m: Vec3
+    receiver_aim_enu_m: PointENU
+
+
+_CORNERS = (("TL", -1, 1), ("TR", 1, 1), ("BR", 1, -1), ("BL", -1, -1))
 
 
 class Marks(_Model):
     vertices_m: tuple[Vec2, Vec2, Vec2, Vec2]
     arm_m: PositiveFloat
     thickness_m: PositiveFloat
+
+    @field_validator("vertices_m")
+    @classmethod
+    def _quadrilateral(cls, value):
+        # each L's arms run toward the board centre (vision.marks.mark_model_m), so vertex k must lie in
+        # its own quadrant; four marks that are identical, collinear or out of order make no homography
+        for k in range(4):
+            for j in range(k):
+                if value[j] == value[k]:
+                    raise ValueError(f"vertices [{j}] and [{k}] are the same point ({value[k][0]:g}, {value[k][1]:g}); "
+                                     "four distinct marks (TL, TR, BR, BL) are needed for the board's homography")
+        for k, ((name, su, sv), (u, v)) in enumerate(zip(_CORNERS, value)):
+            if not (u * su > 0 and v * sv > 0):
+                raise ValueError(f"vertex [{k}] ({u:g}, {v:g}) is not the {name} mark: expected the vertices TL, TR, BR, BL, "
+                                 f"each in its own quadrant of the board (u {'<' if su < 0 else '>'} 0, "
+                                 f"v {'<' if sv < 0 else '>'} 0)")
+        pts = np.asarray(value, dtype=float)
+        pts = pts / np.max(np.abs(pts))  # > 0: every vertex lies in its quadrant
+        for k in range(4):
+            a, b, c = pts[k - 1], pts[k], pts[(k + 1) % 4]
+            turn = (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0])
+            if not turn < -1e-6:  # clockwise with v up, strictly convex
+                raise ValueError(f"vertex [{k}]: the four vertices make no convex quadrilateral (three nearly in a line); "
+                                 "they cannot define the board's homography")
+        return value
+
+    @field_validator("arm_m")
+    @classmethod
+    def _arm_fits(cls, value: float, info):
+        vertices = info.data.get("vertices_m")
+        if vertices is not None:
+            room = min(min(abs(u), abs(v)) for u, v in vertices)
+            if value > room:
+                raise ValueError(f"{value:g} m: longer than the {room:g} m from a vertex to the board's centre line; "
+                                 "the marks' arms would overlap")
+        return value
 
     @field_validator("thickness_m")
     @classmethod
@@ -102,14 +177,24 @@ class Marks(_Model):
 
 
 class Target(_Model):
-    id: str
-    center_enu_m: Vec3
+    id: Id
+    center_enu_m: PointENU
     normal_enu: Vec3
     size_m: Annotated[tuple[PositiveFloat, PositiveFloat], _numbers(2)]
     standby_offset_m: Annotated[tuple[float, ...], BeforeValidator(lambda v: _standby(v))] | None = None
     marks: Marks | None = None
 
     _normal = field_validator("normal_enu")(classmethod(lambda cls, v: _unit(v)))
+
+    @field_validator("marks")
+    @classmethod
+    def _marks_on_board(cls, value, info):
+        size = info.data.get("size_m")
+        if value is not None and size is not None:
+            for k, (u, v) in enumerate(value.vertices_m):
+                if abs(u) > size[0] / 2 + 1e-9 or abs(v) > size[1] / 2 + 1e-9:
+                    raise ValueError(f"vertices_m[{k}] ({u:g}, {v:g}) lies off the {size[0]:g} x {size[1]:g} m board")
+        return value
 
     @field_validator("standby_offset_m")
     @classmethod
@@ -170,15 +255,19 @@ class Intrinsics(_Model):
     cy: float
 
 
+MAX_FRAME_SIDE_PX = 20000
+"""Largest frame side a camera may give [px] (a 150-megapixel back is 14204 px wide)."""
+
+
 class Camera(_Model):
-    id: str
+    id: Id
     target: str
     url: str
     intrinsics: Intrinsics | None = None
     distortion: Annotated[tuple[float, ...], BeforeValidator(lambda v: _distortion(v))] | None = None
     # helicalib's own optional keys: where the camera stands and its frame size (the simulated
     # plant renders from them; a real camera's frames say their own size)
-    position_enu_m: Vec3 | None = None
+    position_enu_m: PointENU | None = None
     resolution_px: Annotated[tuple[int, int], _numbers(2), BeforeValidator(lambda v: v)] = (1280, 1024)
     # helicalib's own optional key: the camera's FLUX.yaml (docs/flux.md), relative to the field
     # config; its Fe turns the camera into a flux meter (cleanliness measured at every valid visit)
@@ -188,8 +277,8 @@ class Camera(_Model):
     @classmethod
     def _pixels(cls, value):
         w, h = value
-        if w != int(w) or h != int(h) or w < 64 or h < 64:
-            raise ValueError("expected two whole numbers >= 64 (width, height)")
+        if w != int(w) or h != int(h) or not (64 <= w <= MAX_FRAME_SIDE_PX and 64 <= h <= MAX_FRAME_SIDE_PX):
+            raise ValueError(f"expected two whole numbers in 64..{MAX_FRAME_SIDE_PX} (width, height)")
         return (int(w), int(h))
 
     @property
@@ -232,7 +321,7 @@ PRESETS: dict[str, tuple[tuple[float, float, float], ...]] = {
 
 class Drive(_Model):
     kind: DriveKind
-    mirror_offset_m: float
+    mirror_offset_m: float = Field(ge=-10, le=10)
     mirror_size_m: Annotated[tuple[PositiveFloat, PositiveFloat], _numbers(2)]
     actuators: tuple[Actuator, Actuator]
     axis1_enu: Vec3 | None = None
@@ -252,8 +341,8 @@ class Drive(_Model):
 
 
 class Heliostat(_Model):
-    id: str
-    position_enu_m: Vec3
+    id: Id
+    position_enu_m: PointENU
     drive: str
     target: str
 
@@ -277,7 +366,7 @@ class Plant(_Model):
 
 class Calibration(_Model):
     loop_threshold_mrad: PositiveFloat
-    max_iterations: int = Field(ge=1)
+    max_iterations: int = Field(ge=1, le=100)
     # helicalib's own optional keys
     after_frames: int = Field(default=1, ge=1, le=50)
     spot_method: Literal["grlm", "grlm-centroid", "centroid"] = "grlm-centroid"
@@ -286,6 +375,7 @@ class Calibration(_Model):
     approach_mm: float = Field(default=1.0, ge=0, le=20)  # last move in the tracking direction (backlash)
     max_jitter_mrad: float = Field(default=2.0, gt=0)  # several after frames: their spread limit, as an angle
     share_targets: bool = True  # gaps planner: a free board may take heliostats of a busy one (docs/campaign.md)
+    max_capture_skew_s: float = Field(default=5.0, gt=0, le=3600)  # a frame's capture time vs the plant clock
 
 
 class Gating(_Model):
@@ -320,13 +410,13 @@ class WindBin(_Model):
 
 class TrackingTest(_Model):
     threshold_mrad: PositiveFloat
-    wind_bins: tuple[WindBin, ...]
+    wind_bins: tuple[WindBin, ...] = Field(min_length=1)
     bin_half_width_ms: PositiveFloat
 
 
 class Storage(_Model):
     database: str
-    images_dir: str
+    images_dir: str = Field(min_length=1)
 
     @field_validator("database")
     @classmethod
@@ -341,7 +431,7 @@ class FieldConfig(_Model):
     tower: Tower
     targets: tuple[Target, ...] = Field(min_length=1)
     cameras: tuple[Camera, ...]
-    drives: dict[str, Drive] = Field(min_length=1)
+    drives: dict[Id, Drive] = Field(min_length=1)
     heliostats: tuple[Heliostat, ...] | None = None
     heliostats_csv: str | None = None
     plant: Plant
@@ -384,7 +474,7 @@ class FieldConfig(_Model):
         for t in self.targets:
             if t.id == target_id:
                 return t
-        raise ConfigError(f"{self._where()}targets: no target '{target_id}'")
+        raise ConfigError(f"{self._where()}targets: no target {_short(target_id)}")
 
     def heliostat(self, heliostat_id: str) -> Heliostat:
         idx = self.heliostat_index(heliostat_id)
@@ -399,7 +489,7 @@ class FieldConfig(_Model):
         try:
             return index[heliostat_id]
         except KeyError:
-            raise ConfigError(f"{self._where()}heliostats: no heliostat '{heliostat_id}'") from None
+            raise ConfigError(f"{self._where()}heliostats: no heliostat {_short(heliostat_id)}") from None
 
     def drive_of(self, heliostat_id: str) -> Drive:
         return self.drives[self.heliostat(heliostat_id).drive]
@@ -416,17 +506,93 @@ class FieldConfig(_Model):
 
 
 # ---------------------------------------------------------------------------- loading
-def read_yaml(path: str | Path) -> Any:
-    """Parse a YAML file; a missing file or bad YAML is a :class:`ConfigError` naming file, line and column."""
+def read_text(path: str | Path, error: type[HelicalibError] = ConfigError) -> str:
+    """A text file's contents (UTF-8, a leading byte-order mark dropped).
+
+    A missing or unreadable file, or bytes that are not UTF-8, raise ``error`` naming the file and,
+    for a bad byte, its line and column.
+    """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"{path}: file not found")
+        raise error(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
     try:
-        return yaml.safe_load(path.read_text())
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise error(f"{path}: line {line}, column {column}: not UTF-8 text "
+                    f"(byte 0x{raw[exc.start]:02x}); save the file as UTF-8") from None
+
+
+def read_csv_rows(path: str | Path, error: type[HelicalibError] = ConfigError,
+                  comments: bool = False) -> list[tuple[int, list[str]]]:
+    """The rows of a UTF-8 CSV file as ``(line number, cells)``; blank rows are skipped.
+
+    ``comments``: lines starting with ``#`` before the first row are skipped. Bad bytes or CSV
+    syntax (e.g. an unterminated quote) raise ``error`` naming the file and line.
+    """
+    import io
+
+    text = read_text(path, error)
+    skipped = 0
+    if comments:
+        lines = text.splitlines(keepends=True)
+        while skipped < len(lines) and lines[skipped].startswith("#"):
+            skipped += 1
+        text = "".join(lines[skipped:])
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows = []
+    try:
+        line = 1
+        for row in reader:
+            if row and any(cell.strip() for cell in row):
+                rows.append((skipped + line, row))
+            line = reader.line_num + 1
+    except csv.Error as exc:
+        raise error(f"{path}: line {skipped + reader.line_num}: not valid CSV ({exc})") from None
+    return rows
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses a key given twice in one mapping (YAML would keep the last silently)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.get(key)
+                except TypeError:
+                    continue  # an unhashable key: construct_mapping itself refuses it
+                if first is not None:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {_short(key)} (first at line {first.line + 1})", key_node.start_mark)
+                seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
+
+
+
+def read_yaml(path: str | Path) -> Any:
+    """Parse a YAML file; a missing file, bytes that are not UTF-8, bad YAML or a key given twice is a
+    :class:`ConfigError` naming file, line and column."""
+    path = Path(path)
+    text = read_text(path)
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        raise ConfigError(f"{path}: {at}not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        problem = getattr(exc, "problem", None) or str(exc).replace("\n", " ")
+        raise ConfigError(f"{path}: {at}not valid YAML ({problem})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid YAML (nested too deeply)") from None
 
 
 def validation_error(exc: ValidationError, source: str | Path | None = None, rename=None,
@@ -480,19 +646,27 @@ def _clean_loc(loc: Sequence[Any]) -> list[Any]:
 def _read_heliostats_csv(path: Path, where: str) -> list[dict[str, Any]]:
     if not path.is_file():
         raise ConfigError(f"{where}heliostats_csv: file not found: {path}")
-    rows = []
     want = ["id", "e_m", "n_m", "u_m", "drive", "target"]
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        if reader.fieldnames is None or [h.strip() for h in reader.fieldnames] != want:
-            raise ConfigError(f"{path}: line 1: expected the header {','.join(want)}, got {reader.fieldnames}")
-        for line_no, row in enumerate(reader, start=2):
+    lines = read_csv_rows(path)
+    if not lines or [h.strip() for h in lines[0][1]] != want:
+        got = ",".join(lines[0][1]) if lines else "an empty file"
+        raise ConfigError(f"{path}: line 1: expected the header {','.join(want)}, got {_short(got, 60)}")
+    rows = []
+    for line_no, cells in lines[1:]:
+        if len(cells) != len(want):
+            raise ConfigError(f"{path}: line {line_no}: expected {len(want)} fields "
+                              f"({','.join(want)}), got {len(cells)}")
+        row = dict(zip(want, (c.strip() for c in cells)))
+        pos = []
+        for key in ("e_m", "n_m", "u_m"):
             try:
-                pos = [float(row["e_m"]), float(row["n_m"]), float(row["u_m"])]
-            except (TypeError, ValueError):
-                raise ConfigError(f"{path}: line {line_no}: e_m, n_m, u_m must be numbers") from None
-            rows.append({"id": row["id"].strip(), "position_enu_m": pos,
-                         "drive": (row["drive"] or "").strip(), "target": (row["target"] or "").strip()})
+                value = float(row[key])
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                raise ConfigError(f"{path}: line {line_no}: {key}: expected a finite number, got {_short(row[key])}")
+            pos.append(value)
+        rows.append({"id": row["id"], "position_enu_m": pos, "drive": row["drive"], "target": row["target"]})
     return rows
 
 
@@ -501,22 +675,23 @@ def _cross_check(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
     target_ids = [t.id for t in cfg.targets]
     for i, tid in enumerate(target_ids):
         if tid in target_ids[:i]:
-            problems.append(f"targets[{i}].id: duplicate target id '{tid}'")
+            problems.append(f"targets[{i}].id: duplicate target id {_short(tid)}")
     camera_ids = [c.id for c in cfg.cameras]
     for i, cam in enumerate(cfg.cameras):
         if cam.id in camera_ids[:i]:
-            problems.append(f"cameras[{i}].id: duplicate camera id '{cam.id}'")
+            problems.append(f"cameras[{i}].id: duplicate camera id {_short(cam.id)}")
         if cam.target not in target_ids:
-            problems.append(f"cameras[{i}].target: unknown target '{cam.target}' (defined: {', '.join(target_ids)})")
+            problems.append(f"cameras[{i}].target: unknown target {_short(cam.target)} (defined: {', '.join(target_ids)})")
     seen: set[str] = set()
     for i, h in enumerate(cfg.heliostats or ()):
         if h.id in seen:
-            problems.append(f"{heliostat_loc}[{i}].id: duplicate heliostat id '{h.id}'")
+            problems.append(f"{heliostat_loc}[{i}].id: duplicate heliostat id {_short(h.id)}")
         seen.add(h.id)
         if h.drive not in cfg.drives:
-            problems.append(f"{heliostat_loc}[{i}].drive: unknown drive '{h.drive}' (defined: {', '.join(cfg.drives)})")
+            problems.append(f"{heliostat_loc}[{i}].drive: unknown drive {_short(h.drive)} (defined: {', '.join(cfg.drives)})")
         if h.target not in target_ids:
-            problems.append(f"{heliostat_loc}[{i}].target: unknown target '{h.target}' (defined: {', '.join(target_ids)})")
+            problems.append(f"{heliostat_loc}[{i}].target: unknown target {_short(h.target)} (defined: {', '.join(target_ids)})")
+    problems += _apart_from_their_boards(cfg, heliostat_loc)
     for name, d in cfg.drives.items():
         if d.kind == "custom" and None in (d.axis1_enu, d.axis2_enu, d.normal0_enu):
             problems.append(f"drives.{name}: kind custom needs axis1_enu, axis2_enu and normal0_enu")
@@ -532,9 +707,19 @@ def _cross_check(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
     return problems
 
 
+def _apart_from_their_boards(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
+    """A heliostat's pivot cannot lie on its own board's centre (its beam would have no direction)."""
+    centre = {t.id: np.asarray(t.center_enu_m) for t in cfg.targets}
+    return [f"{heliostat_loc}[{i}].position_enu_m: {_short(h.id)} stands within 1 m of the centre of its "
+            f"target {_short(h.target)}" for i, h in enumerate(cfg.heliostats or ())
+            if h.target in centre and np.linalg.norm(np.asarray(h.position_enu_m) - centre[h.target]) < 1.0][:20]
+
+
 def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConfig:
     """Validate an already-parsed field config mapping; ``source`` names the file in messages."""
     where = f"{source}: " if source is not None else ""
+    if data is None:
+        raise ConfigError(f"{where}(top level): the file is empty; expected a mapping of sections (site, tower, ...)")
     if not isinstance(data, Mapping):
         raise ConfigError(f"{where}(top level): expected a mapping of sections, got {type(data).__name__}")
     data = dict(data)
@@ -543,6 +728,9 @@ def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConf
     has_list, has_csv = data.get("heliostats") is not None, data.get("heliostats_csv") is not None
     if has_list == has_csv:
         raise ConfigError(f"{where}heliostats: give exactly one of 'heliostats' or 'heliostats_csv'")
+    if has_list and isinstance(data["heliostats"], Sequence) and not isinstance(data["heliostats"], str) \
+            and len(data["heliostats"]) == 0:
+        raise ConfigError(f"{where}heliostats: empty list; a field needs at least one heliostat")
     if has_csv:
         csv_path = Path(str(data["heliostats_csv"]))
         csv_path = csv_path if csv_path.is_absolute() else base / csv_path

@@ -112,24 +112,17 @@ def read_observations(path: str | Path, heliostat_id: str | None = None) -> list
 
     Raises :class:`MeasurementError` naming the file and line on a wrong header or value.
     """
+    from helicalib.config import read_csv_rows
+
     path = Path(path)
-    if not path.is_file():
-        raise MeasurementError(f"{path}: file not found")
-    lines = path.read_text().splitlines()
-    start = 0
-    while start < len(lines) and lines[start].startswith("#"):
-        start += 1
-    reader = csv.reader(lines[start:])
-    try:
-        header = next(reader)
-    except StopIteration:
-        raise MeasurementError(f"{path}: empty file (expected the header {','.join(COLUMNS)})") from None
+    rows = read_csv_rows(path, MeasurementError, comments=True)
+    if not rows:
+        raise MeasurementError(f"{path}: empty file (expected the header {','.join(COLUMNS)})")
+    header_line, header = rows[0]
     if tuple(h.strip() for h in header) != COLUMNS:
-        raise MeasurementError(f"{path}: line {start + 1}: expected the header {','.join(COLUMNS)}")
+        raise MeasurementError(f"{path}: line {header_line}: expected the header {','.join(COLUMNS)}")
     out: list[Observation] = []
-    for offset, row in enumerate(reader, start=start + 2):
-        if not row:
-            continue
+    for offset, row in rows[1:]:
         if len(row) != len(COLUMNS):
             raise MeasurementError(f"{path}: line {offset}: expected {len(COLUMNS)} fields, got {len(row)}")
         values = {}
@@ -138,19 +131,34 @@ def read_observations(path: str | Path, heliostat_id: str | None = None) -> list
                 try:
                     v = float(raw)
                 except ValueError:
-                    raise MeasurementError(f"{path}: line {offset}: {name}: not a number: {raw!r}") from None
+                    raise MeasurementError(f"{path}: line {offset}: {name}: not a number: {raw[:40]!r}") from None
                 if not math.isfinite(v):
                     raise MeasurementError(f"{path}: line {offset}: {name}: not finite")
                 values[name] = v
             else:
                 values[name] = raw.strip()
-        sun = np.array([values["sun_e"], values["sun_n"], values["sun_u"]])
-        if abs(np.linalg.norm(sun) - 1.0) > 1e-3:
+        if not values["heliostat_id"]:
+            raise MeasurementError(f"{path}: line {offset}: heliostat_id: empty")
+        if not values["target_id"]:
+            raise MeasurementError(f"{path}: line {offset}: target_id: empty")
+        if values["utc_time"]:
+            _check_time(values["utc_time"], f"{path}: line {offset}: utc_time")
+        if abs(math.hypot(values["sun_e"], values["sun_n"], values["sun_u"]) - 1.0) > 1e-3:
             raise MeasurementError(f"{path}: line {offset}: sun vector is not a unit vector")
         obs = Observation(**values)
         if heliostat_id is None or obs.heliostat_id == heliostat_id:
             out.append(obs)
     return out
+
+
+def _check_time(value: str, where: str) -> None:
+    from helicalib.errors import HelicalibError
+    from helicalib.geometry.sun import parse_time
+
+    try:
+        parse_time(value)
+    except HelicalibError as err:
+        raise MeasurementError(f"{where}: {err}") from None
 
 
 def observations_arrays(rows: Sequence[Observation]) -> dict[str, np.ndarray]:

@@ -6,6 +6,8 @@
 SERIES.csv has a header row with ``time``, ``heliostat``, ``wind_ms`` and either ``u_m``, ``v_m``
 (spot centre on the heliostat's target board, metres from its centre; ``u``, ``v`` also accepted) or
 ``before``, ``after`` (frame paths relative to the CSV; several after frames separated by ``;``).
+``time`` is an ISO 8601 instant with an offset, ``wind_ms`` a speed >= 0; a bad cell is refused
+naming the file, line and column.
 Rows whose frames give an invalid spot are left out and counted by reason. Exit status 0 when
 the test ran (the verdict is in the output), 1 on a user error.
 """
@@ -40,47 +42,72 @@ def _col(row: dict, *names):
     return None
 
 
-def _float(value, where: str) -> float:
+def _float(value, where: str, minimum: float | None = None) -> float:
+    import math
+
+    from helicalib.config import MAX_COORDINATE_M
     from helicalib.errors import ConfigError
 
     try:
-        return float(value)
+        x = float(value)
     except (TypeError, ValueError):
-        raise ConfigError(f"{where}: expected a number, got {value!r}") from None
+        raise ConfigError(f"{where}: expected a number, got {str(value)[:40]!r}") from None
+    if not math.isfinite(x):
+        raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+    if minimum is not None and x < minimum:
+        raise ConfigError(f"{where}: expected a number >= {minimum:g}, got {value!r}")
+    if abs(x) > MAX_COORDINATE_M:
+        raise ConfigError(f"{where}: {value!r} is out of range (at most {MAX_COORDINATE_M:g} in size)")
+    return x
 
 
 def read_series(path: Path, field, method: str) -> tuple[list[dict], dict]:
-    """Rows with ``time, heliostat, wind_ms, u_m, v_m`` (frames measured), and invalid-reason counts."""
-    import csv
+    """Rows with ``time, heliostat, wind_ms, u_m, v_m`` (frames measured), and invalid-reason counts.
 
-    from helicalib.errors import ConfigError
+    Every cell is checked: ``time`` an ISO 8601 instant with an offset, ``wind_ms`` a finite speed
+    >= 0, ``u_m``/``v_m`` finite, ``heliostat`` an id of the field; a bad cell raises
+    :class:`ConfigError` naming the file, line and column.
+    """
+    from helicalib.config import read_csv_rows
+    from helicalib.errors import ConfigError, HelicalibError
+    from helicalib.geometry.sun import parse_time
 
-    if not path.is_file():
-        raise ConfigError(f"{path}: file not found")
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        rows = [{k.strip(): (v.strip() if isinstance(v, str) else v) for k, v in r.items() if k} for r in reader]
+    lines = read_csv_rows(path)
+    header = [h.strip() for h in lines[0][1]] if lines else []
     missing = [c for c in ("time", "heliostat", "wind_ms") if c not in header]
     has_uv = ("u_m" in header and "v_m" in header) or ("u" in header and "v" in header)
     has_frames = "before" in header and "after" in header
     if missing or not (has_uv or has_frames):
         need = missing + ([] if has_uv or has_frames else ["u_m, v_m or before, after"])
         raise ConfigError(f"{path}: header lacks {', '.join(need)}")
+    dupes = sorted({h for h in header if h and header.count(h) > 1})
+    if dupes:
+        raise ConfigError(f"{path}: line {lines[0][0]}: column {dupes[0]} appears twice in the header")
     out, invalid = [], {}
     marks_cache: dict = {}
-    for i, r in enumerate(rows, start=2):
-        where = f"{path}: line {i}"
+    for line_no, cells in lines[1:]:
+        where = f"{path}: line {line_no}"
+        if len(cells) != len(header):
+            raise ConfigError(f"{where}: expected {len(header)} fields (as the header), got {len(cells)}")
+        r = {k: v.strip() for k, v in zip(header, cells) if k}
+        try:
+            when = parse_time(r["time"]).isoformat() if r["time"] else None
+        except HelicalibError as err:
+            raise ConfigError(f"{where}: column time: {err}") from None
+        if when is None:
+            raise ConfigError(f"{where}: column time: empty (expected an ISO 8601 time with offset)")
         hid = r.get("heliostat")
         if not hid:
-            raise ConfigError(f"{where}: heliostat: empty")
-        field.heliostat(hid)  # unknown id → ConfigError
-        wind = _float(r.get("wind_ms"), f"{where}: wind_ms")
+            raise ConfigError(f"{where}: column heliostat: empty")
+        if not _known(field, hid):
+            raise ConfigError(f"{where}: column heliostat: no heliostat {hid[:40]!r} in {field.source}")
+        wind = _float(r.get("wind_ms"), f"{where}: column wind_ms", minimum=0.0)
         u, v = _col(r, "u_m", "u"), _col(r, "v_m", "v")
-        item = {"time": r.get("time"), "heliostat": hid, "wind_ms": wind, "reason": "ok"}
+        item = {"time": r["time"], "heliostat": hid, "wind_ms": wind, "reason": "ok"}
         if u is not None and v is not None:
-            item.update(u_m=_float(u, f"{where}: u_m"), v_m=_float(v, f"{where}: v_m"), source="uv")
-        elif _col(r, "before") and _col(r, "after"):
+            item.update(u_m=_float(u, f"{where}: column {'u_m' if 'u_m' in r else 'u'}"),
+                        v_m=_float(v, f"{where}: column {'v_m' if 'v_m' in r else 'v'}"), source="uv")
+        elif _col(r, "before") and _col(r, "after") and any(a.strip() for a in r["after"].split(";")):
             res = _measure_row(path.parent, r, field, hid, method, marks_cache)
             item["source"] = "frames"
             if res.valid:
@@ -91,7 +118,19 @@ def read_series(path: Path, field, method: str) -> tuple[list[dict], dict]:
         else:
             raise ConfigError(f"{where}: give u_m, v_m or before, after")
         out.append(item)
+    if not out:
+        raise ConfigError(f"{path}: no measurement rows after the header")
     return out, invalid
+
+
+def _known(field, heliostat_id: str) -> bool:
+    from helicalib.errors import ConfigError
+
+    try:
+        field.heliostat(heliostat_id)
+    except ConfigError:
+        return False
+    return True
 
 
 def _measure_row(base: Path, row: dict, field, hid: str, method: str, cache: dict):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from helicalib.commands._args import float_in, iso_time
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("aim", help="strokes, axis angles and normal that put a heliostat's beam on a target",
@@ -13,8 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("field", help="field config YAML")
     p.add_argument("--heliostat", required=True, help="heliostat id, e.g. H0001")
     p.add_argument("--target", default=None, help="target id (default: the heliostat's target)")
-    p.add_argument("--time", required=True, help="ISO 8601 instant with offset, e.g. 2026-06-21T12:00:00+08:00")
-    p.add_argument("--uv", type=float, nargs=2, metavar=("U_M", "V_M"), default=(0.0, 0.0),
+    p.add_argument("--time", required=True, type=iso_time, help="ISO 8601 instant with offset, e.g. 2026-06-21T12:00:00+08:00")
+    p.add_argument("--uv", type=float_in(-1e5, 1e5), nargs=2, metavar=("U_M", "V_M"), default=(0.0, 0.0),
                    help="aim point on the target in the target frame [m] (default: the centre)")
     p.add_argument("--params", default=None,
                    help="JSON file {name: value} of error-model parameters (default: the nominal heliostat)")
@@ -65,20 +67,23 @@ def aim(cfg, heliostat_id: str, target_id: str | None, time, uv_m=(0.0, 0.0), pa
 
 
 def run(args) -> int:
-    from pathlib import Path
+    import math
 
-    from helicalib.config import load_field_config
+    from helicalib.config import load_field_config, read_text
     from helicalib.errors import ConfigError
 
     cfg = load_field_config(args.field)
     params = None
     if args.params:
         try:
-            params = json.loads(Path(args.params).read_text())
+            params = json.loads(read_text(args.params))
             if not isinstance(params, dict):
                 raise ValueError("expected a JSON object {name: value}")
+            for name, value in params.items():
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise ValueError(f"{name}: expected a finite number, got {str(value)[:40]!r}")
             out = aim(cfg, args.heliostat, args.target, args.time, args.uv, params, args.approach)
-        except (OSError, ValueError, KeyError) as err:
+        except (OSError, ValueError, KeyError, OverflowError) as err:
             raise ConfigError(f"--params {args.params}: {err}") from None
     else:
         out = aim(cfg, args.heliostat, args.target, args.time, args.uv, approach=args.approach)

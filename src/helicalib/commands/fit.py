@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 import numpy as np
+
+from helicalib.commands._args import positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--loo", action="store_true", help="also fit leaving each observation out in turn")
     p.add_argument("--prior", action="append", default=[], metavar="NAME=SIGMA",
                    help="override a parameter's prior sigma (in its unit; 0 fixes it at nominal)")
-    p.add_argument("--sigma-meas-mrad", type=float, default=1.0, help="normal-error scatter of one observation")
+    p.add_argument("--sigma-meas-mrad", type=positive_float, default=1.0, help="normal-error scatter of one observation")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
 
@@ -80,15 +83,23 @@ def run(args) -> int:
     cfg = load_field_config(args.field)
     cfg.heliostat(args.heliostat)
     rows = read_observations(args.observations, args.heliostat)
+    targets = {t.id for t in cfg.targets}
+    for r in rows:
+        if r.target_id not in targets:
+            raise MeasurementError(f"{args.observations}: record {r.record_id[:40]!r}: target_id: no target "
+                                   f"{r.target_id[:40]!r} in {args.field}")
     if len(rows) < 2:
         raise MeasurementError(f"{args.observations}: {len(rows)} observation(s) of {args.heliostat}; need at least 2")
     priors = dict(REALDATA_PRIOR_SIGMA)
     for item in args.prior:
         name, _, value = item.partition("=")
         try:
-            priors[name.strip()] = float(value)
+            sigma = float(value)
         except ValueError:
             raise ConfigError(f"--prior {item}: expected NAME=SIGMA") from None
+        if not (math.isfinite(sigma) and sigma >= 0):
+            raise ConfigError(f"--prior {item}: SIGMA must be a finite number >= 0 (0 fixes the parameter)")
+        priors[name.strip()] = sigma
     from helicalib.geometry import errors as em
     for name in priors:
         if name not in em.NAMES:

@@ -14,6 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from helicalib.commands._args import float_in, iso_time, positive_float
+
+
+MAX_GRID_CELLS = 25e6
+"""Most cells the flux map's board grid may have (a 5000 x 5000 grid takes 200 MB per float map)."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("flux", help="flux density map, power and cleanliness from a before/after frame pair",
@@ -28,10 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-id", help="camera in --field (default: FLUX.yaml 'camera', else the target's only camera)")
     p.add_argument("--calibration", required=True, help="FLUX.yaml: Fe, correction files, component errors")
     p.add_argument("--heliostat", help="heliostat id in --field: incidence angle and cleanliness geometry")
-    p.add_argument("--incidence-deg", type=float, help="beam incidence on the board [deg] (else from --heliostat)")
-    p.add_argument("--time", help="capture instant, ISO 8601 with offset (cleanliness: sun position)")
-    p.add_argument("--dni-wm2", type=float, help="DNI at the capture time [W/m²] (cleanliness)")
-    p.add_argument("--intercept", type=float, default=1.0, help="fraction of the beam on the board (default 1)")
+    p.add_argument("--incidence-deg", type=float_in(0.0, 90.0, open_hi=True), help="beam incidence on the board [deg] (else from --heliostat)")
+    p.add_argument("--time", type=iso_time, help="capture instant, ISO 8601 with offset (cleanliness: sun position)")
+    p.add_argument("--dni-wm2", type=positive_float, help="DNI at the capture time [W/m²] (cleanliness)")
+    p.add_argument("--intercept", type=float_in(0.0, 1.0, open_lo=True), default=1.0, help="fraction of the beam on the board (default 1)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", help="write the 3-D surface and colour map to this PNG")
     p.set_defaults(func=run)
@@ -127,6 +133,11 @@ def run(args) -> int:
     if fc.corrections.distortion and (cam_k is None or dist is None):
         raise ConfigError(f"{fc.source}: corrections.distortion: the camera has no intrinsics/distortion in the config")
     cell = fc.grid_cell_m or auto_cell_m(marks.homography, before.shape)
+    cells = target.size_m[0] * target.size_m[1] / cell**2 if cell > 0 else float("inf")
+    if not cells <= MAX_GRID_CELLS:
+        key = f"{fc.source}: grid_cell_m: {cell:g} m" if fc.grid_cell_m else f"{args.before}: the automatic grid cell"
+        raise ConfigError(f"{key} makes {cells:.3g} cells on the {target.size_m[0]:g} x {target.size_m[1]:g} m board; "
+                          f"at most {MAX_GRID_CELLS:.0e} (give a larger grid_cell_m)")
     grid = board_grid(target.size_m, cell)
     heliostat = cfg.heliostat(args.heliostat) if (cfg is not None and args.heliostat) else None
     if args.heliostat and cfg is None:

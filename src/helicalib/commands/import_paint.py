@@ -21,15 +21,66 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+_READ = ("tower-measurements.json", "heliostat-properties.json", "calibration-properties", "axis_data.csv",
+         "positions.csv", "metadata.csv", "test_benchmark.csv")
+"""Names (ends or parts) of the files :func:`helicalib.realdata.paint.scan` reads."""
+
+
+def check_files(dirs) -> None:
+    """Every PAINT file under ``dirs`` is UTF-8 and valid JSON (an object) or CSV; else a ConfigError
+    naming the file, line and column (the reader itself would stop with a traceback)."""
+    from helicalib.config import read_csv_rows, read_text
+    from helicalib.errors import ConfigError
+
+    for d in map(Path, dirs):
+        files = [d] if d.is_file() else sorted(p for p in d.rglob("*") if p.is_file()) if d.is_dir() else []
+        for p in files:
+            if not any(key in p.name for key in _READ):
+                continue
+            if p.suffix == ".csv":
+                read_csv_rows(p)
+            elif p.suffix == ".json":
+                try:
+                    data = json.loads(read_text(p))
+                except json.JSONDecodeError as exc:
+                    raise ConfigError(f"{p}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})") from None
+                if not isinstance(data, dict):
+                    raise ConfigError(f"{p}: (top level): expected a JSON object, got {type(data).__name__}")
+
+
+def _culprit(exc: BaseException) -> str | None:
+    """The PAINT file the reader was on when ``exc`` was raised (its frames' ``path``/``p``), if any."""
+    found = None
+    tb = exc.__traceback__
+    while tb is not None:
+        frame = tb.tb_frame
+        if frame.f_globals.get("__name__") == "helicalib.realdata.paint":
+            for name in ("path", "p", "axis_csv"):
+                if isinstance(frame.f_locals.get(name), (str, Path)):
+                    found = str(frame.f_locals[name])
+                    break
+        tb = tb.tb_next
+    return found
+
+
 def run(args) -> int:
     from helicalib.calibration.observations import write_observations
     from helicalib.config import write_field_config
+    from helicalib.errors import ConfigError
     from helicalib.realdata.paint import field_config_dict, observations, scan
 
-    imp = scan(args.dirs)
+    check_files(args.dirs)
+    try:
+        imp = scan(args.dirs)
+        data = field_config_dict(imp)
+        rows, notes = observations(imp, args.spot)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        # the PAINT reader does not check the records' structure; name the file it was reading
+        what = f"missing key {exc}" if isinstance(exc, KeyError) else f"{type(exc).__name__}: {exc}"
+        where = _culprit(exc) or ", ".join(str(d) for d in args.dirs)
+        raise ConfigError(f"{where}: not the PAINT layout helicalib reads ({what})") from None
     out = Path(args.out)
-    cfg = write_field_config(field_config_dict(imp), out / "field.yaml")
-    rows, notes = observations(imp, args.spot)
+    cfg = write_field_config(data, out / "field.yaml")
     comments = [f"helicalib import-paint from {', '.join(str(d) for d in args.dirs)}",
                 f"spot centre: {args.spot}; plant reference WGS84 {list(imp.tower.reference_llh)}",
                 "PAINT data: CDLA-Permissive-2.0 (DLR / KIT)"]

@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import argparse
 
+from helicalib.commands._args import int_in, site_text
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim-field", help="generate a field config with a radial-staggered layout",
                        description="Write FIELD.yaml and FIELD.csv: n tilt-roll heliostats in staggered rings on the "
                                    "pole side of the tower, each feasible (strokes in range for its target and the "
                                    "receiver) at every sun position >= 5 deg of the year. See docs/simulator.md.")
-    p.add_argument("--n", type=int, required=True, help="number of heliostats")
-    p.add_argument("--site", required=True, help="LAT,LON[,ALT] in degrees (north, east positive) and metres")
+    p.add_argument("--n", type=int_in(1, 20000), required=True, help="number of heliostats")
+    p.add_argument("--site", required=True, type=site_text, help="LAT,LON[,ALT] in degrees (north, east positive) and metres")
     p.add_argument("--layout", default="radial-staggered", choices=["radial-staggered"], help="field layout")
-    p.add_argument("--targets", type=int, default=4, help="calibration boards on the tower (default 4)")
+    p.add_argument("--targets", type=int_in(1, 12), default=4, help="calibration boards on the tower (default 4)")
     p.add_argument("--name", default=None, help="site name")
     p.add_argument("--out", required=True, help="output YAML path (the CSV is written beside it)")
     p.set_defaults(func=run)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from helicalib.commands._args import iso_time, nonnegative_int, port, positive_float
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -12,12 +14,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "served on 127.0.0.1 at the addresses of the field config (options override them). "
                     "Stops cleanly on Ctrl-C or SIGTERM. See docs/simulator.md.")
     p.add_argument("field", help="field config YAML")
-    p.add_argument("--rate", type=float, default=600.0, help="plant seconds per real second (default 600)")
-    p.add_argument("--start", default=None,
+    p.add_argument("--rate", type=positive_float, default=600.0, help="plant seconds per real second (default 600)")
+    p.add_argument("--start", default=None, type=iso_time,
                    help="plant start time, ISO 8601 with offset (default: the scenario's start, else now)")
-    p.add_argument("--seed", type=int, default=None, help="seed of the hidden errors and weather (default: scenario's)")
-    p.add_argument("--port", type=int, default=None, help="Modbus TCP port (default: plant.scs.port; 0 = free port)")
-    p.add_argument("--camera-port", type=int, default=None,
+    p.add_argument("--seed", type=nonnegative_int, default=None, help="seed of the hidden errors and weather (default: scenario's)")
+    p.add_argument("--port", type=port, default=None, help="Modbus TCP port (default: plant.scs.port; 0 = free port)")
+    p.add_argument("--camera-port", type=port, default=None,
                    help="HTTP port for every camera (default: the ports of the cameras' URLs; 0 = free port)")
     p.add_argument("--scenario", default=None, help="scenario YAML (weather, soiling, errors, faults)")
     p.add_argument("--zero-errors", action="store_true", help="a perfect field: no hidden errors at all")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from helicalib.commands._args import float_in, iso_time, nonnegative_int, positive_float
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run a calibration campaign against the simulated plant",
@@ -12,11 +14,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "(fast), or over loopback Modbus TCP + HTTP with --over-network. Writes the "
                                    "database, frames, observations.csv and summary.json into --out.")
     p.add_argument("field", help="field config YAML")
-    p.add_argument("--days", type=float, default=3.0, help="plant days to simulate (default 3)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the hidden errors, weather and noise (default 1)")
+    p.add_argument("--days", type=float_in(0.0, 3660.0, open_lo=True), default=3.0, help="plant days to simulate (default 3)")
+    p.add_argument("--seed", type=nonnegative_int, default=1, help="seed of the hidden errors, weather and noise (default 1)")
     p.add_argument("--out", required=True, help="output folder (database, images, summary)")
     p.add_argument("--scenario", default=None, help="scenario YAML (weather, errors, faults; see docs/simulator.md)")
-    p.add_argument("--start", default=None, help="plant start time, ISO 8601 with offset (default 2026-06-01, local midnight)")
+    p.add_argument("--start", default=None, type=iso_time, help="plant start time, ISO 8601 with offset (default 2026-06-01, local midnight)")
     p.add_argument("--planner", choices=("gaps", "round-robin"), default="gaps",
                    help="who goes next: fill acceptance gaps fastest (default) or the paper's round robin")
     p.add_argument("--refine", action="store_true",
@@ -24,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "most uncertain at the present sun, accepted ones included (better year-round accuracy)")
     p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
     p.add_argument("--over-network", action="store_true", help="serve the plant on loopback and use the real clients")
-    p.add_argument("--rate", type=float, default=3000.0, help="plant time rate with --over-network (default 3000)")
+    p.add_argument("--rate", type=positive_float, default=3000.0, help="plant time rate with --over-network (default 3000)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--report", action="store_true", help="also write the HTML report into OUT/report")
     p.set_defaults(func=run)

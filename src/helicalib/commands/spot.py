@@ -18,6 +18,8 @@ import importlib
 import json
 from pathlib import Path
 
+from helicalib.commands._args import fraction, positive_float
+
 EXIT_INVALID = 3
 
 
@@ -40,9 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-id", help="camera in --field for its intrinsics/distortion (default: the target's)")
     p.add_argument("--method", choices=["grlm", "grlm-centroid", "centroid"], default=None,
                    help="centring method (default: calibration.spot_method of --field, else grlm-centroid)")
-    p.add_argument("--cells-per-m", type=float, default=None, help="board grid resolution [cells/m] (default: auto)")
-    p.add_argument("--max-jitter-m", type=float, default=None, help="jitter limit over after frames [m] (default 0.10)")
-    p.add_argument("--max-saturated", type=float, default=None,
+    p.add_argument("--cells-per-m", type=positive_float, default=None, help="board grid resolution [cells/m] (default: auto)")
+    p.add_argument("--max-jitter-m", type=positive_float, default=None, help="jitter limit over after frames [m] (default 0.10)")
+    p.add_argument("--max-saturated", type=fraction, default=None,
                    help="largest saturated fraction of the spot (default 0.10)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--overlay", type=Path, help="write the after frame with marks, board, window and centre drawn")

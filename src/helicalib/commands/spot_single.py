@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from helicalib.commands._args import positive_float
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("spot-single", help="alias of 'spot FRAME --single-frame --board-size-m W H'",
@@ -13,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "right = target u, image up = target v). Prints the spot centre in target metres "
                                    "about the board centre, and in pixels.")
     p.add_argument("frame", help="image file (grey or colour)")
-    p.add_argument("--board-size-m", nargs=2, type=float, required=True, metavar=("W", "H"))
+    p.add_argument("--board-size-m", nargs=2, type=positive_float, required=True, metavar=("W", "H"))
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
 

@@ -5,17 +5,19 @@ from __future__ import annotations
 import argparse
 import json
 
+from helicalib.commands._args import finite_float, float_in, iso_time
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sun", help="sun azimuth/elevation and ENU vector (NREL SPA)",
                        description="Apparent topocentric sun position by NREL SPA. --time needs a zone offset.")
-    p.add_argument("--lat", type=float, required=True, help="latitude [deg, north positive]")
-    p.add_argument("--lon", type=float, required=True, help="longitude [deg, east positive]")
+    p.add_argument("--lat", type=float_in(-90.0, 90.0), required=True, help="latitude [deg, north positive]")
+    p.add_argument("--lon", type=float_in(-180.0, 180.0), required=True, help="longitude [deg, east positive]")
     p.add_argument("--time", required=True, help="ISO 8601 instant with offset, e.g. 2026-06-21T12:00:00+08:00")
-    p.add_argument("--altitude-m", type=float, default=0.0, help="site altitude [m] (default 0)")
-    p.add_argument("--pressure-hpa", type=float, default=None, help="air pressure [hPa] (default: standard atmosphere at the altitude)")
-    p.add_argument("--temperature-c", type=float, default=12.0, help="air temperature [°C] (default 12)")
-    p.add_argument("--delta-t-s", type=float, default=None, help="TT-UT1 [s] (default: pvlib's estimate for the date)")
+    p.add_argument("--altitude-m", type=float_in(-1000.0, 10000.0), default=0.0, help="site altitude [m] (default 0)")
+    p.add_argument("--pressure-hpa", type=float_in(0.0, 2000.0, open_lo=True), default=None, help="air pressure [hPa] (default: standard atmosphere at the altitude)")
+    p.add_argument("--temperature-c", type=float_in(-100.0, 100.0), default=12.0, help="air temperature [°C] (default 12)")
+    p.add_argument("--delta-t-s", type=finite_float, default=None, help="TT-UT1 [s] (default: pvlib's estimate for the date)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -28,6 +30,10 @@ def run(args) -> int:
         raise ConfigError(f"--lat {args.lat}: latitude must lie in [-90, 90]")
     if not -180 <= args.lon <= 180:
         raise ConfigError(f"--lon {args.lon}: longitude must lie in [-180, 180]")
+    try:
+        iso_time(args.time)  # an instant with offset in the years the sun code can represent
+    except argparse.ArgumentTypeError as err:
+        raise ConfigError(f"--time: {err}") from None
     t = parse_time(args.time)
     pos = sun_position(t, args.lat, args.lon, args.altitude_m, args.pressure_hpa, args.temperature_c, args.delta_t_s)
     out = {

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
+
+from helicalib.commands._args import finite_float, int_in, nonnegative_float, nonnegative_int, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,9 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--camera", required=True, help="CAMERA.yaml")
     r.add_argument("--tilt", action="append", default=[], metavar="FACET=MRAD",
                    help="facet tilt about +X, e.g. --tilt R2C3=1.5 (repeatable) [mrad]")
-    r.add_argument("--supersample", type=int, default=3, help="samples per pixel along each axis (default 3)")
-    r.add_argument("--noise", type=float, default=0.0, help="Gaussian noise [grey levels] (default 0)")
-    r.add_argument("--seed", type=int, default=0, help="noise seed")
+    r.add_argument("--supersample", type=int_in(1, 8), default=3, help="samples per pixel along each axis (default 3)")
+    r.add_argument("--noise", type=nonnegative_float, default=0.0, help="Gaussian noise [grey levels] (default 0)")
+    r.add_argument("--seed", type=nonnegative_int, default=0, help="noise seed")
     r.add_argument("--out", required=True, help="PNG file to write")
     r.set_defaults(trough_func=run_render)
 
@@ -45,9 +48,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "boundaries and the tube's edges line up, or the gauge width for a distance.")
     g.add_argument("--collector", required=True, help="COLLECTOR.yaml (focal length, tube radius)")
     what = g.add_mutually_exclusive_group(required=True)
-    what.add_argument("--gauge-width-mm", type=float, help="d: distance between the gauge's colour boundaries [mm]")
-    what.add_argument("--distance-mm", type=float, help="OPc: camera distance from the vertex [mm] (gives d)")
-    g.add_argument("--gauge-z-mm", type=float, default=0.0, help="gauge height on the axis [mm] (default 0: vertex)")
+    what.add_argument("--gauge-width-mm", type=positive_float, help="d: distance between the gauge's colour boundaries [mm]")
+    what.add_argument("--distance-mm", type=positive_float, help="OPc: camera distance from the vertex [mm] (gives d)")
+    g.add_argument("--gauge-z-mm", type=finite_float, default=0.0, help="gauge height on the axis [mm] (default 0: vertex)")
     g.set_defaults(trough_func=run_gauge)
 
 
@@ -70,9 +73,12 @@ def _parse_tilts(items: list[str]) -> dict[str, float]:
         try:
             if not sep:
                 raise ValueError
-            out[fid.strip().upper()] = float(value)
+            tilt = float(value)
+            if not math.isfinite(tilt):
+                raise ValueError
+            out[fid.strip().upper()] = tilt
         except ValueError:
-            raise ConfigError(f"--tilt {item!r}: expected FACET=MRAD, e.g. R2C3=1.5") from None
+            raise ConfigError(f"--tilt {item!r}: expected FACET=MRAD with a finite MRAD, e.g. R2C3=1.5") from None
     return out
 
 

@@ -8,6 +8,8 @@ import sys
 
 import numpy as np
 
+from helicalib.commands._args import int_in
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="check a field config and summarise the plant",
@@ -16,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--no-sweep", action="store_true",
                    help="skip the stroke-feasibility sweep (strokes for every heliostat's target over a year)")
-    p.add_argument("--year", type=int, default=2026, help="year of the stroke-feasibility sweep (default 2026)")
+    p.add_argument("--year", type=int_in(1900, 2200), default=2026, help="year of the stroke-feasibility sweep (default 2026)")
     p.set_defaults(func=run)
 
 

@@ -9,7 +9,6 @@ named files into arrays (the only I/O of :mod:`helicalib.flux` besides the comma
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +17,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
-from helicalib.config import read_yaml, validation_error
+from helicalib.config import read_csv_rows, read_yaml, validation_error
 from helicalib.errors import ConfigError
 from helicalib.flux import calibration as cal
 from helicalib.flux.corrections import ResponseCurve, correct_frame, flat_field_factors, nonuniformity_error, response_curve
@@ -28,7 +27,7 @@ Fraction = Field(gt=0, le=1)
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class TwoRadiometer(_Model):
@@ -230,20 +229,22 @@ def _read_grey(path: Path, key: str, where: str) -> np.ndarray:
 def _read_curve(path: Path, where: str) -> tuple[list[float], list[float]]:
     if not path.is_file():
         raise ConfigError(f"{where}corrections.nonlinearity.curve_csv: file not found: {path}")
+    rows = read_csv_rows(path)
+    if not rows or [h.strip() for h in rows[0][1]] != ["input", "grey"]:
+        got = ",".join(rows[0][1])[:60] if rows else "an empty file"
+        raise ConfigError(f"{path}: line 1: expected the header input,grey, got {got!r}")
     xs, ys = [], []
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        if reader.fieldnames is None or [h.strip() for h in reader.fieldnames] != ["input", "grey"]:
-            raise ConfigError(f"{path}: line 1: expected the header input,grey, got {reader.fieldnames}")
-        for line_no, row in enumerate(reader, start=2):
-            try:
-                x, y = float(row["input"]), float(row["grey"])
-            except (TypeError, ValueError):
-                raise ConfigError(f"{path}: line {line_no}: input and grey must be numbers") from None
-            if not (math.isfinite(x) and math.isfinite(y)):
-                raise ConfigError(f"{path}: line {line_no}: input and grey must be finite")
-            xs.append(x)
-            ys.append(y)
+    for line_no, cells in rows[1:]:
+        try:
+            if len(cells) != 2:
+                raise ValueError
+            x, y = float(cells[0]), float(cells[1])
+        except ValueError:
+            raise ConfigError(f"{path}: line {line_no}: expected two numbers, input and grey") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ConfigError(f"{path}: line {line_no}: input and grey must be finite")
+        xs.append(x)
+        ys.append(y)
     return xs, ys
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from datetime import datetime, timezone
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from helicalib.config import read_yaml, validation_error
 
@@ -23,11 +23,25 @@ def _iso(value: Any) -> Any:
     return value
 
 
-Time = Annotated[str, BeforeValidator(_iso)]
+def _instant(value: str) -> str:
+    """An ISO 8601 instant with an offset (as the CLI's ``--start``), kept as the string given."""
+    from helicalib.errors import HelicalibError
+    from helicalib.geometry.sun import parse_time
+
+    try:
+        year = parse_time(value).year
+    except HelicalibError as err:
+        raise ValueError(str(err)) from None
+    if not 1678 <= year <= 2261:  # pandas' nanosecond range, which the clocks and the sun code use
+        raise ValueError(f"time {value!r}: expected a year in 1678..2261")
+    return value
+
+
+Time = Annotated[str, BeforeValidator(_iso), AfterValidator(_instant)]
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Wind(_Model):
@@ -65,6 +79,14 @@ class Event(_Model):
     wind_direction_deg: float | None = None
     dni_factor: float | None = Field(default=None, ge=0)
     temperature_c: float | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        from helicalib.geometry.sun import parse_time
+
+        if not parse_time(self.start) < parse_time(self.end):
+            raise ValueError(f"end {self.end} is not after start {self.start}")
+        return self
 
 
 class WeatherSpec(_Model):

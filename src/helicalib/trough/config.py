@@ -13,17 +13,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from helicalib.config import read_yaml, validation_error
 from helicalib.errors import ConfigError
 from helicalib.trough.camera import PinholeCamera
 
 Finite = Field(allow_inf_nan=False)
+MAX_SIZE_MM = 1e6
+"""Largest length or coordinate a COLLECTOR.yaml or CAMERA.yaml may give [mm] (1 km)."""
+MAX_IMAGE_SIDE_PX = 20000
+"""Largest image side a CAMERA.yaml may give [px] (a 150-megapixel back is 14204 px wide)."""
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 @dataclass(frozen=True)
@@ -46,10 +50,10 @@ class FacetLayout:
 class Collector(_Model):
     """One collector module (COLLECTOR.yaml)."""
 
-    focal_length_mm: float = Field(gt=0, allow_inf_nan=False)
-    aperture_mm: float = Field(gt=0, allow_inf_nan=False)
-    length_mm: float = Field(gt=0, allow_inf_nan=False)
-    tube_radius_mm: float = Field(gt=0, allow_inf_nan=False)
+    focal_length_mm: float = Field(gt=0, le=MAX_SIZE_MM, allow_inf_nan=False)
+    aperture_mm: float = Field(gt=0, le=MAX_SIZE_MM, allow_inf_nan=False)
+    length_mm: float = Field(gt=0, le=MAX_SIZE_MM, allow_inf_nan=False)
+    tube_radius_mm: float = Field(gt=0, le=MAX_SIZE_MM, allow_inf_nan=False)
     tube_length_mm: float | None = Field(default=None, gt=0, allow_inf_nan=False)
     rows: int = Field(ge=1, le=16)
     columns: int = Field(ge=1, le=64)
@@ -123,22 +127,33 @@ class Camera(_Model):
     position_mm: tuple[float, float, float]
     rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     image_size_px: tuple[int, int]
-    focal_length_mm: float = Field(gt=0, allow_inf_nan=False)
-    pixel_pitch_um: float = Field(gt=0, allow_inf_nan=False)
+    focal_length_mm: float = Field(gt=0, le=MAX_SIZE_MM, allow_inf_nan=False)
+    pixel_pitch_um: float = Field(gt=0, le=MAX_SIZE_MM, allow_inf_nan=False)
     principal_point_px: tuple[float, float] | None = None
 
-    @model_validator(mode="after")
-    def _check(self):
-        for key in ("position_mm", "rotation_deg", "principal_point_px"):
-            value = getattr(self, key)
-            if value is not None and not all(math.isfinite(v) for v in value):
-                raise ValueError(f"{key}: expected finite numbers")
-        w, h = self.image_size_px
-        if w < 16 or h < 16:
-            raise ValueError("image_size_px: expected width and height >= 16")
-        if any(abs(a) > 10.0 for a in self.rotation_deg):
-            raise ValueError("rotation_deg: residual attitude beyond ±10° — the camera must look along -Z")
-        return self
+    @field_validator("position_mm")
+    @classmethod
+    def _above(cls, value):
+        if any(abs(v) > MAX_SIZE_MM for v in value):
+            raise ValueError(f"expected coordinates within ±{MAX_SIZE_MM:g} mm")
+        if not value[2] > 0:
+            raise ValueError("the camera must stand above the vertex (z > 0) and look down along -Z")
+        return value
+
+    @field_validator("image_size_px")
+    @classmethod
+    def _image(cls, value):
+        w, h = value
+        if w < 16 or h < 16 or w > MAX_IMAGE_SIDE_PX or h > MAX_IMAGE_SIDE_PX:
+            raise ValueError(f"expected width and height in 16..{MAX_IMAGE_SIDE_PX}")
+        return value
+
+    @field_validator("rotation_deg")
+    @classmethod
+    def _attitude(cls, value):
+        if any(abs(a) > 10.0 for a in value):
+            raise ValueError("residual attitude beyond ±10° — the camera must look along -Z")
+        return value
 
     def pinhole(self) -> PinholeCamera:
         """The :class:`PinholeCamera` this file describes."""

@@ -1,0 +1,119 @@
+"""argparse ``type=`` helpers that refuse values no command can use (NaN, inf, negative sizes...).
+
+Use them as ``p.add_argument("--days", type=positive_float)``. A refused value makes argparse
+print one line, ``helicalib simulate: error: argument --days: 'nan' is not a finite number``, and
+exit with status 2, before the command runs.
+
+=====================  ====================================================================
+``finite_float``       any finite number (coordinates, offsets, temperatures)
+``positive_float``     finite and > 0 (durations, rates, sizes, sigmas, resolutions)
+``nonnegative_float``  finite and >= 0 (noise, margins)
+``fraction``           finite, 0 <= x <= 1
+``float_in(lo, hi)``   finite, lo <= x <= hi (either bound may be None; ``open_lo``/``open_hi``
+                       make it strict)
+``nonnegative_int``    a whole number >= 0 (seeds)
+``int_in(lo, hi)``     a whole number, lo <= x <= hi (years, counts); ``port`` = int_in(0, 65535)
+``site_text``          ``LAT,LON[,ALT]`` with each number in range (returned as the text)
+``iso_time``           an ISO 8601 instant with offset, years 1678..2261 (returned as the text)
+=====================  ====================================================================
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def float_in(lo: float | None = None, hi: float | None = None, *, open_lo: bool = False,
+             open_hi: bool = False) -> Callable[[str], float]:
+    """A ``type=`` for a finite float inside [lo, hi] (``open_lo``/``open_hi``: the bound excluded)."""
+
+    def parse(text: str) -> float:
+        value = _number(text)
+        low_ok = lo is None or (value > lo if open_lo else value >= lo)
+        high_ok = hi is None or (value < hi if open_hi else value <= hi)
+        if not (low_ok and high_ok):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {_describe(lo, hi, open_lo, open_hi)}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def _describe(lo, hi, open_lo: bool, open_hi: bool) -> str:
+    if lo is not None and hi is not None:
+        return f"a number in {'(' if open_lo else '['}{lo:g}, {hi:g}{')' if open_hi else ']'}"
+    if lo is not None:
+        return f"a number {'>' if open_lo else '>='} {lo:g}"
+    return f"a number {'<' if open_hi else '<='} {hi:g}"
+
+
+finite_float = float_in()
+positive_float = float_in(0.0, open_lo=True)
+nonnegative_float = float_in(0.0)
+fraction = float_in(0.0, 1.0)
+
+
+def int_in(lo: int | None = None, hi: int | None = None) -> Callable[[str], int]:
+    """A ``type=`` for a whole number inside [lo, hi] (either bound may be None)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            want = (f"a whole number in [{lo}, {hi}]" if lo is not None and hi is not None
+                    else f"a whole number >= {lo}" if lo is not None else f"a whole number <= {hi}")
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {want}")
+        return value
+
+    parse.__name__ = "whole number"
+    return parse
+
+
+nonnegative_int = int_in(0)
+port = int_in(0, 65535)
+
+
+def site_text(text: str) -> str:
+    """A ``type=`` for ``LAT,LON[,ALT]`` (degrees, metres): checks the numbers, returns the text as given."""
+    parts = text.split(",")
+    limits = ((-90.0, 90.0, "LAT"), (-180.0, 180.0, "LON"), (-1000.0, 10000.0, "ALT"))
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected LAT,LON[,ALT]")
+    for part, (lo, hi, name) in zip(parts, limits):
+        try:
+            float_in(lo, hi)(part.strip())
+        except argparse.ArgumentTypeError as err:
+            raise argparse.ArgumentTypeError(f"{text!r}: {name} {err}") from None
+    return text
+
+
+FIRST_YEAR, LAST_YEAR = 1678, 2261
+"""Instants the sun and clock code can represent (pandas' nanosecond range)."""
+
+
+def iso_time(text: str) -> str:
+    """A ``type=`` for an ISO 8601 instant with a zone offset in years 1678..2261; returns the text as given."""
+    from helicalib.errors import HelicalibError
+    from helicalib.geometry.sun import parse_time
+
+    try:
+        year = parse_time(text).year
+    except HelicalibError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    if not FIRST_YEAR <= year <= LAST_YEAR:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a time in the years {FIRST_YEAR}..{LAST_YEAR}")
+    return text
