@@ -354,3 +354,28 @@ def test_closed_stdout_pipe_ends_quietly(paint_import):
     # the same command with its reader in place still prints all of it
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and json.loads(proc.stdout)["heliostat"] == "AA23"
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "FIELD", "--days", "nan"], ["run", "FIELD", "--days", "0"], ["run", "FIELD", "--until", "tomorrow"],
+    ["check", "FIELD", "--heliostat", "H0001", "--hours", "inf"], ["demo", "FIELD", "--days", "-1"],
+    ["demo", "FIELD", "--seed", "-2"],
+])
+def test_live_and_demo_options_are_refused_before_anything_runs(argv, demo_field_path, capsys):
+    argv = [str(demo_field_path) if a == "FIELD" else a for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(f"helicalib {argv[0]}: error: argument --")
+
+
+def test_single_frame_board_size_nan_is_refused(tmp_path, capsys):
+    import cv2
+    import numpy as np
+
+    frame = tmp_path / "f.png"
+    cv2.imwrite(str(frame), np.zeros((20, 20), np.uint8))
+    assert main(["spot", str(frame), "--single-frame", "--board-size-m", "nan", "nan"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--board-size-m nan nan" in err

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands.run import _positive_days
+from helicalib.commands._args import positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("field", help="field config YAML")
     p.add_argument("--heliostat", required=True, help="heliostat id, or several separated by commas")
     p.add_argument("--arm", action="store_true", help="allow writes to the plant")
-    p.add_argument("--hours", type=_positive_days, default=2.0, help="give up after this many plant hours (default 2)")
+    p.add_argument("--hours", type=positive_float, default=2.0, help="give up after this many plant hours (default 2)")
     p.add_argument("--json", action="store_true",
                    help="JSON lines on stdout: one per event, a status line every 5 s, a final summary with each "
                         "heliostat's present error, limit and verdict")

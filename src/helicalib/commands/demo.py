@@ -9,6 +9,8 @@ A simulated calibration campaign on the field (in-process, virtual clock), then 
 from __future__ import annotations
 
 import argparse
+
+from helicalib.commands._args import nonnegative_int, positive_float
 import json
 import shutil
 from pathlib import Path
@@ -21,8 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "(replaced if it exists).")
     p.add_argument("field", help="field config YAML")
     p.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
-    p.add_argument("--days", type=float, default=2.0, help="plant days to simulate (default 2)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the hidden errors and weather (default 1)")
+    p.add_argument("--days", type=positive_float, default=2.0, help="plant days to simulate (default 2)")
+    p.add_argument("--seed", type=nonnegative_int, default=1, help="seed of the hidden errors and weather (default 1)")
     p.set_defaults(func=run)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from helicalib.commands._args import iso_time, positive_float
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run (or resume) a live calibration campaign against the plant",
@@ -17,8 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--arm", action="store_true", help="allow writes to the plant (commands, strokes, corrections)")
     p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--until", default=None, help="stop at this plant time (ISO 8601 with offset)")
-    g.add_argument("--days", type=_positive_days, default=None, help="stop after this many plant days (default 7)")
+    g.add_argument("--until", type=iso_time, default=None, help="stop at this plant time (ISO 8601 with offset)")
+    g.add_argument("--days", type=positive_float, default=None, help="stop after this many plant days (default 7)")
     p.add_argument("--planner", choices=("gaps", "round-robin"), default="gaps", help="who goes next (default gaps)")
     p.add_argument("--refine", action="store_true",
                    help="gaps planner: spend target time no acceptance gap needs on the heliostats whose model is "
@@ -28,18 +30,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true",
                    help="JSON lines on stdout: one per event, a status line every 5 s, a final summary")
     p.set_defaults(func=run, recheck=False)
-
-
-def _positive_days(text: str) -> float:
-    import math
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number > 0")
-    return value
 
 
 def run(args) -> int:

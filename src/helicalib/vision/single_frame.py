@@ -31,6 +31,7 @@ documents the pixel convention (pixel centres at integer + 0.5).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -182,8 +183,9 @@ def run_spot(args, target=None, camera=None) -> int:
     size = args.board_size_m
     if size is None and target is not None:
         size = tuple(target.size_m)
-    if size is None or min(size) <= 0:
-        raise ConfigError("--single-frame needs --board-size-m W H (positive) or a target with size_m")
+    if size is None or not all(math.isfinite(float(x)) and float(x) > 0 for x in size):
+        raise ConfigError(f"--board-size-m {' '.join(str(x) for x in size) if size else ''}: --single-frame needs "
+                          "W H (finite, positive, metres) or a target with size_m")
     img = cv2.imread(str(args.frames[0]), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise MeasurementError(f"{args.frames[0]}: cannot read the image")
