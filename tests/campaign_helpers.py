@@ -12,16 +12,18 @@ from helicalib.store.sqlite import Store
 
 
 def inprocess_campaign(cfg, tmp_path, hours: float, seed: int, ids, camera=lambda cam, sim, target: cam,
-                       scenario=None, plant=lambda sim: sim, **runner_kw):
+                       scenario=None, plant=lambda sim: sim, campaign_id=None, **runner_kw):
     """A runner on the in-process plant from ``hours`` after local midnight, each board's camera
-    wrapped by ``camera(sim_camera, sim, target)`` and the plant by ``plant(sim)``; returns
-    (runner, sim, store, campaign id, cameras)."""
+    wrapped by ``camera(sim_camera, sim, target)`` and the plant by ``plant(sim)``; a new campaign of
+    ``ids`` in ``tmp_path/c.db``, or ``campaign_id`` resumed; returns (runner, sim, store, campaign id,
+    cameras)."""
     start = default_start_s(cfg) + hours * 3600
     sim = SimulatedPlant(cfg, parse_scenario({"seed": seed, **(scenario or {})}), start_s=start)
     clock = VirtualClock(start)
     clock.on_advance(sim.advance_to)
     cams = {t.id: camera(SimCamera(sim, cfg.cameras_for(t.id)[0].id), sim, t) for t in cfg.targets}
     store = Store.open(tmp_path / "c.db", tmp_path / "img")
-    cid = store.start_campaign(name="t", mode="simulate", started_s=start,
-                               heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
+    cid = campaign_id if campaign_id is not None else store.start_campaign(
+        name="t", mode="simulate", started_s=start,
+        heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
     return CampaignRunner(cfg, plant(sim), cams, clock, store, cid, heliostat_ids=ids, **runner_kw), sim, store, cid, cams

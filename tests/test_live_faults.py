@@ -150,6 +150,11 @@ def test_the_owner_removes_frames_no_observation_points_to(cfg, tmp_path):
     v2 = store.begin_visit(cid, "H0001", "T1", 10.0)
     orphan = store.save_frame(data, campaign_id=cid, heliostat_id="H0001", visit_id=v2, iteration=0,
                               capture_time_s=10.0, kind="before")
+    # a visit that ended in a fault after its before frame: its frame is evidence, never an orphan
+    v3 = store.begin_visit(cid, "H0001", "T1", 5.0)
+    failed = store.save_frame(data, campaign_id=cid, heliostat_id="H0001", visit_id=v3, iteration=0,
+                              capture_time_s=5.0, kind="before")
+    store.end_visit(v3, ended_s=6.0, outcome="fault", reason="plant_error")
     store.close()
     owner = Store.open(db, "images")
     owner.take_ownership("test")
@@ -163,8 +168,22 @@ def test_the_owner_removes_frames_no_observation_points_to(cfg, tmp_path):
     assert owner.remove_orphan_frames(cid) == 1
     owner.close()
     assert not (tmp_path / "images" / orphan).exists()
-    assert (tmp_path / "images" / kept).exists()
-    assert len(list((tmp_path / "images").rglob("*.png"))) == 2  # the kept before and its after frame
+    assert (tmp_path / "images" / kept).exists() and (tmp_path / "images" / failed).exists()
+    assert len(list((tmp_path / "images").rglob("*.png"))) == 3  # kept before + its after frame, the fault's
+
+
+def test_a_failed_visits_record_points_to_its_before_frame(cfg, tmp_path):
+    proxy = {}
+    runner, sim, store, cid, _cams = inprocess_campaign(cfg, tmp_path, 9, 3, ["H0001"],
+                                                        plant=lambda s: proxy.setdefault("p", _Outage(s)))
+    while not list((tmp_path / "img").rglob("*_before.png")):  # the visit's before frame is saved ...
+        runner.run_until(sim.t_s + 1.0)
+    proxy["p"].t0, proxy["p"].t1 = sim.t_s, sim.t_s + 25.0  # ... then the plant stops answering
+    runner.run_until(sim.t_s + 300.0)
+    failure = next(o for o in store.observations(campaign_id=cid) if o.iteration == -1)
+    store.close()
+    assert failure.reason == "plant_error" and failure.before_frame_path
+    assert (tmp_path / "img" / failure.before_frame_path).is_file()
 
 
 class _Outage:
@@ -207,6 +226,57 @@ def test_a_blackout_mid_visit_does_not_leave_a_heliostat_off_tracking(cfg, tmp_p
     assert sim.state[idx] == HeliostatState.TRACKING
     kinds = [e.kind for e in events if e.heliostat_id == "H0001"]
     assert "off_tracking" in kinds and "back_to_tracking" in kinds[kinds.index("off_tracking"):]
+
+
+class _Recorder:
+    """The in-process plant, recording every track command it is sent."""
+
+    def __init__(self, sim):
+        self.sim, self.tracked = sim, []
+
+    def __getattr__(self, name):
+        return getattr(self.sim, name)
+
+    def track(self, index, corrections_mm):
+        self.tracked.append(index)
+        return self.sim.track(index, corrections_mm)
+
+
+def _stranded_db(tmp_path):
+    """A database whose first campaign (a check) left H0001 in a visit (killed) and H0002 off
+    tracking; returns that campaign's id."""
+    store = Store.open(tmp_path / "c.db", tmp_path / "img")
+    first = store.start_campaign(name="old", mode="check", started_s=0.0, heliostats=[("H0001", 0, "T1")])
+    store.begin_visit(first, "H0001", "T1", 0.0)
+    store.record_event(campaign_id=first, time_s=1.0, kind="off_tracking", heliostat_id="H0002", reason="H0002: x")
+    store.close()
+    return first
+
+
+@pytest.mark.parametrize("stowed", [False, True])
+def test_a_restart_sends_back_what_any_campaign_left_off_tracking_but_never_into_a_stow(cfg, tmp_path, stowed):
+    from campaign_helpers import inprocess_campaign as make
+
+    first = _stranded_db(tmp_path)
+    rec = {}
+
+    def plant(sim):
+        return rec.setdefault("p", _Recorder(sim))
+
+    if stowed:  # the new campaign's own wind stow, recorded before a kill
+        s = Store.open(tmp_path / "c.db", tmp_path / "img")
+        s.start_campaign(name="new", mode="simulate", started_s=0.0, heliostats=[("H0003", 2, "T1")])
+        s.record_event(campaign_id=2, time_s=2.0, kind="stow", reason="wind 16 m/s")
+        s.close()
+    runner, sim, store, cid, _ = make(cfg, tmp_path, 9, 3, ["H0003"], plant=plant, campaign_id=2 if stowed else None)
+    visits = store.visits(campaign_id=first)
+    store.close()
+    assert [v.outcome for v in visits] == ["interrupted"]  # closed, although another campaign resumed
+    idx = {cfg.heliostat_index("H0001"), cfg.heliostat_index("H0002")}
+    if stowed:
+        assert rec["p"].tracked == [] and set(runner.returning) == {"H0001", "H0002"}
+    else:
+        assert set(rec["p"].tracked) == idx
 
 
 def test_corrections_are_recorded_only_once_the_plant_took_them(cfg, tmp_path):
@@ -294,3 +364,34 @@ def test_a_stop_while_the_plant_is_down_ends_within_seconds(cfg, tmp_path, serve
     # every heliostat on a board is named as left off tracking, recorded for the next run to retry
     on_board = {e.heliostat_id for e in events if e.kind == "off_tracking"}
     assert on_board and set(result.off_tracking) <= on_board
+
+
+class _BrokenOutput:
+    """A view whose every call fails, as output to a pipe whose reader died with the same Ctrl-C."""
+
+    def __getattr__(self, name):
+        def fail(*_a, **_k):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        return fail
+
+
+def test_a_view_that_fails_never_stops_the_beams_leaving(cfg, tmp_path, served):
+    runner, store, cid = _network_runner(cfg, tmp_path, served, ["H0001", "H0021"])
+    sim = served[3]
+    stop = threading.Event()
+
+    def watch():
+        while not runner.active:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        stop.set()
+
+    threading.Thread(target=watch, daemon=True).start()
+    result = live.run_live(runner, runner.clock.now_s() + 86400.0, stop_event=stop, output=_BrokenOutput())
+    visits = store.visits(campaign_id=cid)
+    store.close()
+    assert result.reason == "stopped" and result.off_tracking == [] and not runner.active
+    assert visits and all(v.outcome != "running" for v in visits)
+    for hid in ("H0001", "H0021"):  # every beam left its board and the plant tracks again
+        assert sim.state[cfg.heliostat_index(hid)] in (HeliostatState.TRACKING, HeliostatState.MOVING)

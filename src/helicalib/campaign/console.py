@@ -69,7 +69,10 @@ class LineLog:
 
     def _print(self, text: str) -> None:
         with self._lock:
-            print(text, file=self.stream, flush=True)
+            try:
+                print(text, file=self.stream, flush=True)
+            except (OSError, ValueError):  # a closed pipe or stream (| tee killed by the same Ctrl-C)
+                pass
 
     def message(self, text: str) -> None:
         self._print(text)
@@ -109,7 +112,7 @@ class JsonLines:
             try:
                 self.stream.write(json.dumps(obj, default=str) + "\n")
                 self.stream.flush()
-            except BrokenPipeError:  # a reader that went away (| head) must not stop the campaign
+            except (OSError, ValueError):  # a reader that went away (| head) must not stop the campaign
                 pass
 
     def message(self, text: str) -> None:

@@ -460,7 +460,8 @@ def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> N
                       strokes_cmd_mm=tuple(float(x) for x in (ctx.last_strokes_mm if ctx.last_strokes_mm is not None
                                                               else (float("nan"),) * 2)),
                       strokes_read_mm=None, sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az),
-                      sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message)
+                      sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message,
+                      before_frame_path=ctx.before_path)
     try:
         ctx.record(obs, **({} if frame is None else {"before_frame": frame.data}))
     except Exception:  # noqa: BLE001 - recording the failure must not stop the beam leaving the board

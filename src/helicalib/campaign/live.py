@@ -63,21 +63,23 @@ def _fault(runner: CampaignRunner, reason: str) -> None:
     try:
         runner.event("fault", reason)
     except Exception:  # noqa: BLE001 - even the store may be gone (full disk): say it on stderr, once a line
-        print(f"helicalib: fault (not recorded): {reason}", file=sys.stderr, flush=True)
+        _quietly(lambda: print(f"helicalib: fault (not recorded): {reason}", file=sys.stderr, flush=True))
 
 
 def _tick_job(runner: CampaignRunner, lock: threading.Lock) -> None:
     if not lock.acquire(blocking=False):
         return
     try:
-        _guarded(runner, "tick", lambda: runner.tick(runner.clock.now_s()))
+        if not runner.stopping:
+            _guarded(runner, "tick", lambda: runner.tick(runner.clock.now_s()))
     finally:
         lock.release()
 
 
 def _weather_job(runner: CampaignRunner, lock: threading.Lock) -> None:
     with lock:
-        _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s()))
+        if not runner.stopping:
+            _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s()))
 
 
 def _daylight_job(runner: CampaignRunner, scheduler, lock: threading.Lock) -> None:
@@ -88,6 +90,8 @@ def _daylight_job(runner: CampaignRunner, scheduler, lock: threading.Lock) -> No
                              f"{'opens' if rising else 'closes'}", time_s=now)
 
     with lock:
+        if runner.stopping:
+            return
         _guarded(runner, "daylight", job)
     _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
 
@@ -135,7 +139,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     stop = stop_event or threading.Event()
     lock = threading.Lock()
-    if output is not None:
+    if output is not None and output.on_event not in runner.listeners:
         runner.listeners.append(output.on_event)
     rate = _rate(runner.clock)
     scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
@@ -173,8 +177,8 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     def show() -> None:
         if output is None or not lock.acquire(timeout=0.2):
             return
-        try:
-            output.on_snapshot(runner.snapshot(runner.safe_now()[0]))
+        try:  # the controller's own clock: a view must not wait on a plant that does not answer
+            output.on_snapshot(runner.snapshot(runner.clock.estimate_s()))
         except Exception:  # noqa: BLE001 - a view must never stop the campaign
             pass
         finally:
@@ -182,7 +186,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
 
     try:
         if output is not None:
-            output.start()
+            _quietly(output.start)
         while not stop.is_set():
             if done is not None and done():
                 result.reason = "done"
@@ -193,40 +197,46 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                 break
             show()
             stop.wait(min(0.5, max(0.05, 5.0 / rate)))
-        stopping = _say(output, "stopping: finishing the step in progress, then every beam on a board leaves via its "
-                                "standby point and goes back to tracking (Ctrl-C again to leave at once)"
-                        if result.reason == "stopped" else None)
-        if stopping and hasattr(runner.plant, "hurry"):
-            runner.plant.hurry()
-        scheduler.shutdown(wait=False)
-        waited = 0.0
-        while not lock.acquire(timeout=1.0):
-            waited += 1.0
-            if waited % 5 == 0:
-                _say(output, f"stopping: still waiting for the step in progress ({waited:.0f} s; a plant or camera "
-                             "request)")
-        try:
-            now = plant_now()
-            active = len(runner.active)
-            if active:
-                _say(output, f"stopping: {active} heliostat(s) leaving their boards via standby")
-            result.off_tracking = runner.shutdown(now if now is not None else (last["now"] or until_s))
-        finally:
-            lock.release()
-        show()
     finally:
-        if output is not None:
-            output.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        if output is not None and output.on_event in runner.listeners:
-            runner.listeners.remove(output.on_event)
+        # the stop runs whatever ended the loop (the end time, Ctrl-C, a view that raised, a closed pipe)
+        try:
+            if result.reason == "stopped":
+                _say(output, "stopping: finishing the step in progress, then every beam on a board leaves via its "
+                             "standby point and goes back to tracking (Ctrl-C again to leave at once)")
+                if hasattr(runner.plant, "hurry"):
+                    runner.plant.hurry()
+            scheduler.shutdown(wait=False)
+            waited = 0
+            while not lock.acquire(timeout=1.0):
+                waited += 1
+                if waited % 5 == 0:
+                    _say(output, f"stopping: still waiting for the step in progress ({waited} s; a plant or camera "
+                                 "request)")
+            try:
+                runner.stopping = True  # jobs still queued behind the lock do nothing more
+                if runner.active:
+                    _say(output, f"stopping: {len(runner.active)} heliostat(s) leaving their boards via standby")
+                result.off_tracking = runner.shutdown(runner.safe_now()[0])
+            finally:
+                lock.release()
+            show()
+        finally:
+            if output is not None:
+                _quietly(output.stop)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            if output is not None and output.on_event in runner.listeners:
+                runner.listeners.remove(output.on_event)
     return result
 
 
-def _say(output, text: str | None) -> bool:
-    if text is None:
-        return False
+def _quietly(fn) -> None:
+    try:
+        fn()
+    except Exception:  # noqa: BLE001 - what the crew sees must never stop the campaign or its stop
+        pass
+
+
+def _say(output, text: str) -> None:
     if output is not None:
-        output.message(text)
-    return True
+        _quietly(lambda: output.message(text))

@@ -36,6 +36,7 @@ from helicalib.devices.registers import FieldCommand, HeliostatState
 from helicalib.errors import HelicalibError, PlantError
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable
+from helicalib.store.records import off_tracking
 
 WEATHER_POLL_S = 60.0
 """Plant seconds between weather polls (a stow follows within one poll)."""
@@ -109,7 +110,7 @@ class CampaignRunner:
     """
 
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
-                 recheck=False, model=None, armed=True, refine=False):
+                 recheck=False, model=None, armed=True, refine=False, listeners=()):
         self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
         self.campaign_id = campaign_id
         self.ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
@@ -138,8 +139,11 @@ class CampaignRunner:
         self._nominal_one: dict[str, HeliostatModel] = {}
         self._clean_cache: dict[str, tuple[float, float | None]] = {}
         self.corrections: dict[str, np.ndarray | None] = {hid: None for hid in self.ids}
-        self.listeners: list[Callable[[RunEvent], None]] = []
-        """Called with every :class:`RunEvent` after the fact (views, JSON lines); must not raise."""
+        self.listeners: list[Callable[[RunEvent], None]] = list(listeners)
+        """Called with every :class:`RunEvent` after the fact (views, JSON lines); a listener that
+        raises is dropped from the call, never allowed to stop the campaign."""
+        self.stopping = False
+        """Set by a live run's stop: jobs still queued do nothing more."""
         self.returning: dict[str, Returning] = {}
         self._flagged: set[str] = set()  # newest stored off_tracking not yet followed by back_to_tracking
         self._boards: dict[str, BoardState] = {}
@@ -158,7 +162,6 @@ class CampaignRunner:
         the plant reports stowed stays stowed until the wind allows a resume.
         """
         now = self.clock.now_s()
-        running = [v for v in self.store.visits(campaign_id=self.campaign_id) if v.outcome == "running"]
         for hid in self.ids:
             for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid):
                 self.book.add(obs)
@@ -173,22 +176,23 @@ class CampaignRunner:
             if visits:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
-        self.store.close_interrupted_visits(self.campaign_id, now)
-        # heliostats the last process left off tracking: a visit it was killed in, or a return the
-        # plant never confirmed (its newest off_tracking event has no back_to_tracking after it)
-        last = {}
-        for e in self.store.events(campaign_id=self.campaign_id):
-            if e.kind in ("off_tracking", "back_to_tracking") and e.heliostat_id in self._index:
-                last[e.heliostat_id] = e.kind
-        self._flagged = {h for h, k in last.items() if k == "off_tracking"}
-        stranded = {v.heliostat_id for v in running} | self._flagged
-        if self.armed:
-            for hid in sorted(stranded & set(self._index)):
-                self._send_back(hid, None, now, why="left off tracking by the previous run")
         # stowed by THIS campaign for wind (its newest stow/resume event is a stow): stay stowed until
         # the wind allows; a plant stowed by its own logic (night, its own wind protection) is left alone
         marks = [e.kind for e in self.store.events(campaign_id=self.campaign_id) if e.kind in ("stow", "resume")]
         self.stowed = bool(marks) and marks[-1] == "stow"
+        # heliostats a previous process left off tracking, in any campaign of the database (a run, a
+        # check, a campaign left for --new-campaign): a visit it was killed in, or a return the plant
+        # never confirmed (its newest off_tracking event has no back_to_tracking after it)
+        known = {h.id for h in self.cfg.heliostats}
+        running = {v.heliostat_id for v in self.store.visits() if v.outcome == "running"}
+        self.store.close_interrupted_visits(None, now)
+        self._flagged = set(off_tracking(self.store.events())) & known
+        if self.armed:
+            for hid in sorted((running & known) | self._flagged):
+                if self.stowed:  # never a track command into a wind stow: checked once the field resumes
+                    self.returning[hid] = Returning(since_s=now, next_check_s=now, failed=True)
+                else:
+                    self._send_back(hid, None, now, why="left off tracking by the previous run")
 
     # ------------------------------------------------------------------ events
     def safe_now(self) -> tuple[float, str]:
@@ -217,7 +221,10 @@ class CampaignRunner:
                                     heliostat_id=heliostat_id, data=dict(ev.data, clock=source) if source != "plant"
                                     else ev.data or None)
         for listener in list(self.listeners):
-            listener(ev)
+            try:
+                listener(ev)
+            except Exception:  # noqa: BLE001 - a broken view (a closed pipe) must not stop the campaign
+                pass
         return ev
 
     def _record(self, obs, **frames) -> int:
@@ -257,6 +264,8 @@ class CampaignRunner:
 
     def _check_returns(self, now: float) -> None:
         """Confirm or retry every return to tracking that is due (state 1 read from the plant)."""
+        if self.stowed:  # the field's resume brings every heliostat back; no track command into a stow
+            return
         busy = {h for (_w, h, _g, _c) in self.active.values()}
         for hid in [h for h, r in self.returning.items() if r.next_check_s <= now and h not in busy]:
             ret = self.returning[hid]
@@ -265,10 +274,13 @@ class CampaignRunner:
             except PlantError as err:
                 ret.last_error, ret.next_check_s = str(err), ret.retry_at(now)
                 continue
-            if state == HeliostatState.TRACKING or (state == HeliostatState.STOWED and self.stowed):
+            if state in (HeliostatState.TRACKING, HeliostatState.STOWED):
+                # stowed: the plant's own protection (wind, night) holds it safely; it tracks with the field
                 del self.returning[hid]
                 if ret.failed or hid in self._flagged:
-                    self.event("back_to_tracking", f"{hid}: tracking again (confirmed by the plant after "
+                    how = ("tracking again" if state == HeliostatState.TRACKING else
+                           "stowed by the plant's own logic (safe; it tracks again with the field)")
+                    self.event("back_to_tracking", f"{hid}: {how} (confirmed by the plant after "
                                                    f"{ret.attempts} attempt(s), {now - ret.since_s:.0f} s)", hid)
                 continue
             if state == HeliostatState.MOVING:
@@ -481,9 +493,9 @@ class CampaignRunner:
             self._finish(target_id, stop.value, now)
             return
         except Exception as err:  # noqa: BLE001 - a visit must never take the campaign down
-            # the visit could not leave by itself: back to tracking, keeping the plant's corrections
+            # the visit could not leave by itself: _finish sends it back to tracking (left is None),
+            # keeping the plant's corrections
             self._finish(target_id, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}: {err}"), now)
-            self._send_back(hid, None, now, why="the visit failed")
             return
         self.active[target_id] = (now + float(wait), hid, gen, ctx)
 
@@ -498,6 +510,7 @@ class CampaignRunner:
             # a placement is judged as the model's only if earlier visits gave the model valid points
             modelled = any(p.visit_id != ctx.visit_id for p in self.book.points(hid))
             self.stats.first_errors.append((first.capture_time_s, first.error_mrad, modelled))
+        self._after_leaving(hid, out.left, now)  # the plant's side first: retries must not hang on a record
         self.store.end_visit(ctx.visit_id, ended_s=now, outcome=out.status, reason=out.reason,
                              iterations=out.iterations, first_error_mrad=out.first_error_mrad,
                              final_error_mrad=out.final_error_mrad)
@@ -516,7 +529,6 @@ class CampaignRunner:
         self.event("visit_end", f"{hid} off {target_id}: {out.status} ({out.reason}){errs}", hid, target_id,
                    time_s=now, data={"outcome": out.status, "iterations": out.iterations,
                                      "first_error_mrad": out.first_error_mrad, "final_error_mrad": out.final_error_mrad})
-        self._after_leaving(hid, out.left, now)
         if verdict.accepted != was:
             rms = "" if verdict.rms_mrad is None else f", acceptance error {verdict.rms_mrad:.2f} mrad"
             text = "accepted" if verdict.accepted else f"no longer accepted: {(verdict.reasons or ('',))[0]}"

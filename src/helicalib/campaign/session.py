@@ -124,10 +124,9 @@ def live_session(args, mode: str) -> int:
     console = Console(stderr=True)
     output = make_output("json" if as_json else ("terminal" if console.is_terminal else "lines"), tz,
                          f"helicalib {'run' if mode == 'live' else 'check'} · {cfg.site.name}")
-    store = Store.open(cfg.database_path, cfg.images_path)
+    store = Store.open(cfg.database_path, cfg.images_path, owner=f"{'run' if mode == 'live' else 'check'} {cfg.source}")
     plant = None
     try:
-        store.take_ownership(f"{'run' if mode == 'live' else 'check'} {cfg.source}")
         plant = ModbusPlant.from_config(cfg, armed=args.arm)
         check_plant(cfg, plant)
         clock = make_clock(cfg, plant)
@@ -150,7 +149,8 @@ def live_session(args, mode: str) -> int:
         cameras = cameras_from_config(cfg)
         runner = CampaignRunner(cfg, plant, cameras, clock, store, opened.campaign_id,
                                 heliostat_ids=opened.heliostat_ids, planner=args.planner, recheck=args.recheck,
-                                armed=args.arm, refine=getattr(args, "refine", False))
+                                armed=args.arm, refine=getattr(args, "refine", False),
+                                listeners=[output.on_event])  # a restart's own events are shown too
         orphans = store.remove_orphan_frames(opened.campaign_id)
         if orphans:
             output.message(f"removed {orphans} frame file(s) no observation points to (a visit the previous "

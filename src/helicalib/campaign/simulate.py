@@ -51,12 +51,8 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
     out_dir.mkdir(parents=True, exist_ok=True)
     db_path = out_dir / "helicalib.db"
     # durable=False: WAL with synchronous=NORMAL, still loses nothing on kill -9 (only on power loss)
-    store = Store.open(db_path, "images", durable=False)  # relative to the database: OUT/images
-    try:
-        store.take_ownership(f"simulate {cfg.source or ''}")
-    except BaseException:
-        store.close()
-        raise
+    # relative to the database: OUT/images; owned by this process while it runs
+    store = Store.open(db_path, "images", durable=False, owner=f"simulate {cfg.source or ''}")
     resumed = store.unfinished_campaign(mode="simulate")
     if resumed is not None:
         campaign_id = resumed.id

@@ -59,7 +59,8 @@ class ModbusLink:
     monotonic : callable
         Real time source for ``down_s`` (injected; ``time.monotonic``).
 
-    :meth:`hurry` (a stopping controller) makes every later request a single attempt.
+    :meth:`hurry` (a stopping controller): from then on two attempts per request (one reconnect:
+    a reset connection is not a dead plant), no back-off, and a 1 s down window.
     """
 
     def __init__(self, host: str, port: int, unit: int = 1, timeout_s: float = 2.0, retries: int = 3,
@@ -101,8 +102,10 @@ class ModbusLink:
             self.reconnects += 1
 
     def hurry(self) -> None:
-        """From now on one attempt per request, no back-off (the controller is stopping)."""
+        """From now on two attempts per request, no back-off, a 1 s down window (the controller is stopping)."""
         self._hurry = True
+        self.down_s = min(self.down_s, 1.0)
+        self._down_until = min(self._down_until, self._monotonic() + self.down_s)
 
     def _call(self, what: str, fn: Callable[[ModbusTcpClient], object]):
         if self._monotonic() < self._down_until:
@@ -110,9 +113,9 @@ class ModbusLink:
                              f"({self._down_reason})")
         delay = self.backoff_s
         last = "no attempt"
-        attempts = 1 if self._hurry else self.retries + 1
+        attempts = min(2, self.retries + 1) if self._hurry else self.retries + 1
         for attempt in range(attempts):
-            if attempt:
+            if attempt and not self._hurry:
                 self._sleep(delay)
                 delay = min(delay * 2, self.backoff_max_s)
             with self._lock:
@@ -210,7 +213,7 @@ class ModbusPlant:
                    heliostat_ids=[h.id for h in cfg.heliostats], stroke_limits_mm=limits, **kw)
 
     def hurry(self) -> None:
-        """One attempt per request from now on (a stopping controller must not wait out retries)."""
+        """Two attempts per request from now on, no back-off (a stopping controller must not wait out retries)."""
         self.scs.hurry()
         self.weather_link.hurry()
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import threading
+import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -69,7 +70,7 @@ class Store:
     # ------------------------------------------------------------------ opening
     @classmethod
     def open(cls, path: str | Path, images_dir: str | Path | None = None, *, durable: bool = True,
-             readonly: bool = False) -> "Store":
+             readonly: bool = False, owner: str | None = None) -> "Store":
         """Create the database at ``path`` or reopen it.
 
         Parameters
@@ -86,6 +87,9 @@ class Store:
             A reader (``status``, ``report``): the file must exist and be a helicalib database of
             this schema version; nothing is created, migrated, written or deleted, so a reader can
             open the database of a running campaign at any time.
+        owner : str, optional
+            Take the ownership (:meth:`take_ownership`, ``owner`` says what runs) before the schema
+            is created or migrated: a campaign command opens its database this way.
 
         Raises
         ------
@@ -102,6 +106,7 @@ class Store:
         if readonly:
             return cls(_connect_readonly(db), db, images, durable)
         db.parent.mkdir(parents=True, exist_ok=True)
+        lock_file = _owner_lock(db.with_name(db.name + ".lock"), owner) if owner is not None else None
         try:
             conn = sqlite3.connect(db, timeout=30.0, check_same_thread=False)
             conn.execute("PRAGMA journal_mode=WAL")
@@ -109,8 +114,18 @@ class Store:
             conn.execute("PRAGMA foreign_keys=ON")
             ensure_schema(conn, str(db))
         except sqlite3.DatabaseError as exc:
+            if lock_file is not None:
+                lock_file.close()
             raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
-        return cls(conn, db, images, durable)
+        except BaseException:
+            if lock_file is not None:
+                lock_file.close()
+            raise
+        store = cls(conn, db, images, durable)
+        if lock_file is not None:
+            store._lock_file = lock_file
+            _frames.clean_temporary(images)
+        return store
 
     # ------------------------------------------------------------------ ownership
     def take_ownership(self, what: str = "campaign") -> int:
@@ -126,7 +141,8 @@ class Store:
         ConfigError
             Another process holds the database (its pid and what it runs are named).
         """
-        self._lock_file = _owner_lock(self.lock_path, what)
+        if self._lock_file is None:
+            self._lock_file = _owner_lock(self.lock_path, what)
         return _frames.clean_temporary(self.images_dir)
 
     @property
@@ -138,17 +154,21 @@ class Store:
         return _lock_holder(self.lock_path)
 
     def remove_orphan_frames(self, campaign_id: int) -> int:
-        """Delete the frames of a campaign that no observation points to; returns how many.
+        """Delete the frames of a campaign's interrupted visits that no observation points to;
+        returns how many.
 
         A visit saves its "before" frame when it starts and the observation that points to it at
         its first measurement; a process killed in between leaves the frame alone on disk. The owner
-        calls this after :meth:`close_interrupted_visits`, when no visit of the campaign runs.
+        calls this after :meth:`close_interrupted_visits`. Frames of visits that ended otherwise are
+        never deleted (a failed visit's observation points to its before frame).
         """
         if self._lock_file is None:
             raise RuntimeError("remove_orphan_frames needs take_ownership() first")
         folder = self.images_dir / f"c{int(campaign_id)}"
         if not folder.is_dir():
             return 0
+        interrupted = {int(r[0]) for r in self._read("SELECT id FROM visits WHERE campaign_id = ? AND outcome = "
+                                                     "'interrupted'", (int(campaign_id),))}
         referenced = set()
         for before, after in self._read("SELECT before_frame_path, after_frame_paths_json FROM observations"
                                         " WHERE campaign_id = ?", (int(campaign_id),)):
@@ -156,8 +176,10 @@ class Store:
                 referenced.add(before)
             referenced.update(json.loads(after or "[]"))
         removed = 0
-        for f in folder.rglob("*.png"):
-            if f.relative_to(self.images_dir).as_posix() not in referenced:
+        for f in folder.rglob("v*_*.png"):
+            visit = f.name[1:].split("_", 1)[0]
+            if (visit.isdigit() and int(visit) in interrupted
+                    and f.relative_to(self.images_dir).as_posix() not in referenced):
                 f.unlink(missing_ok=True)
                 removed += 1
         return removed
@@ -258,12 +280,14 @@ class Store:
             (float(ended_s), outcome, reason, int(iterations), _opt(first_error_mrad), _opt(final_error_mrad), int(visit_id)),
         )
 
-    def close_interrupted_visits(self, campaign_id: int, time_s: float) -> int:
-        """Mark visits left ``'running'`` by a killed process ``'interrupted'``; returns how many."""
+    def close_interrupted_visits(self, campaign_id: int | None, time_s: float) -> int:
+        """Mark visits left ``'running'`` by a killed process ``'interrupted'`` (of one campaign, or of
+        all with None: the owner at its start); returns how many."""
+        where, params = _where(campaign_id=None if campaign_id is None else int(campaign_id))
         with self._lock, self._conn:
             cur = self._conn.execute(
                 "UPDATE visits SET outcome = 'interrupted', reason = 'process ended during the visit', ended_s = ?"
-                " WHERE campaign_id = ? AND outcome = 'running'", (float(time_s), int(campaign_id)))
+                + (where + " AND" if where else " WHERE") + " outcome = 'running'", (float(time_s), *params))
             return int(cur.rowcount)
 
     def visits(self, campaign_id: int | None = None, heliostat_id: str | None = None) -> list[Visit]:
@@ -451,6 +475,7 @@ def _connect_readonly(db: Path) -> sqlite3.Connection:
     files a WAL reader would otherwise leave behind."""
     if not db.is_file():
         raise ConfigError(f"{db}: no such database file")
+    db = db.resolve()  # the -wal and .lock files sit beside the real file, not beside a symlink
     quiet = not db.with_name(db.name + "-wal").exists() and _lock_holder(db.with_name(db.name + ".lock")) is None
     try:
         conn = sqlite3.connect(f"{db.resolve().as_uri()}?{'immutable=1' if quiet else 'mode=ro'}", uri=True,
@@ -467,9 +492,14 @@ def _owner_lock(path: Path, what: str):
     import os
 
     fh = open(path, "a+")
-    try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    for attempt in range(20):  # a reader's momentary probe (see _lock_holder) is not an owner: try again
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except OSError:
+            if attempt < 19:
+                time.sleep(0.05)
+    else:
         fh.seek(0)
         holder = fh.read().strip() or "another process"
         fh.close()
