@@ -5,8 +5,8 @@ A visit is a generator: it talks only to device protocols (:class:`~helicalib.de
 several targets on a virtual clock, or drive them from a live scheduler. It returns a
 :class:`VisitOutcome`.
 
-Steps: park the beam at the standby point → "before" frame → on-target strokes from the current
-model, each actuator arriving in the direction it moves while tracking (so the gears' backlash
+Steps: park the beam at the standby point → "before" reference from the visit's spot sensor (the
+board's camera, :mod:`.sensor`) → on-target strokes from the current model, each actuator arriving in the direction it moves while tracking (so the gears' backlash
 sits as it does in tracking; see :func:`approach_and_hold`) → wait for "holding" → "after"
 frame(s) → spot → tracking error. Above the loop threshold:
 the inverse model's stroke correction and again, up to ``max_iterations``. A spot not found (or
@@ -21,24 +21,20 @@ heliostat is returned to tracking.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from helicalib.calibration.correction import stroke_correction
-from helicalib.devices.protocols import Camera, Plant
+from helicalib.campaign.sensor import Before, CaptureTimeError, SpotSensor
+from helicalib.devices.protocols import Plant
 from helicalib.devices.registers import HeliostatState
 from helicalib.errors import HelicalibError, MeasurementError, PlantError
-from helicalib.flux.visit import cleanliness_from_visit
 from helicalib.geometry import optics
 from helicalib.geometry.drives import strokes_in_range
 from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
 from helicalib.store.records import Observation
-from helicalib.vision.frames import decode_frame
-from helicalib.vision.marks import find_marks
-from helicalib.vision.spot import SpotLimits, measure_spot
 
 SEARCHABLE = frozenset({"no_spot", "clipped", "low_contrast"})
 """Spot results after which the visit searches for the beam instead of giving up (DNI and cleanliness
@@ -87,8 +83,7 @@ class VisitContext:
     heliostat_id: str
     index: int
     target: object
-    camera_config: object
-    camera: Camera
+    sensor: SpotSensor
     plant: Plant
     now: Callable[[], float]
     sun: Callable[[float], tuple[np.ndarray, float, float, bool]]
@@ -143,16 +138,6 @@ class VisitAborted(HelicalibError):
     def __init__(self, code: str, message: str):
         super().__init__(message)
         self.code = code
-
-
-class CaptureTimeError(MeasurementError):
-    """A frame whose capture time disagrees with the plant clock; the frame is kept for the record."""
-
-    reason = "capture_time"
-
-    def __init__(self, message: str, frame):
-        super().__init__(message)
-        self.frame = frame
 
 
 def _in_range(ctx: VisitContext, strokes_mm: np.ndarray) -> bool:
@@ -245,21 +230,6 @@ def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float, on_board: b
     return sol.strokes_mm[0]
 
 
-def _grab(ctx: VisitContext):
-    """One frame and its image; refused (:class:`CaptureTimeError`) unless its capture time lies
-    within ``max_capture_skew_s`` (plus the clock's uncertainty) of the plant time around the grab."""
-    t0 = ctx.now()
-    frame = ctx.camera.grab()
-    t1 = ctx.now()
-    slack = ctx.settings.max_capture_skew_s + (ctx.time_slack_s() if ctx.time_slack_s is not None else 0.0)
-    t = float(frame.capture_time_s)
-    if not (math.isfinite(t) and t0 - slack <= t <= t1 + slack):
-        off = f"{t - t1:+.6g} s from" if math.isfinite(t - t1) else "nowhere near"
-        raise CaptureTimeError(f"{ctx.heliostat_id}: the camera's capture time {t:.6g} lies {off} the plant time "
-                               f"of the grab (tolerance {slack:.1f} s): is the camera's clock set?", frame)
-    return frame, decode_frame(frame.data, expected_shape=None)
-
-
 def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     """The visit as a generator of plant-second waits; returns its :class:`VisitOutcome`."""
     out = VisitOutcome(status="invalid", reason="not started", model=ctx.model)
@@ -268,19 +238,18 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     standby = target.uvw_to_enu(np.asarray(target.standby_uvw_m))
     try:
         yield from move_and_hold(ctx, _aim_strokes(ctx, standby, ctx.now(), on_board=False))
-        before_frame, before = _grab(ctx)
-        if ctx.save_frame is not None:
-            ctx.before_path = ctx.save_frame(before_frame.data, campaign_id=ctx.campaign_id,
+        before = ctx.sensor.before(ctx)
+        if ctx.save_frame is not None and before.data is not None:
+            ctx.before_path = ctx.save_frame(before.data, campaign_id=ctx.campaign_id,
                                              heliostat_id=ctx.heliostat_id, visit_id=ctx.visit_id, iteration=0,
-                                             capture_time_s=before_frame.capture_time_s, kind="before")
-        marks = find_marks(before, target, ctx.camera_config)
+                                             capture_time_s=before.capture_time_s, kind="before")
         aim = centre.copy()
         strokes = _aim_strokes(ctx, aim, ctx.now())
         search = _search_aims(target, ctx.settings.search_steps)
         attempt, placements, searches = 0, 0, 0
         while True:
             read = yield from approach_and_hold(ctx, strokes, aim)
-            obs = yield from _measure(ctx, before_frame, before, marks, strokes, read, aim, attempt)
+            obs = yield from _measure(ctx, before, strokes, read, aim, attempt)
             out.observations.append(obs)
             attempt += 1
             if not obs.valid:
@@ -331,23 +300,10 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     return out
 
 
-def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, iteration):
+def _measure(ctx, before: Before, strokes_cmd, strokes_read, aim, iteration):
     """One "after" measurement at the held strokes; always returns an Observation (recorded)."""
-    frames, images, reason, message, refused = [], [], None, "", []
-    for _ in range(ctx.settings.after_frames):
-        try:
-            f, img = _grab(ctx)
-            frames.append(f)
-            images.append(img)
-        except MeasurementError as err:
-            reason, message = getattr(err, "reason", "bad_frame"), str(err)
-            if isinstance(err, CaptureTimeError):
-                refused.append(err.frame.data)  # kept with the observation that refuses it
-            break
-        if ctx.settings.after_frames > 1:
-            yield 1.0
-    # the spot is the mean over the after frames, so its sun is the sun at their mean capture time
-    capture_s = float(np.mean([f.capture_time_s for f in frames])) if frames else ctx.now()
+    reading = yield from ctx.sensor.after(ctx, before)
+    capture_s = reading.capture_time_s
     sun_vec, az, el, rising = ctx.sun(capture_s)
     weather = _safe(ctx.plant.weather)
     status = _safe(lambda: ctx.plant.status(ctx.index))
@@ -363,60 +319,39 @@ def _measure(ctx, before_frame, before, marks, strokes_cmd, strokes_read, aim, i
         dni_wm2=getattr(weather, "dni_wm2", None), temperature_c=getattr(weather, "temperature_c", None),
         cleanliness=getattr(status, "cleanliness", None),
     )
-    if reason is not None:
-        obs = Observation(valid=False, reason=reason, message=message, **base)
-        obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame),
-                            after_frames=[f.data for f in frames] + refused)
-        return _with_id(obs, obs_id)
-    # the jitter limit as an angle: a far heliostat's beam wanders as many metres for less mrad
-    distance_m = float(np.linalg.norm(np.asarray(ctx.target.center_enu_m, dtype=float) - ctx.model.pivots_enu[0]))
-    limits = SpotLimits(max_jitter_m=1e-3 * ctx.settings.max_jitter_mrad * distance_m)
-    spot = measure_spot(before, images, ctx.target, ctx.camera_config, method=ctx.settings.spot_method, marks=marks,
-                        limits=limits)
     extra = {}
-    if spot.spot_center_px is not None:
-        extra.update(spot_x_px=float(spot.spot_center_px[0]), spot_y_px=float(spot.spot_center_px[1]))
-    extra.update(spot_area_px=_f(spot.spot_area_px), threshold=_f(spot.threshold))
-    if spot.offset_m is not None:
-        spot_enu = ctx.target.uvw_to_enu(np.asarray(spot.offset_m, dtype=float))
+    if reading.spot_px is not None:
+        extra.update(spot_x_px=reading.spot_px[0], spot_y_px=reading.spot_px[1])
+    extra.update(spot_area_px=reading.spot_area_px, threshold=reading.threshold)
+    if reading.offset_m is not None:
+        spot_enu = ctx.target.uvw_to_enu(np.asarray(reading.offset_m, dtype=float))
         aim_uvw = ctx.target.enu_to_uvw(aim)
-        extra.update(offset_u_m=float(spot.offset_m[0] - aim_uvw[0]), offset_v_m=float(spot.offset_m[1] - aim_uvw[1]),
+        extra.update(offset_u_m=float(reading.offset_m[0] - aim_uvw[0]),
+                     offset_v_m=float(reading.offset_m[1] - aim_uvw[1]),
                      spot_enu_m=tuple(float(x) for x in spot_enu))
-    if spot.valid:
+    if reading.valid:
         held = np.asarray([strokes_read if strokes_read is not None else strokes_cmd], dtype=float)
         predicted_uv = ctx.model.spot_on_target(held, sun_vec, ctx.target, ctx.approach)[0]
         predicted = ctx.target.uvw_to_enu(predicted_uv)
-        err = float(optics.tracking_error_mrad(np.asarray(extra["spot_enu_m"]), predicted,
-                                               ctx.model.pivots_enu[0]))
-        extra["error_mrad"] = err
-        # the mirror's present cleanliness from the power in the spot (Zhang & Wang; docs/flux.md)
-        est = cleanliness_from_visit(
-            before, images[-1], marks, ctx.target, fe_wm2_per_grey=getattr(ctx.camera, "fe_wm2_per_grey", None),
-            reflectivity_clean=ctx.settings.reflectivity_clean, dni_wm2=getattr(weather, "dni_wm2", None),
-            sun_enu=sun_vec, pivot_enu=ctx.model.pivots_eff_enu[0], normal_enu=ctx.model.normal(held)[0],
-            mirror_offset_m=float(ctx.model.mirror_offset_m[0]),
-            mirror_area_m2=float(np.prod(ctx.model.drives.mirror_size_m[0])),
-            atmosphere=getattr(ctx.camera, "atmosphere", "clear"))
-        if est.value is not None:
-            extra["cleanliness_measured"] = float(est.value)
-    obs = Observation(valid=bool(spot.valid), reason=spot.reason, message=spot.message, **base, **extra)
-    obs_id = ctx.record(obs, before_frame=_before_data(ctx, before_frame), after_frames=[f.data for f in frames])
+        extra["error_mrad"] = float(optics.tracking_error_mrad(np.asarray(extra["spot_enu_m"]), predicted,
+                                                               ctx.model.pivots_enu[0]))
+        clean = ctx.sensor.cleanliness(ctx, before, reading, held[0], weather, sun_vec)
+        if clean is not None:
+            extra["cleanliness_measured"] = clean
+    obs = Observation(valid=bool(reading.valid), reason=reading.reason, message=reading.message, **base, **extra)
+    obs_id = ctx.record(obs, before_frame=_before_data(ctx, before), after_frames=list(reading.frames))
     return _with_id(obs, obs_id)
 
 
-def _before_data(ctx: VisitContext, before_frame):
+def _before_data(ctx: VisitContext, before: Before):
     """The before frame's bytes, unless it was saved already (then its path is in the observation)."""
-    return None if ctx.before_path is not None else before_frame.data
+    return None if ctx.before_path is not None else before.data
 
 
 def _with_id(obs: Observation, obs_id: int) -> Observation:
     from dataclasses import replace
 
     return replace(obs, id=obs_id)
-
-
-def _f(x) -> float | None:
-    return None if x is None else float(x)
 
 
 def _safe(fn):

@@ -32,6 +32,7 @@ from helicalib.campaign.controller import (
     run_visit,
 )
 from helicalib.campaign.events import STORED, BoardState, RunEvent, Snapshot
+from helicalib.campaign.sensor import SpotSensor, camera_sensors
 from helicalib.devices.registers import FieldCommand, HeliostatState
 from helicalib.errors import HelicalibError, PlantError
 from helicalib.geometry.heliostat import HeliostatModel
@@ -89,7 +90,9 @@ class CampaignRunner:
     ----------
     cfg : FieldConfig
     plant : Plant protocol implementation
-    cameras : dict target id → Camera protocol implementation
+    cameras : dict target id → Camera or SpotSensor
+        Each board's camera (measured with :class:`~helicalib.campaign.sensor.CameraSensor`: the
+        vision), or a spot sensor of its own (the measurement seam, :mod:`.sensor`).
     clock : Clock protocol (``now_s``, ``sleep``)
     store : helicalib.store.Store
     campaign_id : int
@@ -112,6 +115,9 @@ class CampaignRunner:
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
                  recheck=False, model=None, armed=True, refine=False, listeners=()):
         self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
+        # the measurement seam: each board's spot sensor (a camera is wrapped in the camera + vision sensor)
+        wrapped = camera_sensors(cfg, {t: c for t, c in cameras.items() if not isinstance(c, SpotSensor)})
+        self.sensors = {t: (c if isinstance(c, SpotSensor) else wrapped[t]) for t, c in cameras.items()}
         self.campaign_id = campaign_id
         self.ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
         self.planner_kind = planner
@@ -430,11 +436,10 @@ class CampaignRunner:
             self.book.h[hid].cooldown_until_s = now + policy.COOLDOWN_VALID_S
             return
         visit_id = self.store.begin_visit(self.campaign_id, hid, target_id, now)
-        cams = self.cfg.cameras_for(target_id)
         ctx = VisitContext(
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
-            index=self.cfg.heliostat_index(hid), target=self.cfg.target(target_id), camera_config=cams[0],
-            camera=self.cameras[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
+            index=self.cfg.heliostat_index(hid), target=self.cfg.target(target_id),
+            sensor=self.sensors[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
             model=self.models[hid], settings=self.settings, record=self._record,
             save_frame=self.store.save_frame,
             on_valid=lambda obs, hid=hid: self._refit(hid, obs),

@@ -1,0 +1,203 @@
+"""The measurement seam: where a visit gets its spot measurements from.
+
+The visit loop (:mod:`.controller`) asks a :class:`SpotSensor` for a reference before the beam
+arrives (:meth:`SpotSensor.before`) and for the spot once the heliostat holds on the board
+(:meth:`SpotSensor.after`); it never knows what is behind it. :class:`CameraSensor` is the
+production sensor, the board's camera and the vision (frames grabbed over HTTP or from the
+simulated camera, T/GRLM annex A on the rectified board). A simulated sensor that skips the
+frames altogether (``helicalib.sim.fast_sensor``) sits behind the same protocol.
+
+Both return a :class:`Reading` with the same fields and the same reason codes; the frames a
+reading carries are stored with its observation (none for a sensor that has no frames).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Generator
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from helicalib.errors import MeasurementError
+from helicalib.flux.visit import cleanliness_from_visit
+from helicalib.vision.frames import decode_frame
+from helicalib.vision.marks import find_marks
+from helicalib.vision.spot import SpotLimits, measure_spot
+
+MARKS_REUSE_VISITS = 50
+"""The board's marks found on one before frame serve this many visits of the same camera (board
+and camera do not move), then they are found again; at once after a reading that doubts them."""
+MARKS_DOUBT = frozenset({"marks_not_found", "reprojection"})
+"""Reading reasons after which the cached marks are found again on the next before frame."""
+
+
+@dataclass
+class Before:
+    """The reference taken with the beam at standby: its capture time, its frame (to store; None
+    for a sensor without frames) and what the sensor keeps for the measurement (``state``)."""
+
+    capture_time_s: float
+    data: bytes | None = None
+    state: object = None
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One spot measurement.
+
+    ``offset_m`` is the spot centre (u, v) on the board from its centre [m, target frame], also
+    for a ``clipped`` spot (the visible part's centroid, which leads a search); None when there is
+    no spot. ``frames`` are the after frames to store with the observation.
+    """
+
+    valid: bool
+    reason: str
+    message: str
+    capture_time_s: float
+    offset_m: tuple[float, float] | None = None
+    spot_px: tuple[float, float] | None = None
+    spot_area_px: float | None = None
+    threshold: float | None = None
+    frames: tuple[bytes, ...] = ()
+    state: object = field(default=None, compare=False)
+
+
+@runtime_checkable
+class SpotSensor(Protocol):
+    """What a visit measures with. ``ctx`` is the visit's :class:`~.controller.VisitContext`."""
+
+    def before(self, ctx) -> Before:
+        """The reference with the beam off the board. Raises :class:`MeasurementError` (reason
+        code in ``.reason``) when there is none to be had."""
+
+    def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
+        """The spot with the heliostat holding on the board; yields the plant seconds it waits
+        between frames; never raises for a bad frame (an invalid reading says why)."""
+
+    def cleanliness(self, ctx, before: Before, reading: Reading, held_mm: np.ndarray, weather,
+                    sun_enu: np.ndarray) -> float | None:
+        """The mirror's present cleanliness from a valid reading, or None when it cannot be told."""
+
+
+class CaptureTimeError(MeasurementError):
+    """A frame whose capture time disagrees with the plant clock; the frame is kept for the record."""
+
+    reason = "capture_time"
+
+    def __init__(self, message: str, frame):
+        super().__init__(message)
+        self.frame = frame
+
+
+class CameraSensor:
+    """The board's camera and the vision: the production sensor.
+
+    Parameters
+    ----------
+    camera : devices.protocols.Camera
+        ``grab() -> Frame`` (HTTP camera, or the simulated one).
+    camera_config : config.Camera
+        Intrinsics, distortion, resolution.
+    fe_wm2_per_grey : float, optional
+        The camera's flux factor, for the measured cleanliness (None: not measured).
+    atmosphere : str or None
+        Attenuation model between mirror and board for the measured cleanliness.
+    """
+
+    def __init__(self, camera, camera_config, fe_wm2_per_grey: float | None = None, atmosphere: str | None = "clear"):
+        self.camera, self.camera_config = camera, camera_config
+        self.fe_wm2_per_grey, self.atmosphere = fe_wm2_per_grey, atmosphere
+        self._marks = None
+        self._marks_uses = 0
+
+    # ------------------------------------------------------------------ frames
+    def _grab(self, ctx):
+        """One frame and its image; refused (:class:`CaptureTimeError`) unless its capture time lies
+        within ``max_capture_skew_s`` (plus the clock's uncertainty) of the plant time around the grab."""
+        t0 = ctx.now()
+        frame = self.camera.grab()
+        t1 = ctx.now()
+        slack = ctx.settings.max_capture_skew_s + (ctx.time_slack_s() if ctx.time_slack_s is not None else 0.0)
+        t = float(frame.capture_time_s)
+        if not (math.isfinite(t) and t0 - slack <= t <= t1 + slack):
+            off = f"{t - t1:+.6g} s from" if math.isfinite(t - t1) else "nowhere near"
+            raise CaptureTimeError(f"{ctx.heliostat_id}: the camera's capture time {t:.6g} lies {off} the plant "
+                                   f"time of the grab (tolerance {slack:.1f} s): is the camera's clock set?", frame)
+        return frame, decode_frame(frame.data, expected_shape=None)
+
+    def _marks_for(self, image, target):
+        if self._marks is None or self._marks_uses >= MARKS_REUSE_VISITS:
+            marks = find_marks(image, target, self.camera_config)
+            self._marks, self._marks_uses = (marks if marks.found else None), 0
+            if not marks.found:
+                return marks
+        self._marks_uses += 1
+        return self._marks
+
+    # ------------------------------------------------------------------ the protocol
+    def before(self, ctx) -> Before:
+        frame, image = self._grab(ctx)
+        return Before(capture_time_s=float(frame.capture_time_s), data=frame.data,
+                      state=(image, self._marks_for(image, ctx.target)))
+
+    def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
+        frames, images, reason, message, refused = [], [], None, "", []
+        for _ in range(ctx.settings.after_frames):
+            try:
+                f, img = self._grab(ctx)
+                frames.append(f)
+                images.append(img)
+            except MeasurementError as err:
+                reason, message = getattr(err, "reason", "bad_frame"), str(err)
+                if isinstance(err, CaptureTimeError):
+                    refused.append(err.frame.data)  # kept with the observation that refuses it
+                break
+            if ctx.settings.after_frames > 1:
+                yield 1.0
+        # the spot is the mean over the after frames, so its sun is the sun at their mean capture time
+        capture_s = float(np.mean([f.capture_time_s for f in frames])) if frames else float(ctx.now())
+        data = tuple(f.data for f in frames) + tuple(refused)
+        if reason is not None:
+            return Reading(False, reason, message, capture_s, frames=data)
+        image, marks = before.state
+        # the jitter limit as an angle: a far heliostat's beam wanders as many metres for less mrad
+        distance_m = float(np.linalg.norm(np.asarray(ctx.target.center_enu_m, dtype=float) - ctx.model.pivots_enu[0]))
+        limits = SpotLimits(max_jitter_m=1e-3 * ctx.settings.max_jitter_mrad * distance_m)
+        spot = measure_spot(image, images, ctx.target, self.camera_config, method=ctx.settings.spot_method,
+                            marks=marks, limits=limits)
+        if spot.reason in MARKS_DOUBT:
+            self._marks = None
+        return Reading(
+            valid=bool(spot.valid), reason=spot.reason, message=spot.message, capture_time_s=capture_s,
+            offset_m=None if spot.offset_m is None else (float(spot.offset_m[0]), float(spot.offset_m[1])),
+            spot_px=None if spot.spot_center_px is None else (float(spot.spot_center_px[0]),
+                                                             float(spot.spot_center_px[1])),
+            spot_area_px=_f(spot.spot_area_px), threshold=_f(spot.threshold), frames=data, state=images)
+
+    def cleanliness(self, ctx, before: Before, reading: Reading, held_mm: np.ndarray, weather,
+                    sun_enu: np.ndarray) -> float | None:
+        """The mirror's present cleanliness from the power in the spot (Zhang & Wang; docs/flux.md)."""
+        image, marks = before.state
+        held = np.asarray(held_mm, dtype=float).reshape(1, 2)
+        est = cleanliness_from_visit(
+            image, reading.state[-1], marks, ctx.target, fe_wm2_per_grey=self.fe_wm2_per_grey,
+            reflectivity_clean=ctx.settings.reflectivity_clean, dni_wm2=getattr(weather, "dni_wm2", None),
+            sun_enu=sun_enu, pivot_enu=ctx.model.pivots_eff_enu[0], normal_enu=ctx.model.normal(held)[0],
+            mirror_offset_m=float(ctx.model.mirror_offset_m[0]),
+            mirror_area_m2=float(np.prod(ctx.model.drives.mirror_size_m[0])), atmosphere=self.atmosphere)
+        return None if est.value is None else float(est.value)
+
+
+def camera_sensors(cfg, cameras: dict) -> dict[str, CameraSensor]:
+    """One :class:`CameraSensor` per board from the cameras (``target id → Camera``) a plant offers."""
+    out = {}
+    for tid, cam in cameras.items():
+        out[tid] = CameraSensor(cam, cfg.cameras_for(tid)[0], fe_wm2_per_grey=getattr(cam, "fe_wm2_per_grey", None),
+                                atmosphere=getattr(cam, "atmosphere", "clear"))
+    return out
+
+
+def _f(x) -> float | None:
+    return None if x is None else float(x)
