@@ -35,6 +35,7 @@ COOLDOWN_INVALID_S = 1800.0
 COOLDOWN_VALID_S = 1200.0
 """After a valid visit the heliostat waits this long (the next point should see another sun)."""
 FIT_LOSS = "soft_l1"
+_BACKLASH = [em.index(n) for n in em.BACKLASH]
 
 
 @dataclass
@@ -246,20 +247,26 @@ def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, no
 
 
 # ---------------------------------------------------------------------------------- fit
-def refit(nominal: HeliostatModel, points: list, current: HeliostatModel):
+def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method: str = "fast"):
     """Refit one heliostat's error model to its valid points; returns (model, FitResult or None).
 
     The solver starts from ``current``'s parameters (the priors stay centred on the nominal
-    heliostat), so a refit after one more point takes a few steps instead of a whole descent."""
+    heliostat), so a refit after one more point takes a few steps instead of a whole descent.
+    ``method``: the fit's solver (:data:`helicalib.calibration.fit.FIT_METHODS`; the fast one by
+    default, the same minimum as ``"reference"``)."""
     if not points:
         return current, None
     strokes, sun, spot = _arrays(points)
+    approach = _approaches(points)
     start = current if np.all(np.isfinite(current.params)) else nominal
-    fit = fit_error_model(nominal.with_params(start.params), strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0,
-                          approach=_approaches(points))
+    # parameters the fit leaves fixed (the dead bands when no approach is recorded) keep the start's values
+    fixed_as_nominal = np.any(approach) or np.array_equal(start.params[:, _BACKLASH], nominal.params[:, _BACKLASH])
+    model = nominal if fixed_as_nominal else nominal.with_params(start.params)
+    fit = fit_error_model(model, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0, approach=approach,
+                          start=start.params[0], method=method)
     if not np.all(np.isfinite(fit.params)):
         return current, None
-    return nominal.with_params(fit.params[None, :]), fit
+    return fit.model, fit
 
 
 def _arrays(points):
@@ -293,29 +300,40 @@ def _visit_points(points: list) -> list:
 
 
 def loo_errors_mrad(cfg, nominal: HeliostatModel, points: list, visit_points: list,
-                    start: HeliostatModel | None = None, exact: bool = False, full=None) -> np.ndarray:
+                    start: HeliostatModel | None = None, exact: bool = False, full=None,
+                    method: str = "fast") -> np.ndarray:
     """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 on its board).
 
     The model without a visit comes from one Gauss-Newton step from the fit to all points
     (:func:`~helicalib.calibration.fit.leave_out_params`; ``full``: that fit when the caller has
     it, e.g. the refit after the visit's last point), or with ``exact`` from a full refit per
-    visit. Refits start from ``start`` (default nominal)."""
+    visit. Refits start from ``start`` (default nominal) and use the fit's solver ``method``."""
     start = start if start is not None else nominal
+    if not visit_points:
+        return np.zeros(0)
     if not exact:
         if full is None or len(full.residual_mrad) != len(points):
-            _model, full = refit(nominal, points, start)
+            _model, full = refit(nominal, points, start, method)
         if full is not None and full.linearisation is not None:
             groups = [[k for k, p in enumerate(points) if p.visit_id == vp.visit_id] for vp in visit_points]
-            params = leave_out_params(full, groups)
-            return np.asarray([prediction_error_mrad(nominal.with_params(params[g][None, :]), vp,
-                                                     cfg.target(vp.target_id))
-                               for g, vp in enumerate(visit_points)], dtype=float)
-    out = []
+            return _prediction_errors_mrad(cfg, nominal, leave_out_params(full, groups), visit_points)
+    params = []
     for vp in visit_points:
         rest = [p for p in points if p.visit_id != vp.visit_id]
-        model, _fit = refit(nominal, rest, start)
-        out.append(prediction_error_mrad(model, vp, cfg.target(vp.target_id)))
-    return np.asarray(out, dtype=float)
+        model, _fit = refit(nominal, rest, start, method)
+        params.append(model.params[0])
+    return _prediction_errors_mrad(cfg, nominal, np.array(params), visit_points)
+
+
+def _prediction_errors_mrad(cfg, nominal: HeliostatModel, params: np.ndarray, visit_points: list) -> np.ndarray:
+    """:func:`prediction_error_mrad` of each visit point for its own parameter row of ``params``
+    (G, P), in one vectorised call."""
+    model = nominal.repeat(len(visit_points)).with_params(params)
+    strokes, sun, spot = _arrays(visit_points)
+    targets = [cfg.target(vp.target_id) for vp in visit_points]
+    uv = model.spot_on_target(strokes, sun, targets, _approaches(visit_points))
+    predicted = np.array([t.uvw_to_enu(uv[g]) for g, t in enumerate(targets)])
+    return np.asarray(optics.tracking_error_exact_mrad(spot, predicted, model.pivots_enu), dtype=float)
 
 
 def prediction_error_mrad(model: HeliostatModel, obs, target) -> float:

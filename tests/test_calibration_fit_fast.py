@@ -1,0 +1,221 @@
+"""The fast fit (analytic Jacobian, damped Gauss-Newton) equals the reference fit (scipy
+least_squares with a central-difference Jacobian) on recorded campaign observations.
+
+Data: ``tests/data/fit_observations.csv``, the valid observations of a one-day simulated campaign
+of two demo heliostats (``tests/data/make_fit_observations.py``).
+
+Tolerances: beams and residuals within 0.001 mrad (the product's promise); parameters within
+1e-4 prior σ (the two solvers agree to ~3e-6 σ: the reference stops at a relative cost change of
+1e-8); σ and covariance within 1e-5 relative (the reference covariance uses central differences,
+whose truncation error is ~1e-8 relative, at a solution ~1e-6 σ away).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from helicalib.calibration import fit_solver
+from helicalib.calibration.fit import _Problem, fit_error_model, sky_grid
+from helicalib.campaign import policy
+from helicalib.config import load_field_config
+from helicalib.geometry import errors as em
+from helicalib.geometry.heliostat import HeliostatModel
+
+ROOT = Path(__file__).resolve().parents[1]
+CFG = load_field_config(ROOT / "field_config" / "demo_north.yaml")
+BEAM_TOL_MRAD = 0.001
+PARAM_TOL_PRIOR_SIGMA = 1e-4
+COV_RTOL = 1e-5
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    """{heliostat id: list of observation-like points in capture order}."""
+    df = pd.read_csv(ROOT / "tests" / "data" / "fit_observations.csv")
+    out = {}
+    for hid, rows in df.groupby("heliostat_id", sort=True):
+        out[hid] = [SimpleNamespace(
+            heliostat_id=hid, target_id=r.target_id, visit_id=int(r.visit_id),
+            strokes_read_mm=(r.stroke_read_1_mm, r.stroke_read_2_mm), strokes_cmd_mm=(r.stroke_cmd_1_mm, r.stroke_cmd_2_mm),
+            approach=(int(r.approach_1), int(r.approach_2)), sun_enu=(r.sun_e, r.sun_n, r.sun_u),
+            spot_enu_m=(r.spot_e_m, r.spot_n_m, r.spot_u_m)) for r in rows.itertuples()]
+    assert set(out) == {"H0001", "H0017"} and all(len(p) >= 30 for p in out.values())
+    return out
+
+
+def _inputs(points):
+    strokes, sun, spot = policy._arrays(points)
+    return strokes, sun, spot, policy._approaches(points)
+
+
+def _beam_difference_mrad(a, b, hid) -> float:
+    """Largest angle [mrad] between the beams of fits ``a`` and ``b`` over a sky grid, for the
+    strokes ``a``'s model commands for the board centre (each actuator arriving extending)."""
+    aim = np.asarray(CFG.target(CFG.heliostat(hid).target).center_enu_m)
+    suns = sky_grid()
+    sol = a.model.repeat(len(suns)).strokes_for_aim(suns, aim, np.ones(2))
+    ok = sol.in_range
+    assert ok.sum() > 20
+    beams = [f.model.repeat(int(ok.sum())).beam(sol.strokes_mm[ok], suns[ok], np.ones(2))[1] for f in (a, b)]
+    return 1000.0 * float(np.max(np.linalg.norm(beams[0] - beams[1], axis=1)))
+
+
+def _assert_equivalent(ref, fast, hid, fast_ran=True):
+    if fast_ran:
+        assert fast.message == "Gauss-Newton converged"  # the fast path ran (no fall-back to the reference)
+    assert ref.free == fast.free and ref.residual_kind == fast.residual_kind
+    assert _beam_difference_mrad(ref, fast, hid) < BEAM_TOL_MRAD
+    assert np.max(np.abs(ref.residual_vec_mrad - fast.residual_vec_mrad)) < BEAM_TOL_MRAD
+    assert abs(ref.rms_mrad - fast.rms_mrad) < BEAM_TOL_MRAD
+    dp = np.abs(ref.params - fast.params) / em.PRIOR_SIGMA
+    assert np.max(dp) < PARAM_TOL_PRIOR_SIGMA, dict(zip(em.NAMES, dp))
+    free = [em.index(n) for n in ref.free]
+    np.testing.assert_allclose(fast.sigma[free], ref.sigma[free], rtol=COV_RTOL)
+    assert np.max(np.abs(fast.covariance - ref.covariance)) < COV_RTOL * np.max(np.abs(ref.covariance))
+    assert ref.identifiability.determined == fast.identifiability.determined
+    np.testing.assert_allclose(fast.linearisation.jacobian, ref.linearisation.jacobian, rtol=0, atol=1e-5 * np.max(
+        np.abs(ref.linearisation.jacobian)))
+
+
+@pytest.mark.parametrize("hid", ["H0001", "H0017"])
+@pytest.mark.parametrize("k", [1, 5, 20, None])
+def test_fast_fit_equals_reference_on_recorded_observations(recorded, hid, k):
+    points = recorded[hid][:k]
+    nominal = HeliostatModel.from_config(CFG, [hid])
+    strokes, sun, spot, approach = _inputs(points)
+    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, method="reference")
+    fast = fit_error_model(nominal, strokes, sun, spot, approach=approach)  # the default
+    _assert_equivalent(ref, fast, hid)
+    # suggestions are ranked alike
+    np.testing.assert_allclose([s["sun_enu"] for s in fast.identifiability.suggestions],
+                               [s["sun_enu"] for s in ref.identifiability.suggestions], atol=1e-12)
+
+
+@pytest.mark.parametrize("kind,loss", [("normal", "soft_l1"), ("beam", "linear"), ("normal", "linear"),
+                                       ("beam", "cauchy"), ("beam", "arctan"), ("beam", "huber")])
+def test_fast_fit_equals_reference_for_each_residual_and_loss(recorded, kind, loss):
+    """Huber's cost has a jump in its second derivative, where the Gauss-Newton steps may cycle:
+    then the reference solver takes over, so the result is the same either way."""
+    points = recorded["H0017"][:24]
+    nominal = HeliostatModel.from_config(CFG, ["H0017"])
+    strokes, sun, spot, approach = _inputs(points)
+    kw = dict(approach=approach, residual_kind=kind, loss=loss, n_suggestions=0)
+    _assert_equivalent(fit_error_model(nominal, strokes, sun, spot, method="reference", **kw),
+                       fit_error_model(nominal, strokes, sun, spot, **kw), "H0017", fast_ran=loss != "huber")
+
+
+@pytest.mark.parametrize("hid", ["H0001", "H0017"])
+def test_campaign_refits_warm_started_equal_reference(recorded, hid):
+    """The campaign's sequence: a refit after every point, each starting from the last model."""
+    points = recorded[hid]
+    nominal = HeliostatModel.from_config(CFG, [hid])
+    current = nominal
+    for k in range(1, len(points) + 1, 3):
+        ref_model, ref = policy.refit(nominal, points[:k], current, method="reference")
+        fast_model, fast = policy.refit(nominal, points[:k], current)
+        _assert_equivalent(ref, fast, hid)
+        np.testing.assert_array_equal(fast_model.params, fast.params[None, :])
+        assert fast_model.ids == (hid,)
+        current = fast_model
+
+
+def test_refit_without_approach_keeps_the_start_dead_bands(recorded):
+    """Without recorded approaches the dead bands are not fitted and stay at the start model's values."""
+    points = [SimpleNamespace(**{**vars(p), "approach": None}) for p in recorded["H0001"][:10]]
+    nominal = HeliostatModel.from_config(CFG, ["H0001"])
+    start = nominal.with_params(em.from_dict({"backlash_1_mm": 0.3, "stroke_offset_1_mm": 1.0}))
+    ref_model, ref = policy.refit(nominal, points, start, method="reference")
+    fast_model, fast = policy.refit(nominal, points, start)
+    assert fast.free == em.GEOMETRIC
+    assert fast_model.params[0, em.index("backlash_1_mm")] == 0.3
+    _assert_equivalent(ref, fast, "H0001")
+
+
+@pytest.mark.parametrize("hid", ["H0001", "H0017"])
+def test_leave_one_visit_out_errors_equal_reference(recorded, hid):
+    points = recorded[hid]
+    nominal = HeliostatModel.from_config(CFG, [hid])
+    visit_points = policy._visit_points(points)
+    assert len(visit_points) >= 10
+    model, full = policy.refit(nominal, points, nominal)
+    ref = policy.loo_errors_mrad(CFG, nominal, points, visit_points, model, exact=True, method="reference")
+    fast = policy.loo_errors_mrad(CFG, nominal, points, visit_points, model, exact=True)
+    assert np.max(np.abs(ref - fast)) < BEAM_TOL_MRAD
+    # the one-step path (the campaign's verdict): vectorised prediction errors equal one model per visit
+    step = policy.loo_errors_mrad(CFG, nominal, points, visit_points, model, full=full)
+    groups = [[k for k, p in enumerate(points) if p.visit_id == vp.visit_id] for vp in visit_points]
+    from helicalib.calibration.fit import leave_out_params
+
+    params = leave_out_params(full, groups)
+    one_by_one = [policy.prediction_error_mrad(nominal.with_params(params[g][None, :]), vp, CFG.target(vp.target_id))
+                  for g, vp in enumerate(visit_points)]
+    np.testing.assert_allclose(step, one_by_one, rtol=0, atol=1e-9)
+    assert np.max(np.abs(step - fast)) < 0.05  # and the Newton step stays close to the exact refits
+
+
+@pytest.mark.parametrize("kind", ["beam", "normal"])
+def test_analytic_jacobian_matches_central_differences(recorded, kind):
+    """At random parameters (every one drawn from its prior, dead bands included)."""
+    points = recorded["H0017"]
+    nominal = HeliostatModel.from_config(CFG, ["H0017"])
+    strokes, sun, spot, approach = _inputs(points)
+    prob = _Problem(nominal, strokes, sun, spot, kind, approach)
+    bj = fit_solver.BeamJacobian(nominal.drives, nominal.pivots_enu[0], prob.strokes, prob.approach, prob.sun,
+                                 prob.spot, prob.basis, kind)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        p = rng.normal(size=em.P) * em.PRIOR_SIGMA
+        res, jac = bj.evaluate(p)
+        np.testing.assert_allclose(res, prob.residuals(p[None, :])[0], rtol=0, atol=1e-9)
+        h = 1e-4 * em.PRIOR_SIGMA
+        sets = np.repeat(p[None, :], 2 * em.P, axis=0)
+        sets[np.arange(em.P), np.arange(em.P)] += h
+        sets[em.P + np.arange(em.P), np.arange(em.P)] -= h
+        r = prob.residuals(sets)
+        fd = np.transpose((r[: em.P] - r[em.P:]) / (2 * h)[:, None, None], (1, 2, 0))
+        # per prior σ of each parameter [mrad]: central differences are good to ~1e-8 here
+        err = np.max(np.abs(jac - fd), axis=(0, 1)) * em.PRIOR_SIGMA
+        assert np.max(err) < 1e-6, dict(zip(em.NAMES, err))
+        assert np.all(np.max(np.abs(fd), axis=(0, 1)) * em.PRIOR_SIGMA > 1e-3)  # every parameter moves the beam
+
+
+def test_a_wrong_jacobian_is_caught(recorded, monkeypatch):
+    """A Jacobian a few % off in one column still converges, to another point: the checks above see it."""
+    points = recorded["H0001"]
+    nominal = HeliostatModel.from_config(CFG, ["H0001"])
+    strokes, sun, spot, approach = _inputs(points)
+    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, method="reference", n_suggestions=0)
+    right = fit_solver.BeamJacobian.evaluate
+    col = em.index("canting_1_mrad")
+
+    def wrong(self, params, jacobian=True):
+        res, jac = right(self, params, jacobian)
+        if jac is not None:
+            jac[:, :, col] += 0.03 * jac[:, :, em.index("pedestal_tilt_n_mrad")]
+        return res, jac
+
+    monkeypatch.setattr(fit_solver.BeamJacobian, "evaluate", wrong)
+    bad = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0)
+    assert bad.message == "Gauss-Newton converged"
+    with pytest.raises(AssertionError):
+        _assert_equivalent(ref, bad, "H0001")
+    assert _beam_difference_mrad(ref, bad, "H0001") > BEAM_TOL_MRAD
+
+
+def test_fast_fit_from_far_starts_reaches_the_same_minimum(recorded):
+    points = recorded["H0017"][:20]
+    nominal = HeliostatModel.from_config(CFG, ["H0017"])
+    strokes, sun, spot, approach = _inputs(points)
+    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, method="reference", n_suggestions=0)
+    rng = np.random.default_rng(11)
+    for _ in range(4):
+        start = 2.0 * rng.normal(size=em.P) * em.PRIOR_SIGMA
+        _assert_equivalent(ref, fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0,
+                                                start=start), "H0017")
+    with pytest.raises(ValueError, match="method"):
+        fit_error_model(nominal, strokes, sun, spot, method="newton")
