@@ -4,13 +4,28 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections import Counter
 
 import numpy as np
+import pytest
 
-from helicalib.config import load_field_config
+from helicalib.campaign.policy import MAX_SHARE_INCIDENCE_DEG
+from helicalib.config import Drive, Site, load_field_config
+from helicalib.geometry.drives import DriveArrays
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
-from helicalib.sim.field import radial_staggered
+from helicalib.sim.evaluate import year_sun_times
+from helicalib.sim.field import (
+    DRIVE_NAME,
+    STROKE_MARGIN_MM,
+    _field_data,
+    assign_boards,
+    board_incidence_deg,
+    feasible_all_year,
+    generate_field,
+    radial_staggered,
+    write_field,
+)
 
 
 def test_radial_staggered_rings_keep_spacing():
@@ -40,3 +55,100 @@ def test_sim_field_cli_writes_feasible_field(tmp_path):
     for s in vecs:
         assert model.strokes_for_aim(s, aims).in_range.all()
         assert model.strokes_for_aim(s, rec).in_range.all()
+
+
+# ------------------------------------------------------------------ the year's check and the boards
+def _reference_feasible(model: HeliostatModel, aims, sun_enu, margin_mm: float = STROKE_MARGIN_MM) -> np.ndarray:
+    """The plain check: ``strokes_for_aim`` at one sun position after another, for each aim in turn."""
+    ok = np.ones(len(model), dtype=bool)
+    lo = model.drives.stroke_min_mm + margin_mm
+    hi = model.drives.stroke_max_mm - margin_mm
+    for aim in aims:
+        for s in sun_enu:
+            st = model.strokes_for_aim(s, aim).strokes_mm
+            with np.errstate(invalid="ignore"):
+                ok &= np.all((st >= lo) & (st <= hi), axis=-1)
+    return ok
+
+
+@pytest.mark.parametrize("latitude_deg", [40.06, -30.5])
+def test_vectorised_check_rejects_what_the_plain_check_rejects(latitude_deg):
+    data = _field_data(400, latitude_deg, 94.4, 1200.0, 4, None)
+    drive = Drive(**data["drives"][DRIVE_NAME])
+    sun = year_sun_times(Site(**data["site"]), 2026, step_days=14.0, step_min=40.0)[1]
+    pts = radial_staggered(450, 50.0, 8.6, pole_azimuth_deg=180.0 if latitude_deg < 0 else 0.0)
+    pivots = np.column_stack([pts, np.full(len(pts), 4.3)])
+    model = HeliostatModel([f"c{i}" for i in range(len(pts))], pivots, DriveArrays.from_drives([drive] * len(pts)))
+    for aim in (data["tower"]["receiver_aim_enu_m"], data["targets"][0]["center_enu_m"],
+                data["targets"][3]["center_enu_m"]):
+        aim = np.asarray(aim, dtype=float)
+        ref = _reference_feasible(model, [aim], sun)
+        assert 0 < ref.sum() < len(ref)                                   # both outcomes present
+        np.testing.assert_array_equal(feasible_all_year(pivots, aim, sun, drive), ref)
+    # a margin moves the verdict the same way in both
+    aim = np.asarray(data["targets"][1]["center_enu_m"], dtype=float)
+    np.testing.assert_array_equal(feasible_all_year(pivots, aim, sun, drive, margin_mm=200.0),
+                                  _reference_feasible(model, [aim], sun, margin_mm=200.0))
+
+
+def test_generate_field_keeps_only_what_the_plain_check_passes():
+    """The heliostats written pass the plain check for their board and the receiver (the generator's
+    own sun sample), and the candidates dropped before the last kept one fail it."""
+    data, rows = generate_field(120, 40.06, 94.43, 1267.0, targets=3, step_days=21.0, step_min=45.0)
+    drive = Drive(**data["drives"][DRIVE_NAME])
+    sun = year_sun_times(Site(**data["site"]), 2026, step_days=21.0, step_min=45.0)[1]
+    pivots = np.array([[r["e_m"], r["n_m"], r["u_m"]] for r in rows])
+    model = HeliostatModel([r["id"] for r in rows], pivots, DriveArrays.from_drives([drive] * len(rows)))
+    centre = {t["id"]: t["center_enu_m"] for t in data["targets"]}
+    aims = np.array([centre[r["target"]] for r in rows], dtype=float)
+    assert _reference_feasible(model, [aims, np.asarray(data["tower"]["receiver_aim_enu_m"], float)], sun).all()
+
+
+def _incidence_ok(cfg) -> np.ndarray:
+    """Independently: each heliostat in front of its board and within the planner's incidence limit."""
+    pos = cfg.heliostat_positions_enu_m()
+    centre = np.array([cfg.target(h.target).center_enu_m for h in cfg.heliostats])
+    normal = np.array([cfg.target(h.target).normal_enu for h in cfg.heliostats])
+    to_h = pos - centre
+    cos_inc = np.sum(to_h * normal, axis=1) / (np.linalg.norm(to_h, axis=1) * np.linalg.norm(normal, axis=1))
+    return (cos_inc > 0.0) & (cos_inc >= np.cos(np.radians(MAX_SHARE_INCIDENCE_DEG))) \
+        & (np.linalg.norm(to_h, axis=1) >= 1.0)
+
+
+@pytest.mark.parametrize(("n", "targets", "latitude_deg"), [(37, 4, 40.06), (250, 3, 40.06), (301, 8, 40.06),
+                                                           (203, 5, -23.0)])
+def test_boards_are_shared_evenly_and_face_their_heliostats(tmp_path, n, targets, latitude_deg):
+    data, rows = generate_field(n, latitude_deg, 94.43, 1267.0, targets=targets, step_days=28.0, step_min=60.0)
+    cfg = write_field(data, rows, tmp_path / "f.yaml")
+    counts = Counter(h.target for h in cfg.heliostats)
+    assert len(cfg.heliostats) == n and set(counts) == {t.id for t in cfg.targets}
+    assert max(counts.values()) - min(counts.values()) <= 1
+    assert _incidence_ok(cfg).all()
+    # boards west to east serve heliostats west to east: each board's heliostats are one run of azimuths
+    pos = cfg.heliostat_positions_enu_m()
+    angle = np.arctan2(pos[:, 0], -pos[:, 1] if latitude_deg < 0 else pos[:, 1])
+    board = np.array([[t.id for t in cfg.targets].index(h.target) for h in cfg.heliostats])
+    xs = [t.center_enu_m[0] for t in cfg.targets]
+    assert xs == sorted(xs)
+    for k in range(targets - 1):                        # 5e-4 rad: positions are written to 1 cm, >= 40 m out
+        assert angle[board == k].max() <= angle[board == k + 1].min() + 5e-4
+
+
+def test_assign_boards_cuts_sorted_azimuths_into_equal_runs():
+    rng = np.random.default_rng(3)
+    az = rng.uniform(-1.2, 1.2, 1001)
+    r = rng.uniform(50.0, 400.0, 1001)
+    pts = np.column_stack([r * np.sin(az), r * np.cos(az)])
+    for k in (1, 2, 4, 7, 12):
+        b = assign_boards(pts, k)
+        sizes = np.bincount(b, minlength=k)
+        assert sizes.max() - sizes.min() <= 1 and sizes.sum() == len(pts)
+        assert np.all(np.diff(b[np.argsort(az)]) >= 0)                     # runs follow the azimuth
+    south = assign_boards(pts * np.array([1.0, -1.0]), 4, south_field=True)
+    np.testing.assert_array_equal(south, assign_boards(pts, 4))           # mirrored field, same boards by east
+
+
+def test_board_incidence_deg():
+    inc = board_incidence_deg(np.array([[0.0, 100.0, 8.0], [100.0, 8.0, 8.0], [0.0, -50.0, 8.0]]),
+                              [0.0, 8.0, 8.0], [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(inc, [0.0, 90.0, 180.0], atol=1e-9)

@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 
 from helicalib.commands._args import int_in, site_text
+
+MAX_HELIOSTATS = 50000
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim-field", help="generate a field config with a radial-staggered layout",
                        description="Write FIELD.yaml and FIELD.csv: n tilt-roll heliostats in staggered rings on the "
                                    "pole side of the tower, each feasible (strokes in range for its target and the "
-                                   "receiver) at every sun position >= 5 deg of the year. See docs/simulator.md.")
-    p.add_argument("--n", type=int_in(1, 20000), required=True, help="number of heliostats")
+                                   "receiver) at every sun position >= 5 deg of the year, shared out evenly over "
+                                   "the boards by azimuth (board counts differ by at most one). See docs/simulator.md.")
+    p.add_argument("--n", type=int_in(1, MAX_HELIOSTATS), required=True,
+                   help=f"number of heliostats (1..{MAX_HELIOSTATS})")
     p.add_argument("--site", required=True, type=site_text, help="LAT,LON[,ALT] in degrees (north, east positive) and metres")
     p.add_argument("--layout", default="radial-staggered", choices=["radial-staggered"], help="field layout")
     p.add_argument("--targets", type=int_in(1, 12), default=4, help="calibration boards on the tower (default 4)")
@@ -34,8 +39,8 @@ def run(args) -> int:
         raise ConfigError(f"--site {args.site!r}: expected LAT,LON[,ALT] with LAT in [-90, 90], LON in [-180, 180]")
     if abs(parts[0]) < 5 or abs(parts[0]) > 66:
         raise ConfigError(f"--site: latitude {parts[0]}: the generator lays a pole-side field; use 5 <= |lat| <= 66")
-    if not 1 <= args.n <= 20000:
-        raise ConfigError(f"--n {args.n}: expected 1..20000")
+    if not 1 <= args.n <= MAX_HELIOSTATS:
+        raise ConfigError(f"--n {args.n}: expected 1..{MAX_HELIOSTATS}")
     if not 1 <= args.targets <= 12:
         raise ConfigError(f"--targets {args.targets}: expected 1..12")
     with ProgressReporter("sim-field", None) as bar:
@@ -46,7 +51,8 @@ def run(args) -> int:
         data, rows = generate_field(args.n, parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0,
                                     targets=args.targets, name=args.name, progress=progress)
     cfg = write_field(data, rows, args.out)
-    counts = {t.id: sum(1 for h in cfg.heliostats if h.target == t.id) for t in cfg.targets}
+    per = Counter(h.target for h in cfg.heliostats)
+    counts = {t.id: per[t.id] for t in cfg.targets}
     print(f"sim-field: wrote {args.out} and its CSV: {len(cfg.heliostats)} heliostats, tower "
           f"{cfg.tower.receiver_aim_enu_m[2]:.0f} m, targets {counts}")
     return 0
