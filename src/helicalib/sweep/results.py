@@ -1,0 +1,117 @@
+"""The sweep's table (one row per run, failed runs marked) and the per-cell statistics.
+
+Per cell and figure: the number of runs with a value, their mean, standard deviation and the 95 %
+t-interval for the mean over seeds, ``mean ± t(0.975, n − 1) · s / √n`` (``scipy.stats.t``; no
+interval with fewer than 2 values). ``days_to_95`` only has a value in the runs that reached 95 %
+accepted; ``reached_95`` says how many of the cell's finished runs that is.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+FIGURES = ("days_to_95", "acceptance_rate", "true_sky_rms_accepted_mrad", "true_sky_rms_mrad",
+           "visits_per_board_hour")
+"""The figures summarised per cell, in the order shown."""
+SUMMARY_COLUMNS = ("heliostats", "accepted", "acceptance_rate", "visits", "valid_visits", "true_sky_rms_accepted_mrad",
+                   "true_sky_rms_mrad", "first_shot_rms_mrad", "true_tracking_rms_mrad", "gated_hours", "stowed_hours")
+INTERVAL = "95 % t-interval for the mean over seeds: mean ± t(0.975, n-1)·s/√n (scipy.stats.t), n = runs with a value"
+
+
+def row(run, record: dict | None = None, error: str | None = None) -> dict:
+    """One table row: the run's settings, then its figures (``status`` ok) or its error (failed)."""
+    out = {"cell": run.cell, "scenario": run.scenario, "planner": run.planner, "start": run.start,
+           "start_s": run.start_s, "seed": run.seed, "sim_seed": run.sim_seed, "days": run.days,
+           "status": "ok" if record is not None else "failed", "error": error or ""}
+    summary = (record or {}).get("summary", {})
+    for key in SUMMARY_COLUMNS:
+        out[key] = summary.get(key)
+    for key in ("days_to_95", "visits_per_board_hour", "boards_used", "wall_s"):
+        out[key] = (record or {}).get(key)
+    out["run_dir"] = run.run_dir
+    return out
+
+
+def mean_interval(values) -> dict:
+    """``{"n", "mean", "sd", "ci95"}`` of the finite values (see the module docstring)."""
+    from scipy import stats
+
+    x = np.array([float(v) for v in values if v is not None and math.isfinite(float(v))])
+    if x.size == 0:
+        return {"n": 0, "mean": None, "sd": None, "ci95": None}
+    mean = float(np.mean(x))
+    if x.size < 2:
+        return {"n": 1, "mean": mean, "sd": None, "ci95": None}
+    sd = float(np.std(x, ddof=1))
+    half = float(stats.t.ppf(0.975, x.size - 1)) * sd / math.sqrt(x.size)
+    return {"n": int(x.size), "mean": mean, "sd": sd, "ci95": [mean - half, mean + half]}
+
+
+def cell_statistics(rows: list[dict]) -> list[dict]:
+    """Per cell (in the table's order): runs, failed runs, reached 95 %, and each figure's mean and interval."""
+    cells: dict[str, list[dict]] = {}
+    for r in rows:
+        cells.setdefault(r["cell"], []).append(r)
+    out = []
+    for key, rs in cells.items():
+        ok = [r for r in rs if r["status"] == "ok"]
+        first = rs[0]
+        out.append({"cell": key, "scenario": first["scenario"], "planner": first["planner"], "start": first["start"],
+                    "runs": len(rs), "finished": len(ok), "failed": len(rs) - len(ok),
+                    "reached_95": sum(r["days_to_95"] is not None for r in ok),
+                    "figures": {f: mean_interval(r[f] for r in ok) for f in FIGURES}})
+    return out
+
+
+def write_outputs(out_dir: Path, rows: list[dict], document: dict) -> list[Path]:
+    """``results.csv`` (always), ``results.parquet`` (when pyarrow is installed), ``summary.json``;
+    each written atomically. Returns the paths written."""
+    import pandas as pd
+
+    out_dir = Path(out_dir)
+    table = pd.DataFrame(rows)
+    written = [_atomic(out_dir / "results.csv", lambda p: table.to_csv(p, index=False))]
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        written.append(_atomic(out_dir / "results.parquet", lambda p: table.to_parquet(p, index=False)))
+    written.append(_atomic(out_dir / "summary.json",
+                           lambda p: p.write_text(json.dumps(document, indent=2), encoding="utf-8")))
+    return written
+
+
+def _atomic(path: Path, write) -> Path:
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def format_cells(cells: list[dict]) -> list[str]:
+    """The per-cell statistics as text lines: ``mean [low, high]`` per figure."""
+    head = ["cell", "runs", "days to 95 %", "accepted share", "sky RMS accepted", "sky RMS all", "visits/board-h"]
+    lines = [head]
+    for c in cells:
+        f = c["figures"]
+        days = _fmt(f["days_to_95"]) + f" ({c['reached_95']}/{c['finished']} reached)"
+        lines.append([c["cell"], f"{c['finished']}/{c['runs']}" + (f", {c['failed']} failed" if c["failed"] else ""),
+                      days, _fmt(f["acceptance_rate"]), _fmt(f["true_sky_rms_accepted_mrad"]),
+                      _fmt(f["true_sky_rms_mrad"]), _fmt(f["visits_per_board_hour"])])
+    widths = [max(len(line[k]) for line in lines) for k in range(len(head))]
+    return ["  ".join(cell.ljust(w) for cell, w in zip(line, widths)).rstrip() for line in lines]
+
+
+def _fmt(stat: dict) -> str:
+    if stat["mean"] is None:
+        return "-"
+    text = f"{stat['mean']:.3f}"
+    if stat["ci95"] is not None:
+        text += f" [{stat['ci95'][0]:.3f}, {stat['ci95'][1]:.3f}]"
+    return text
