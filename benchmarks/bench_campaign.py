@@ -139,7 +139,7 @@ def daily_accepted(start_s: float, timeline, days: float) -> list[int]:
 
 
 def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: Path, keep_frames: bool,
-            start_s: float | None = None) -> dict:
+            start_s: float | None = None, fidelity: str = "render") -> dict:
     from helicalib.campaign.simulate import simulate_campaign
 
     shutil.rmtree(out_dir, ignore_errors=True)
@@ -169,7 +169,7 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
             state["day"] = day
             db = out_dir / "helicalib.db"
             accepted = acceptance_timeline(db, n)[1][-1:] if db.exists() else []
-            print(f"  [{planner}] day {day} at {time.perf_counter() - state['wall0']:.0f} s wall, "
+            print(f"  [{planner}, {fidelity}] day {day} at {time.perf_counter() - state['wall0']:.0f} s wall, "
                   f"{time.process_time() - cpu0:.0f} s CPU: {accepted[0][1] if accepted else 0}/{n} accepted",
                   file=sys.stderr, flush=True)
 
@@ -178,7 +178,7 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     if planner == "gaps-own":
         cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"share_targets": False})})
     result = simulate_campaign(cfg, out_dir, days, seed=seed, scenario=scenario, planner=base, heliostat_ids=ids,
-                               progress=progress, refine=refine, start_s=start_s)
+                               progress=progress, refine=refine, start_s=start_s, fidelity=fidelity)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     s = result.summary
     start_s, timeline = acceptance_timeline(result.database, n)

@@ -36,15 +36,26 @@ def default_start_s(cfg) -> float:
     return (t - pd.Timestamp(0, tz="UTC")) / pd.Timedelta("1s")
 
 
+FIDELITIES = ("render", "fast")
+"""``render``: every frame drawn and measured by the vision (the camera sensor); ``fast``: the
+simulator's true spot plus the fitted measurement-error model, no frames (:mod:`helicalib.sim.fast_sensor`)."""
+
+
 def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=None, start_s: float | None = None,
                       over_network: bool = False, planner: str = "gaps", heliostat_ids=None, progress=None,
-                      rate: float = 3000.0, refine: bool = False) -> SimulationResult:
+                      rate: float = 3000.0, refine: bool = False, fidelity: str = "render") -> SimulationResult:
     """Run a simulated campaign; returns its summary (see :func:`summarise`). ``refine``: see
-    :class:`~helicalib.campaign.runner.CampaignRunner`."""
+    :class:`~helicalib.campaign.runner.CampaignRunner`; ``fidelity``: :data:`FIDELITIES`."""
+    from helicalib.errors import ConfigError
     from helicalib.sim.clock import VirtualClock
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
 
+    if fidelity not in FIDELITIES:
+        raise ConfigError(f"fidelity {fidelity!r}: expected one of {', '.join(FIDELITIES)}")
+    if fidelity == "fast" and over_network:
+        raise ConfigError("fidelity fast: the fast sensor reads the in-process simulator's truth; it cannot run "
+                          "--over-network (a served plant has cameras)")
     scenario = scenario or Scenario()
     scenario = scenario.model_copy(update={"seed": seed})
     out_dir = Path(out_dir)
@@ -70,7 +81,12 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
             from helicalib.sim.camera import SimCamera
 
             plant = sim
-            cameras = {t.id: SimCamera(sim, cfg.cameras_for(t.id)[0].id) for t in cfg.targets}
+            if fidelity == "fast":
+                from helicalib.sim.fast_sensor import fast_sensors
+
+                cameras = fast_sensors(sim, seed=seed)  # spot sensors: the runner uses them as they are
+            else:
+                cameras = {t.id: SimCamera(sim, cfg.cameras_for(t.id)[0].id) for t in cfg.targets}
         if resumed is None:
             ids = heliostat_ids or [h.id for h in cfg.heliostats]
             campaign_id = store.start_campaign(
@@ -78,7 +94,7 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
                 heliostats=[(hid, cfg.heliostat_index(hid), cfg.heliostat(hid).target) for hid in ids],
                 config_path=str(cfg.source or ""),
                 settings={"days": days, "seed": seed, "planner": planner, "refine": refine,
-                          "over_network": over_network, "scenario": scenario.name})
+                          "over_network": over_network, "scenario": scenario.name, "fidelity": fidelity})
         elif clock.now_s() < store_resume_time(store, campaign_id, start_s):
             clock.sleep(store_resume_time(store, campaign_id, start_s) - clock.now_s())
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=heliostat_ids,
@@ -90,6 +106,7 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
         store.finish_campaign(campaign_id, clock.now_s())
         summary = summarise(cfg, runner, sim, start_s, end_s)
         summary["wall_s"] = round(wall, 1)
+        summary["fidelity"] = fidelity
         summary["database"] = str(db_path)
         store.export_observations_csv(out_dir / "observations.csv", campaign_id=campaign_id)
     store.close()

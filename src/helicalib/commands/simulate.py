@@ -27,6 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
     p.add_argument("--over-network", action="store_true", help="serve the plant on loopback and use the real clients")
     p.add_argument("--rate", type=positive_float, default=3000.0, help="plant time rate with --over-network (default 3000)")
+    p.add_argument("--fidelity", choices=("render", "fast"), default="render",
+                   help="render (default): every frame drawn and measured by the vision; fast: the simulator's "
+                        "true spot plus the fitted measurement-error model, no frames (large fields; "
+                        "docs/simulator.md)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--report", action="store_true", help="also write the HTML report into OUT/report")
     p.set_defaults(func=run)
@@ -63,7 +67,7 @@ def run(args) -> int:
 
         result = simulate_campaign(cfg, out, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
                                    over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
-                                   progress=progress, rate=args.rate, refine=args.refine)
+                                   progress=progress, rate=args.rate, refine=args.refine, fidelity=args.fidelity)
     (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
     if args.report:
         from helicalib.report.build import build_report

@@ -76,6 +76,34 @@ def board_homography(camera_cfg, target) -> tuple[np.ndarray, tuple[int, int]]:
     return k @ m, (int(width), int(height))
 
 
+def spot_geometry(target, optics_spec, origin_enu, direction_enu, sun_enu, normal_enu, mirror_size_m, dni_wm2,
+                  cleanliness):
+    """Where N beams light a board, as the renderer draws them.
+
+    Returns ``(uv_m (N, 2), power_w (N,), width_m (N, 2), sigma_m (N, 2), near (N,) bool)``: the
+    beam's point on the board plane (u, v from the centre), the power it carries, the mirror's
+    footprint (mirror size × √cos incidence, stretched by the board's obliquity) and the Gaussian
+    blur of the sun shape and twice the slope error; ``near`` is False for beams that miss the
+    board from the front by more than their footprint and 4 σ.
+    """
+    uv, hit, valid = optics.intersect_target(origin_enu, direction_enu, target)
+    w = target.frame_enu[2]
+    cos_b = -(direction_enu @ w)
+    dist = np.linalg.norm(hit - origin_enu, axis=-1)
+    cos_inc = np.clip(normal_enu @ np.asarray(sun_enu, float), 0.0, 1.0)
+    sigma_beam = 1e-3 * math.hypot(optics_spec.sun_sigma_mrad, 2.0 * optics_spec.slope_error_mrad)
+    stretch = 1.0 / np.sqrt(np.clip(cos_b, 0.05, 1.0))
+    width = mirror_size_m * np.sqrt(cos_inc)[:, None] * stretch[:, None]
+    sigma = (sigma_beam * dist * stretch)[:, None] * np.ones((1, 2))
+    half = np.asarray(target.size_m) / 2.0
+    with np.errstate(invalid="ignore"):
+        reach = half[None, :] + width / 2 + 4 * sigma
+        near = valid & (cos_b > 0) & (cos_inc > 0) & np.all(np.abs(uv) < reach, axis=-1)
+    area = mirror_size_m[:, 0] * mirror_size_m[:, 1]
+    power = dni_wm2 * area * cos_inc * optics_spec.reflectivity * np.asarray(cleanliness)
+    return uv, power, np.maximum(width, 1e-3), sigma, near & (power > 0)
+
+
 def mark_mask(target, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """True where board points (u, v) [m] lie on one of the four L marks (vertex inward, two arms)."""
     out = np.zeros(np.broadcast(u, v).shape, dtype=bool)
@@ -178,23 +206,9 @@ class BoardRenderer:
     def spots_from_beams(self, origin_enu, direction_enu, sun_enu, normal_enu, mirror_size_m, dni_wm2,
                          cleanliness):
         """Board-frame spot parameters of the beams (N, 3) that meet this board from the front."""
-        uv, hit, valid = optics.intersect_target(origin_enu, direction_enu, self.target)
-        w = self.target.frame_enu[2]
-        cos_b = -(direction_enu @ w)
-        dist = np.linalg.norm(hit - origin_enu, axis=-1)
-        cos_inc = np.clip(normal_enu @ np.asarray(sun_enu, float), 0.0, 1.0)
-        sigma_beam = 1e-3 * math.hypot(self.optics.sun_sigma_mrad, 2.0 * self.optics.slope_error_mrad)
-        stretch = 1.0 / np.sqrt(np.clip(cos_b, 0.05, 1.0))
-        width = mirror_size_m * np.sqrt(cos_inc)[:, None] * stretch[:, None]
-        sigma = (sigma_beam * dist * stretch)[:, None] * np.ones((1, 2))
-        half = np.asarray(self.target.size_m) / 2.0
-        with np.errstate(invalid="ignore"):
-            reach = half[None, :] + width / 2 + 4 * sigma
-            near = valid & (cos_b > 0) & (cos_inc > 0) & np.all(np.abs(uv) < reach, axis=-1)
-        area = mirror_size_m[:, 0] * mirror_size_m[:, 1]
-        power = dni_wm2 * area * cos_inc * self.optics.reflectivity * np.asarray(cleanliness)
-        k = near & (power > 0)
-        return uv[k], power[k], np.maximum(width[k], 1e-3), sigma[k]
+        uv, power, width, sigma, k = spot_geometry(self.target, self.optics, origin_enu, direction_enu, sun_enu,
+                                                   normal_enu, mirror_size_m, dni_wm2, cleanliness)
+        return uv[k], power[k], width[k], sigma[k]
 
     def render(self, spots, dni_wm2: float, daylight: bool) -> np.ndarray:
         """The frame (height, width) uint8 for spots ``(uv, power, width, sigma)`` and the ambient light."""

@@ -110,8 +110,8 @@ class TrueField:
     # -- forward ---------------------------------------------------------------------------
     def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, t_s: float, wind_ms: float = 0.0,
              approach: np.ndarray | None = None, stroke_noise_mm: np.ndarray | None = None,
-             jitter: bool = True) -> TrueBeam:
-        """True beams of all N heliostats at encoder strokes (N, 2) [mm].
+             jitter: bool = True, rows: np.ndarray | None = None) -> TrueBeam:
+        """True beams of all N heliostats (or of ``rows``) at encoder strokes (N, 2) [mm].
 
         Parameters
         ----------
@@ -122,25 +122,29 @@ class TrueField:
         approach : (N, 2) sign of the last motion of each actuator (+1 extending); None = no backlash
         stroke_noise_mm : (N, 2) repeatability error of the current command; None = none
         jitter : include the wind jitter
+        rows : (k,) heliostat indices, optional
+            Only these heliostats (the other arguments still cover all N): the same beams as the
+            full call's rows, for the cost of k heliostats, not N.
         """
-        s = np.asarray(strokes_mm, dtype=float)
+        sel = np.arange(self.n) if rows is None else np.asarray(rows, dtype=int)
+        s = np.asarray(strokes_mm, dtype=float)[sel]
         if approach is not None:
-            s = s - 0.5 * self.backlash_mm * np.sign(approach)
+            s = s - 0.5 * self.backlash_mm[sel] * np.sign(np.asarray(approach)[sel])
         if stroke_noise_mm is not None:
-            s = s + stroke_noise_mm
-        model = self.model_at(t_s)
+            s = s + np.asarray(stroke_noise_mm)[sel]
+        model = self.model_at(t_s) if rows is None else self.model_at(t_s).subset(sel)
         n = model.normal(s)
         # gravity sag: tilt the normal down toward the horizon by sag · sin(zenith of the normal)
         up_t = UP - n[:, 2:3] * n
         sin_zen = np.linalg.norm(up_t, axis=-1)
         e_up = up_t / np.where(sin_zen > 1e-9, sin_zen, 1.0)[:, None]
-        a = 1e-3 * self.sag_mrad * sin_zen
+        a = 1e-3 * self.sag_mrad[sel] * sin_zen
         n = np.cos(a)[:, None] * n - np.sin(a)[:, None] * e_up
         if jitter and self.jitter_mrad_per_ms > 0 and wind_ms > 0:
             t1, t2 = _tangent_basis(n)
             tick = np.int64(np.floor(t_s))
             j = 1e-3 * self.jitter_mrad_per_ms * wind_ms * noise.normal(
-                self.seed, _S_JITTER, tick, np.arange(self.n)[:, None], np.arange(2)[None, :])
+                self.seed, _S_JITTER, tick, sel[:, None], np.arange(2)[None, :])
             n = optics.unit(n + j[:, :1] * t1 + j[:, 1:] * t2)
         sun = optics.unit(np.broadcast_to(np.asarray(sun_enu, dtype=float), n.shape))
         origin = optics.mirror_centre(model.pivots_eff_enu, n, model.mirror_offset_m)

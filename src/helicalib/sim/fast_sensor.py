@@ -1,0 +1,217 @@
+"""The simulated "fast" spot sensor: the simulator's true spot plus a measurement-error model.
+
+A :class:`~helicalib.campaign.sensor.SpotSensor` like the camera + vision, for simulated fields
+too large to render: no frame is drawn, encoded, decoded or searched. For each after frame it
+takes the measured heliostat's true beam (wind jitter included, the same truth the renderer
+draws) and where it meets the board, with the footprint, blur and power the renderer would give
+it (:func:`helicalib.sim.camera.spot_geometry`). It then decides validity with the vision's own
+limits (:class:`helicalib.vision.spot.SpotLimits`), computed from the spot's irradiance profile
+instead of from pixels:
+
+* ``no_spot``: the beam misses the board (or lights fewer cells than the vision needs);
+* ``low_contrast``: the peak of the after − before difference below ``min_contrast`` grey levels;
+* ``saturated``: more than ``max_saturated_fraction`` of the spot at ≥ 250 grey levels;
+* ``clipped``: the thresholded spot (threshold a fitted fraction of its peak, where Otsu's lands
+  on rendered spots) reaches the board's rim; its centre is then the visible part's centroid;
+* ``ambient_change``: the ambient light changed by more than ``max_ambient_change`` between the
+  before and the after frames (DNI moved);
+* ``jitter``: with several after frames, the RMS spread of their spot centres above the limit.
+
+A valid spot's measured centre is the mean true centre plus the vision's error: a bias and a
+Gaussian spread ``sqrt(floor² + (k · σ_spot)²)`` per board axis, both fitted on rendered
+measurements by ``simulations/fit_fast_sensor.py`` into ``fast_sensor.json`` beside this module.
+The measured cleanliness is the plant's true soiling with the vision's relative spread.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Generator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.special import ndtr
+
+from helicalib.campaign.sensor import Before, Reading
+from helicalib.geometry import optics
+from helicalib.sim.camera import spot_geometry
+from helicalib.vision.spot import SATURATED_LEVEL, SpotLimits
+
+MODEL_PATH = Path(__file__).with_name("fast_sensor.json")
+
+
+@dataclass(frozen=True)
+class SensorErrorModel:
+    """The vision's measurement error and threshold, as fitted on rendered spots."""
+
+    bias_m: tuple[float, float] = (0.0, 0.0)
+    """Mean measured − true spot centre (u, v) [m]."""
+    floor_m: float = 0.004
+    """Spread of the measured centre for a sharp spot [m]."""
+    per_sigma: float = 0.02
+    """Added spread per metre of the spot's blur σ [m/m]."""
+    threshold_fraction: float = 0.3
+    """Annex A threshold as a fraction of the spot's peak difference (Otsu's, on rendered spots)."""
+    cleanliness_sigma: float = 0.004
+    """Relative spread of the measured cleanliness."""
+
+    @classmethod
+    def load(cls, path: Path | str = MODEL_PATH) -> SensorErrorModel:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        p = data["model"]
+        return cls(bias_m=tuple(p["bias_m"]), floor_m=p["floor_m"], per_sigma=p["per_sigma"],
+                   threshold_fraction=p["threshold_fraction"], cleanliness_sigma=p["cleanliness_sigma"])
+
+    def spread_m(self, sigma_spot_m: np.ndarray) -> np.ndarray:
+        """Spread (2,) [m] of the measured centre of a spot blurred by ``sigma_spot_m`` (2,)."""
+        return np.sqrt(self.floor_m ** 2 + (self.per_sigma * np.asarray(sigma_spot_m, dtype=float)) ** 2)
+
+
+def _profile(grid: np.ndarray, centre: float, width: float, sigma: float) -> np.ndarray:
+    """The renderer's box ⊗ Gaussian profile along one axis (integrates to 1)."""
+    half = width / 2.0
+    return (ndtr((grid - centre + half) / sigma) - ndtr((grid - centre - half) / sigma)) / width
+
+
+@dataclass(frozen=True)
+class SpotPhysics:
+    """One spot as the camera would see it: true centre, footprint, blur, power, grey levels."""
+
+    uv_m: np.ndarray
+    width_m: np.ndarray
+    sigma_m: np.ndarray
+    power_w: float
+    on_plane: bool
+
+
+class FastSensor:
+    """The simulated fast sensor of one board (see the module docstring).
+
+    Parameters
+    ----------
+    plant : sim.plant.SimulatedPlant
+        The in-process simulated plant (its truth, weather, soiling and camera settings).
+    target_id : str
+    model : SensorErrorModel, optional
+        Default: the fitted ``fast_sensor.json``.
+    seed : int
+        Seed of the measurement noise (with the board, so boards draw independently).
+    limits : SpotLimits, optional
+        The vision's limits (default ones, as the camera sensor uses).
+    """
+
+    def __init__(self, plant, target_id: str, model: SensorErrorModel | None = None, seed: int = 0,
+                 limits: SpotLimits | None = None):
+        self.plant = plant
+        self.target = plant.cfg.target(target_id)
+        self.model = model or SensorErrorModel.load()
+        self.limits = limits or SpotLimits()
+        self.spec = plant.scenario.camera
+        self.optics = plant.scenario.optics
+        index = [t.id for t in plant.cfg.targets].index(target_id)
+        self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 7919, index])
+
+    # ------------------------------------------------------------------ physics
+    def _ambient_wm2(self, t_s: float) -> float:
+        """The diffuse light on the board [W/m²], as the renderer lights it."""
+        _sun, elevation = self.plant.sun(t_s)
+        dni = float(self.plant.weather_model.dni_wm2(t_s, elevation))
+        return self.spec.ambient_fraction * dni + self.spec.ambient_offset_wm2
+
+    def spot(self, index: int, t_s: float | None = None) -> SpotPhysics:
+        """The true spot of heliostat ``index`` on this board now (wind jitter included)."""
+        p = self.plant
+        t = p.t_s if t_s is None else float(t_s)
+        beam = p.true_beam_of(index, t)
+        sun, _ = p.sun(t)
+        dni = float(p.weather().dni_wm2)
+        clean = np.asarray(p.cleanliness())[[index]]
+        uv, power, width, sigma, near = spot_geometry(self.target, self.optics, beam.origin_enu, beam.direction_enu,
+                                                      sun, beam.normal_enu, p.nominal.drives.mirror_size_m[[index]],
+                                                      dni, clean)
+        return SpotPhysics(uv[0], width[0], sigma[0], float(power[0]), bool(near[0]))
+
+    def _judge(self, s: SpotPhysics, ambient_before: float, ambient_after: float):
+        """(reason, message, centroid (2,) or None) of one spot by the vision's limits."""
+        lim, spec, half = self.limits, self.spec, np.asarray(self.target.size_m, dtype=float) / 2.0
+        if not s.on_plane or not np.all(np.isfinite(s.uv_m)):
+            return "no_spot", "no spot on the board.", None
+        gain = spec.gain_counts_per_wm2 * spec.board_albedo
+        # the irradiance over the spot's support (clipped to the board), on a 64 × 64 grid
+        reach = s.width_m / 2.0 + 3.0 * s.sigma_m
+        lo, hi = np.maximum(s.uv_m - reach, -half), np.minimum(s.uv_m + reach, half)
+        if np.any(hi <= lo):
+            return "no_spot", "no spot on the board: the beam lands beside it.", None
+        gu, gv = np.linspace(lo[0], hi[0], 64), np.linspace(lo[1], hi[1], 64)
+        pu = _profile(gu, s.uv_m[0], s.width_m[0], s.sigma_m[0])
+        pv = _profile(gv, s.uv_m[1], s.width_m[1], s.sigma_m[1])
+        flux = s.power_w * np.multiply.outer(pv, pu)
+        diff = gain * flux
+        peak = float(diff.max())
+        if peak < lim.min_contrast:
+            return ("no_spot" if peak < 0.5 * lim.min_contrast else "low_contrast",
+                    f"the spot's peak difference {peak:.0f} grey levels is below {lim.min_contrast:.0f}.", None)
+        region = diff >= self.model.threshold_fraction * peak
+        w = np.where(region, flux, 0.0)
+        centroid = np.array([np.sum(w.sum(axis=0) * gu), np.sum(w.sum(axis=1) * gv)]) / max(float(w.sum()), 1e-12)
+        cell = np.abs(gu[1] - gu[0]) + np.abs(gv[1] - gv[0])
+        rim = ((np.abs(gu) >= half[0] - cell)[None, :] | (np.abs(gv) >= half[1] - cell)[:, None]) & region
+        if np.count_nonzero(rim) > 0:
+            return "clipped", "the spot reaches the board's rim.", centroid
+        level = gain * (flux + ambient_after)
+        saturated = np.count_nonzero(region & (level >= SATURATED_LEVEL)) / max(np.count_nonzero(region), 1)
+        if saturated > lim.max_saturated_fraction:
+            return "saturated", f"{100 * saturated:.0f} % of the spot is saturated.", centroid
+        change = abs(ambient_after / max(ambient_before, 1e-9) - 1.0)
+        if change > lim.max_ambient_change:
+            return "ambient_change", f"the ambient light changed by {100 * change:.0f} % since the before frame.", None
+        return "ok", "ok", centroid
+
+    # ------------------------------------------------------------------ the protocol
+    def before(self, ctx) -> Before:
+        t = float(ctx.now())
+        return Before(capture_time_s=t, data=None, state=self._ambient_wm2(t))
+
+    def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
+        spots, times = [], []
+        for k in range(ctx.settings.after_frames):
+            times.append(float(ctx.now()))
+            spots.append(self.spot(ctx.index, times[-1]))
+            if ctx.settings.after_frames > 1:
+                yield 1.0
+        capture_s = float(np.mean(times))
+        s = spots[-1]
+        reason, message, centroid = self._judge(s, float(before.state), self._ambient_wm2(times[-1]))
+        if reason == "ok" and len(spots) > 1:
+            uvs = np.array([x.uv_m for x in spots])
+            jitter = float(np.sqrt(np.mean(np.sum((uvs - uvs.mean(axis=0)) ** 2, axis=1))))
+            distance_m = float(np.linalg.norm(np.asarray(self.target.center_enu_m) - ctx.model.pivots_enu[0]))
+            limit = 1e-3 * ctx.settings.max_jitter_mrad * distance_m
+            if jitter > limit:
+                reason, message = "jitter", f"the spot moved {jitter * 1000:.0f} mm RMS over {len(spots)} frames."
+            centroid = centroid + (uvs.mean(axis=0) - s.uv_m)
+        if reason != "ok":
+            offset = None if centroid is None else (float(centroid[0]), float(centroid[1]))
+            return Reading(False, reason, message, capture_s, offset_m=offset)
+        measured = (centroid + np.asarray(self.model.bias_m)
+                    + self._rng.normal(0.0, 1.0, 2) * self.model.spread_m(s.sigma_m) / math.sqrt(len(spots)))
+        return Reading(True, "ok", "ok", capture_s, offset_m=(float(measured[0]), float(measured[1])))
+
+    def cleanliness(self, ctx, before: Before, reading: Reading, held_mm, weather, sun_enu) -> float | None:
+        true = float(np.asarray(self.plant.cleanliness())[ctx.index])
+        return float(true * (1.0 + self.model.cleanliness_sigma * self._rng.normal()))
+
+
+def fast_sensors(plant, seed: int = 0, model: SensorErrorModel | None = None) -> dict[str, FastSensor]:
+    """One fast sensor per board of the simulated plant."""
+    model = model or SensorErrorModel.load()
+    return {t.id: FastSensor(plant, t.id, model, seed) for t in plant.cfg.targets}
+
+
+def true_spot_uv(plant, index: int, target, t_s: float | None = None) -> np.ndarray:
+    """Where heliostat ``index``'s true beam meets ``target``'s plane now (u, v) [m] (the fit's truth)."""
+    beam = plant.true_beam_of(index, t_s)
+    uv, _hit, _ok = optics.intersect_target(beam.origin_enu, beam.direction_enu, target)
+    return uv[0]

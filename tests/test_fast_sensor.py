@@ -1,0 +1,88 @@
+"""The fast sensor (sim/fast_sensor.py) against the camera + vision on the same visits, and a fast
+simulated campaign end to end (real store, no frames)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from campaign_helpers import inprocess_campaign
+from helicalib.campaign.sensor import camera_sensors
+from helicalib.campaign.simulate import simulate_campaign, default_start_s
+from helicalib.config import load_field_config
+from helicalib.sim.fast_sensor import MODEL_PATH, FastSensor, SensorErrorModel
+from helicalib.store.sqlite import Store
+
+
+@pytest.fixture(scope="module")
+def cfg(demo_field_path):
+    return load_field_config(demo_field_path)
+
+
+class _Both:
+    """The camera sensor, with the fast sensor asked for the same spot at the same instant."""
+
+    def __init__(self, camera, fast, pairs):
+        self.camera, self.fast, self.pairs = camera, fast, pairs
+
+    def before(self, ctx):
+        b = self.camera.before(ctx)
+        self._fast_before = self.fast.before(ctx)
+        return b
+
+    def after(self, ctx, before):
+        reading = yield from self.camera.after(ctx, before)
+        fast = yield from self.fast.after(ctx, self._fast_before)
+        self.pairs.append((reading, fast, self.fast.spot(ctx.index)))
+        return reading
+
+    def cleanliness(self, *args):
+        return self.camera.cleanliness(*args)
+
+
+def test_fast_and_rendered_measurements_agree_within_the_modelled_spread(cfg, tmp_path):
+    from helicalib.sim.camera import SimCamera
+
+    pairs = []
+    model = SensorErrorModel.load()
+
+    def sensor(cam, sim, target):
+        return _Both(camera_sensors(cfg, {target.id: cam})[target.id], FastSensor(sim, target.id, model, 5), pairs)
+
+    runner, sim, store, _cid, _ = inprocess_campaign(cfg, tmp_path, 8, 5, ["H0001", "H0012", "H0025", "H0038"],
+                                                     camera=lambda cam, s, t: sensor(cam, s, t))
+    assert all(isinstance(c, SimCamera) for c in [p.camera.camera for p in runner.sensors.values()])
+    runner.run_until(sim.t_s + 4 * 3600)
+    store.close()
+    both = [(r, f, s) for r, f, s in pairs if r.valid and f.valid]
+    assert len(both) >= 15
+    assert sum(r.valid == f.valid for r, f, _s in pairs) >= 0.95 * len(pairs)
+    for r, f, s in both:
+        # both measure the same true spot: their difference within 5 sigma of the two spreads
+        spread = np.hypot(model.spread_m(s.sigma_m), model.spread_m(s.sigma_m))
+        assert np.all(np.abs(np.subtract(r.offset_m, f.offset_m)) <= 5 * spread + 1e-9), (r, f)
+
+
+def test_a_fast_campaign_writes_no_frames_and_everything_else(cfg, tmp_path):
+    res = simulate_campaign(cfg, tmp_path, 0.25, seed=3, start_s=default_start_s(cfg) + 7 * 3600,
+                            heliostat_ids=["H0001", "H0021"], fidelity="fast")
+    store = Store.open(res.database, readonly=True)
+    obs, fits = store.observations(), store.fits()
+    verdicts = store.latest_verdicts(store.campaigns()[-1].id)
+    store.close()
+    assert res.summary["fidelity"] == "fast" and res.summary["visits"] > 0
+    assert obs and any(o.valid for o in obs) and fits and verdicts
+    assert all(o.before_frame_path is None and not o.after_frame_paths for o in obs)
+    assert not list((tmp_path / "images").rglob("*.png")) if (tmp_path / "images").exists() else True
+    assert all(o.cleanliness_measured is not None for o in obs if o.valid)
+
+
+def test_the_shipped_model_says_what_it_was_fitted_on():
+    data = json.loads(MODEL_PATH.read_text())
+    fitted = data["fitted_on"]
+    assert fitted["measurements"] > 100 and 0 < fitted["validity_agreement"] <= 1
+    m = SensorErrorModel.load()
+    # its spread is the rendered measurements' residual at a typical blur, within the fit's reach
+    assert 0 < m.floor_m < 0.05 and m.per_sigma >= 0 and 0.1 <= m.threshold_fraction <= 0.6
