@@ -144,6 +144,21 @@ def test_a_run_alone_gives_the_summary_it_gave_in_the_sweep(swept, tmp_path):
            {k: v for k, v in record["summary"].items() if k not in drop}
 
 
+def test_fidelity_fast_reaches_the_simulation(tmp_path):
+    from helicalib.sweep.spec import fidelity_supported
+    from helicalib.sweep.task import run_one
+
+    if not fidelity_supported():
+        pytest.skip("simulate_campaign has no fidelity parameter")
+    render = load_sweep(_write(tmp_path / "render.yaml", SWEEP)).runs(tmp_path / "o")
+    sweep = load_sweep(_write(tmp_path / "fast.yaml", {**SWEEP, "fidelity": "fast", "seeds": [3]}))
+    fast = sweep.runs(tmp_path / "o")
+    assert fast[0].sim_seed == render[0].sim_seed and fast[0].digest != render[0].digest  # a render result is stale
+    record = run_one(fast[0], sweep.cfg, sweep.scenarios[fast[0].scenario])
+    assert record["summary"]["fidelity"] == "fast" and record["summary"]["visits"] > 0
+    assert not (Path(fast[0].run_dir) / "images").exists()
+
+
 def test_days_to_95_counts_the_newest_verdict_of_each_heliostat():
     t0 = 1000.0
     verdicts = [("A", t0 + 86400, 1), ("A", t0 + 2 * 86400, 0),   # A refused again: no longer counts
