@@ -56,13 +56,13 @@ def run(args) -> int:
     return 0 if summary["visits"] > 0 else 1
 
 
-DEMO_WALL_S_PER_DAY = 40.0
+DEMO_WALL_S_PER_DAY = 30.0
 """Real seconds per plant day of the demo (demo_north.yaml, 40 heliostats, 2 boards): the 2-day
-default took 80 s wall time on an idle 2-core machine, report included."""
+default took 59 s wall time on a 2-core machine (2026-11-25), report included."""
 
 
 def _duration_hint(days: float) -> str:
-    """``about 1 min 20 s on an idle 2-core machine`` for the demo field, scaled by the plant days."""
+    """``about 1 min on an idle 2-core machine`` for the demo field, scaled by the plant days."""
     from helicalib.commands._progress import format_elapsed
 
     seconds = max(DEMO_WALL_S_PER_DAY * days, 10.0)      # start-up and report take some seconds at any length
