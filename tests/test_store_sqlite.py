@@ -280,3 +280,25 @@ def test_kill_9_loses_no_recorded_observation(tmp_path):
         camp = s.unfinished_campaign()
         s.record_observation(_obs(camp.id, None))
         assert len(s.observations()) == len(stored) + 1
+
+
+def test_a_batched_store_commits_at_flush_and_close_and_reads_its_own_writes(tmp_path):
+    db = tmp_path / "b.db"
+    s = Store.open(db, durable=False, batched=True)
+    cid = s.start_campaign(name="b", mode="simulate", started_s=0.0, heliostats=[("H0001", 0, "T1")])
+    vid = s.begin_visit(cid, "H0001", "T1", 1.0)
+    assert [v.id for v in s.visits()] == [vid]  # its own connection sees the pending write
+
+    def visits_seen_by_another_reader() -> int:
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+        try:
+            return con.execute("SELECT COUNT(*) FROM visits").fetchone()[0]
+        finally:
+            con.close()
+
+    assert visits_seen_by_another_reader() == 0  # not committed yet: batched
+    s.flush()
+    assert visits_seen_by_another_reader() == 1
+    s.begin_visit(cid, "H0001", "T1", 2.0)
+    s.close()  # the last batch is committed on close
+    assert visits_seen_by_another_reader() == 2

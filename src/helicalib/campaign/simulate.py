@@ -47,8 +47,6 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
     """Run a simulated campaign; returns its summary (see :func:`summarise`). ``refine``: see
     :class:`~helicalib.campaign.runner.CampaignRunner`; ``fidelity``: :data:`FIDELITIES`."""
     from helicalib.errors import ConfigError
-    from helicalib.sim.clock import VirtualClock
-    from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
 
     if fidelity not in FIDELITIES:
@@ -63,7 +61,18 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
     db_path = out_dir / "helicalib.db"
     # durable=False: WAL with synchronous=NORMAL, still loses nothing on kill -9 (only on power loss)
     # relative to the database: OUT/images; owned by this process while it runs
-    store = Store.open(db_path, "images", durable=False, owner=f"simulate {cfg.source or ''}")
+    # writes batched (a killed simulation loses at most its last batch; it resumes from what was committed)
+    store = Store.open(db_path, "images", durable=False, owner=f"simulate {cfg.source or ''}", batched=True)
+    with store:  # closed (its last batch committed) however the run ends
+        return _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_network, planner,
+                         heliostat_ids, progress, rate, refine, fidelity)
+
+
+def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_network, planner, heliostat_ids,
+              progress, rate, refine, fidelity) -> SimulationResult:
+    from helicalib.sim.clock import VirtualClock
+    from helicalib.sim.plant import SimulatedPlant
+
     resumed = store.unfinished_campaign(mode="simulate")
     if resumed is not None:
         campaign_id = resumed.id
@@ -109,7 +118,6 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
         summary["fidelity"] = fidelity
         summary["database"] = str(db_path)
         store.export_observations_csv(out_dir / "observations.csv", campaign_id=campaign_id)
-    store.close()
     return SimulationResult(summary=summary, database=db_path, runner=runner)
 
 

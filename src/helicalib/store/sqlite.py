@@ -27,6 +27,10 @@ from helicalib.store.records import Campaign, CampaignHeliostat, Event, Fit, Obs
 from helicalib.store.schema import check_schema, ensure_schema
 
 FrameData = bytes | np.ndarray
+BATCH_ROWS = 500
+"""A batched store commits after this many writes ..."""
+BATCH_S = 2.0
+"""... or this many seconds after its last commit."""
 
 
 def _json(value: Any) -> str:
@@ -57,9 +61,17 @@ class Store:
     durable : bool
         fsync frames and use ``synchronous=FULL`` (survives power loss); False keeps the kill -9
         guarantee (``synchronous=NORMAL`` in WAL) and is faster for simulations.
+    batched : bool
+        Simulations only: writes are committed together, every :data:`BATCH_ROWS` writes or
+        :data:`BATCH_S` seconds and at :meth:`flush` / :meth:`close`, instead of one transaction
+        each (a killed simulation loses at most its last batch; live runs never batch).
     """
 
-    def __init__(self, conn: sqlite3.Connection, path: Path, images_dir: Path, durable: bool):
+    def __init__(self, conn: sqlite3.Connection, path: Path, images_dir: Path, durable: bool,
+                 batched: bool = False):
+        self.batched = bool(batched)
+        self._pending = 0
+        self._batch_t0 = time.monotonic()
         self._conn = conn
         self._lock = threading.RLock()
         self._lock_file = None
@@ -70,7 +82,7 @@ class Store:
     # ------------------------------------------------------------------ opening
     @classmethod
     def open(cls, path: str | Path, images_dir: str | Path | None = None, *, durable: bool = True,
-             readonly: bool = False, owner: str | None = None) -> "Store":
+             readonly: bool = False, owner: str | None = None, batched: bool = False) -> "Store":
         """Create the database at ``path`` or reopen it.
 
         Parameters
@@ -90,6 +102,8 @@ class Store:
         owner : str, optional
             Take the ownership (:meth:`take_ownership`, ``owner`` says what runs) before the schema
             is created or migrated: a campaign command opens its database this way.
+        batched : bool
+            See :class:`Store` (simulations only).
 
         Raises
         ------
@@ -121,7 +135,7 @@ class Store:
             if lock_file is not None:
                 lock_file.close()
             raise
-        store = cls(conn, db, images, durable)
+        store = cls(conn, db, images, durable, batched=batched)
         if lock_file is not None:
             store._lock_file = lock_file
             _frames.clean_temporary(images)
@@ -187,6 +201,8 @@ class Store:
     def close(self) -> None:
         """Close the connection (every write is already committed) and release the ownership."""
         with self._lock:
+            if self.batched:
+                self._conn.commit()
             self._conn.close()
             if self._lock_file is not None:
                 self._lock_file.close()
@@ -199,9 +215,22 @@ class Store:
         self.close()
 
     def _write(self, sql: str, params: Sequence[Any] = ()) -> int:
-        with self._lock, self._conn:
+        if not self.batched:
+            with self._lock, self._conn:
+                cur = self._conn.execute(sql, params)
+                return int(cur.lastrowid or 0)
+        with self._lock:
             cur = self._conn.execute(sql, params)
+            self._pending += 1
+            if self._pending >= BATCH_ROWS or time.monotonic() - self._batch_t0 >= BATCH_S:
+                self.flush()
             return int(cur.lastrowid or 0)
+
+    def flush(self) -> None:
+        """Commit the writes of a batched store now (a no-op otherwise: each write is committed)."""
+        with self._lock:
+            self._conn.commit()
+            self._pending, self._batch_t0 = 0, time.monotonic()
 
     def _read(self, sql: str, params: Sequence[Any] = ()) -> list[sqlite3.Row]:
         with self._lock:
