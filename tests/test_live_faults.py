@@ -21,6 +21,7 @@ import pytest
 
 from campaign_helpers import inprocess_campaign
 from helicalib.campaign import live
+from helicalib.campaign.runner import Returning
 from helicalib.cli import main
 from helicalib.config import load_field_config
 from helicalib.devices.registers import HeliostatState
@@ -395,3 +396,35 @@ def test_a_view_that_fails_never_stops_the_beams_leaving(cfg, tmp_path, served):
     assert visits and all(v.outcome != "running" for v in visits)
     for hid in ("H0001", "H0021"):  # every beam left its board and the plant tracks again
         assert sim.state[cfg.heliostat_index(hid)] in (HeliostatState.TRACKING, HeliostatState.MOVING)
+
+
+class _Faulted(_Recorder):
+    """A plant that takes track commands for H0001 but leaves it in FAULT (a jammed actuator)."""
+
+    def status(self, index):
+        st = self.sim.status(index)
+        return dataclasses.replace(st, state=HeliostatState.FAULT) if index == 0 else st
+
+
+def test_a_heliostat_that_never_tracks_is_not_commanded_every_few_seconds(cfg, tmp_path):
+    rec = {}
+    runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 9, 3, ["H0002"],
+                                                    plant=lambda s: rec.setdefault("p", _Faulted(s)))
+    runner._send_back("H0001", None, sim.t_s, why="test")
+    runner.run_until(sim.t_s + 3 * 3600)
+    off = [e for e in store.events(campaign_id=cid, kind="off_tracking") if e.heliostat_id == "H0001"]
+    store.close()
+    sent = rec["p"].tracked.count(0)
+    # 3 h with back-off 10 s, 30 s, 60 s, ... up to 10 min: about 20 commands, not ~1000; one event
+    assert 5 <= sent <= 30, sent
+    assert len(off) == 1 and "H0001" in runner.returning
+
+
+def test_a_stowed_field_with_returns_pending_does_not_stall_the_clock(cfg, tmp_path):
+    runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 9, 3, ["H0002"])
+    runner.returning["H0001"] = Returning(since_s=sim.t_s, next_check_s=sim.t_s)
+    runner.stowed = True
+    ticks = []
+    runner.run_until(sim.t_s + 600.0, progress=ticks.append)
+    store.close()
+    assert len(ticks) < 200  # ticks come at the weather and planner rhythm, not every millisecond

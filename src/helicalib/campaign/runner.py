@@ -265,7 +265,9 @@ class CampaignRunner:
                                            "confirms", hid)
             return
         self._written(hid, corrections)
-        ret.next_check_s = now + RETURN_CHECK_S
+        # the first command is checked soon; a repeated one (the plant took it but did not track: a
+        # faulted or offline heliostat) waits longer each time, so no heliostat is commanded every 10 s
+        ret.next_check_s = now + RETURN_CHECK_S if ret.attempts <= 1 else ret.retry_at(now)
         self.returning[hid] = ret
 
     def _check_returns(self, now: float) -> None:
@@ -338,7 +340,9 @@ class CampaignRunner:
                     self._start_visit(tid, now)
         wakes = [w for (w, *_r) in self.active.values()]
         wakes.append(self.last_poll_s + WEATHER_POLL_S)
-        wakes.extend(r.next_check_s for r in self.returning.values())
+        if self.armed and not self.stowed:  # (while stowed, or for a heliostat in a visit, no check is due)
+            busy = {h for (_w, h, _g, _c) in self.active.values()}
+            wakes.extend(r.next_check_s for h, r in self.returning.items() if h not in busy)
         if [t for t in self.cfg.targets if t.id not in self.active] and not self.stowed:
             if gate is not None and not gate.open and gate.night:
                 wakes.append(max(now + PLANNER_TICK_S, gate.next_open_s))
