@@ -210,3 +210,23 @@ def test_shared_round_robin_goes_in_one_field_wide_turn():
     assert take(cursor="A", usable=lambda h: h != "B").heliostat_id == "D"  # B cannot reach T1 now
     assert take(cursor="A", busy_heliostats=["B", "D", "A"]) is None
     assert take(cursor="A").reason.startswith("in turn")
+
+
+def test_heliostats_without_a_point_share_one_verdict_and_one_set_of_gaps(demo_field_path):
+    """choose_next evaluates a heliostat with no point once per decision for all of them: it
+    relies on their verdicts and gaps being equal, whatever the heliostat (checked here at
+    instants over two days, against each heliostat's own evaluation)."""
+    from helicalib.calibration import acceptance as acc
+    from helicalib.campaign import policy as pol
+    from helicalib.campaign.simulate import default_start_s
+    from helicalib.config import load_field_config
+
+    cfg = load_field_config(demo_field_path)
+    ids = [h.id for h in cfg.heliostats]
+    book = pol.Book(cfg, ids)
+    t0 = default_start_s(cfg)
+    for t in t0 + 3600.0 * np.arange(0.0, 48.0, 5.5):
+        days = book.days(t)
+        seen = {(repr(v := pol._verdict_of(cfg, book, hid, None, t)), repr(acc.gaps(v, cfg.acceptance, days, t)))
+                for hid in ids}
+        assert len(seen) == 1

@@ -156,10 +156,17 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
     order = list(candidates) + [g for g in guests if g not in candidates]
     if planner == "round-robin-shared":  # one field-wide order
         order.sort(key=cfg.heliostat_index)
+    blank = None  # a heliostat without a verdict or a point: its verdict and gaps are every such one's
     for hid in order:
         b = book.h[hid]
-        verdict = b.verdict or _verdict_of(cfg, book, hid, None, now_s)
-        gaps = acceptance.gaps(verdict, cfg.acceptance, days, now_s)
+        if b.verdict is None and not book.points(hid):
+            if blank is None:
+                v = _verdict_of(cfg, book, hid, None, now_s)
+                blank = (v, acceptance.gaps(v, cfg.acceptance, days, now_s))
+            verdict, gaps = blank
+        else:
+            verdict = b.verdict or _verdict_of(cfg, book, hid, None, now_s)
+            gaps = acceptance.gaps(verdict, cfg.acceptance, days, now_s)
         c = cleanliness.get(hid)
         if c is None or not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
             c = b.measured_cleanliness
