@@ -95,10 +95,14 @@ def record(field: Path, days: float, seed: int, scenario_path: str | None, rows:
         store.close()
 
 
-def fit(rows: list, fractions=np.arange(0.10, 0.61, 0.05)) -> dict:
-    from helicalib.sim.fast_sensor import FastSensor, SensorErrorModel
+def fit(rows: list, spec, limits, fractions=np.arange(0.10, 0.61, 0.05)) -> dict:
+    """The error model from the recorded rows; ``spec`` the scenario's camera, ``limits`` the vision's."""
+    from helicalib.sim.fast_sensor import judge_spot
 
     valid = [r for r in rows if r["reason"] == "ok" and r["measured"] is not None]
+    if len(valid) < 10:
+        raise SystemExit(f"fit_fast_sensor: only {len(valid)} valid rendered measurements; run more plant days "
+                         "(the campaigns start at local midnight)")
     res = np.array([np.subtract(r["measured"], r["true"]) for r in valid])
     sig = np.array([r["sigma"] for r in valid])
     med = np.median(res, axis=0)
@@ -111,15 +115,12 @@ def fit(rows: list, fractions=np.arange(0.10, 0.61, 0.05)) -> dict:
     coef, *_ = np.linalg.lstsq(a, r2, rcond=None)
     floor2, k2 = max(coef[0], 1e-8), max(coef[1], 0.0)
     # threshold fraction: agreement of the vision's verdicts with the rendered ones on the same spots
-    judge = FastSensor.__new__(FastSensor)
     best = None
     for f in fractions:
-        judge.model = SensorErrorModel(threshold_fraction=float(f))
-        judge.limits, judge.spec, judge.target = rows_limits(), rows_spec(), None
         agree = 0
         for r in rows:
-            judge.target = r["target"]
-            reason = judge._judge(r["spot"], r["ambient_before"], r["ambient_after"])[0]
+            reason = judge_spot(r["spot"], r["target"], spec, limits, float(f), r["ambient_before"],
+                                r["ambient_after"])[0]
             agree += (reason == "ok") == (r["reason"] == "ok") and (reason == r["reason"] or r["reason"] == "ok")
         if best is None or agree > best[1]:
             best = (float(f), agree)
@@ -130,17 +131,6 @@ def fit(rows: list, fractions=np.arange(0.10, 0.61, 0.05)) -> dict:
             "cleanliness_sigma": round(float(np.sqrt(np.mean(rel ** 2))), 5),
             "_agreement": best[1] / max(len(rows), 1), "_valid": int(len(valid)), "_kept": int(keep.sum()),
             "_residual_rms_m": [round(float(x), 5) for x in np.sqrt(np.mean((res[keep] - bias) ** 2, axis=0))]}
-
-
-_LIMITS, _SPEC = [None], [None]
-
-
-def rows_limits():
-    return _LIMITS[0]
-
-
-def rows_spec():
-    return _SPEC[0]
 
 
 def main(argv=None) -> int:
@@ -154,7 +144,6 @@ def main(argv=None) -> int:
     from helicalib.sim.scenario import load_scenario
     from helicalib.vision.spot import SpotLimits
 
-    _LIMITS[0], _SPEC[0] = SpotLimits(), load_scenario(args.scenario).camera
     rows: list = []
     t0 = time.perf_counter()
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -163,7 +152,7 @@ def main(argv=None) -> int:
         record(Path(args.field), args.days, seed, args.scenario, rows)
         print(f"fit_fast_sensor: seed {seed}: {len(rows) - n0} rendered measurements "
               f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
-    model = fit(rows)
+    model = fit(rows, load_scenario(args.scenario).camera, SpotLimits())
     reasons = Counter(r["reason"] for r in rows)
     out = {"note": "fitted by simulations/fit_fast_sensor.py on rendered measurements; see docs/simulator.md",
            "fitted_on": {"field": Path(args.field).name, "days": args.days, "seeds": seeds,

@@ -26,7 +26,7 @@ import threading
 import time
 from typing import Any
 
-from helicalib.campaign.events import RunEvent, Snapshot, iso_local, iso_utc
+from helicalib.campaign.events import RunEvent, Snapshot, iso_utc
 from helicalib.geometry.sitetime import site_time
 
 
@@ -57,38 +57,31 @@ def gate_text(s: Snapshot) -> str:
     return ("open: " if s.gate_open else "paused: ") + s.gate_reason
 
 
-class LineLog:
-    """One line per event on ``stream`` (stderr by default): for logs, journals and CI."""
+class _Lines:
+    """Lines on a stream, written whole under a lock, never raising (a closed pipe, ``| tee`` killed
+    by the same Ctrl-C, must not stop the campaign), with a status line at most every
+    :attr:`status_every_s` real seconds."""
 
     status_every_s = 60.0
 
-    def __init__(self, tz: dt.tzinfo, stream=None, monotonic=time.monotonic):
-        self.tz, self.stream, self._mono = tz, stream or sys.stderr, monotonic
+    def __init__(self, tz: dt.tzinfo, stream, monotonic=time.monotonic):
+        self.tz, self.stream, self._mono = tz, stream, monotonic
         self._last_status = -float("inf")
         self._lock = threading.Lock()
 
-    def _print(self, text: str) -> None:
+    def _write(self, text: str) -> None:
         with self._lock:
             try:
-                print(text, file=self.stream, flush=True)
-            except (OSError, ValueError):  # a closed pipe or stream (| tee killed by the same Ctrl-C)
+                self.stream.write(text + "\n")
+                self.stream.flush()
+            except (OSError, ValueError):
                 pass
 
-    def message(self, text: str) -> None:
-        self._print(text)
-
-    def on_event(self, ev: RunEvent) -> None:
-        stamp = iso_utc(ev.time_s).replace("+00:00", "Z") + (" (controller clock)" if ev.clock != "plant" else "")
-        self._print(f"{stamp} {ev.kind:<16} {ev.reason}")
-
-    def on_snapshot(self, s: Snapshot) -> None:
+    def _status_due(self) -> bool:
         if self._mono() - self._last_status < self.status_every_s:
-            return
+            return False
         self._last_status = self._mono()
-        boards = ", ".join(f"{b.target_id}: {b.heliostat_id or 'free'}" for b in s.boards)
-        self._print(f"{iso_utc(s.time_s).replace('+00:00', 'Z')} status           {s.accepted}/{s.heliostats} "
-                    f"accepted, {s.in_progress} in progress, {s.waiting} waiting; {s.visits} visits; "
-                    f"{gate_text(s)}; {boards}; {s.next_band}")
+        return True
 
     def start(self) -> None:
         pass
@@ -97,23 +90,38 @@ class LineLog:
         pass
 
 
-class JsonLines:
+class LineLog(_Lines):
+    """One line per event on ``stream`` (stderr by default): for logs, journals and CI."""
+
+    def __init__(self, tz: dt.tzinfo, stream=None, monotonic=time.monotonic):
+        super().__init__(tz, stream or sys.stderr, monotonic)
+
+    def message(self, text: str) -> None:
+        self._write(text)
+
+    def on_event(self, ev: RunEvent) -> None:
+        stamp = iso_utc(ev.time_s).replace("+00:00", "Z") + (" (controller clock)" if ev.clock != "plant" else "")
+        self._write(f"{stamp} {ev.kind:<16} {ev.reason}")
+
+    def on_snapshot(self, s: Snapshot) -> None:
+        if not self._status_due():
+            return
+        boards = ", ".join(f"{b.target_id}: {b.heliostat_id or 'free'}" for b in s.boards)
+        self._write(f"{iso_utc(s.time_s).replace('+00:00', 'Z')} status           {s.accepted}/{s.heliostats} "
+                    f"accepted, {s.in_progress} in progress, {s.waiting} waiting; {s.visits} visits; "
+                    f"{gate_text(s)}; {boards}; {s.next_band}")
+
+
+class JsonLines(_Lines):
     """``--json``: one JSON object per line on stdout (events, periodic status, the final summary)."""
 
     status_every_s = 5.0
 
     def __init__(self, tz: dt.tzinfo, stream=None, monotonic=time.monotonic):
-        self.tz, self.stream, self._mono = tz, stream or sys.stdout, monotonic
-        self._last_status = -float("inf")
-        self._lock = threading.Lock()
+        super().__init__(tz, stream or sys.stdout, monotonic)
 
     def emit(self, obj: dict[str, Any]) -> None:
-        with self._lock:
-            try:
-                self.stream.write(json.dumps(obj, default=str) + "\n")
-                self.stream.flush()
-            except (OSError, ValueError):  # a reader that went away (| head) must not stop the campaign
-                pass
+        self._write(json.dumps(obj, default=str))
 
     def message(self, text: str) -> None:
         self.emit({"event": "message", "reason": text})
@@ -122,16 +130,8 @@ class JsonLines:
         self.emit(ev.to_json(self.tz))
 
     def on_snapshot(self, s: Snapshot) -> None:
-        if self._mono() - self._last_status < self.status_every_s:
-            return
-        self._last_status = self._mono()
-        self.emit(s.to_json(self.tz))
-
-    def start(self) -> None:
-        pass
-
-    def stop(self) -> None:
-        pass
+        if self._status_due():
+            self.emit(s.to_json(self.tz))
 
 
 class TerminalView:
@@ -237,4 +237,4 @@ def make_output(kind: str, tz: dt.tzinfo, title: str):
     return TerminalView(tz, title)
 
 
-__all__ = ["JsonLines", "LineLog", "TerminalView", "make_output", "site_timezone", "gate_text", "iso_local"]
+__all__ = ["JsonLines", "LineLog", "TerminalView", "make_output", "site_timezone", "gate_text"]

@@ -163,16 +163,14 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, on_signal)
     scheduler.start()
-    last = {"now": None}
     result = LiveResult("stopped")
 
     def plant_now() -> float | None:
         """Plant time, or None while the plant does not answer (the jobs retry; nothing stops)."""
         try:
-            last["now"] = runner.clock.now_s()
+            return runner.clock.now_s()
         except HelicalibError:
             return None
-        return last["now"]
 
     def show() -> None:
         if output is None or not lock.acquire(timeout=0.2):

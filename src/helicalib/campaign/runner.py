@@ -709,8 +709,7 @@ class CampaignRunner:
             sun_elevation_deg=el, heliostats=len(self.ids), accepted=accepted, in_progress=len(self.active),
             waiting=len(self.ids) - accepted - len(self.active), visits=self.stats.visits,
             valid_visits=self.stats.valid_visits, next_band=self._next_band(now),
-            off_tracking=tuple(sorted(set(self.returning) & self._flagged | {h for h, r in self.returning.items()
-                                                                               if r.failed})))
+            off_tracking=tuple(sorted(h for h, r in self.returning.items() if r.failed or h in self._flagged)))
 
     def _next_band(self, now: float) -> str:
         """The rising or setting low band (the paper's scarce 5–15°): "rising band now (until 07:10 UTC)"

@@ -35,7 +35,6 @@ import numpy as np
 from scipy.special import ndtr
 
 from helicalib.campaign.sensor import Before, Reading
-from helicalib.geometry import optics
 from helicalib.sim.camera import spot_geometry
 from helicalib.vision.spot import SATURATED_LEVEL, SpotLimits
 
@@ -86,6 +85,45 @@ class SpotPhysics:
     on_plane: bool
 
 
+def judge_spot(s: SpotPhysics, target, spec, limits: SpotLimits, threshold_fraction: float, ambient_before: float,
+               ambient_after: float):
+    """(reason, message, centroid (2,) or None) of one spot by the vision's limits: ``spec`` is the
+    scenario's camera (gain, albedo), ``threshold_fraction`` the annex A threshold over the peak."""
+    lim, half = limits, np.asarray(target.size_m, dtype=float) / 2.0
+    if not s.on_plane or not np.all(np.isfinite(s.uv_m)):
+        return "no_spot", "no spot on the board.", None
+    gain = spec.gain_counts_per_wm2 * spec.board_albedo
+    # the irradiance over the spot's support (clipped to the board), on a 64 × 64 grid
+    reach = s.width_m / 2.0 + 3.0 * s.sigma_m
+    lo, hi = np.maximum(s.uv_m - reach, -half), np.minimum(s.uv_m + reach, half)
+    if np.any(hi <= lo):
+        return "no_spot", "no spot on the board: the beam lands beside it.", None
+    gu, gv = np.linspace(lo[0], hi[0], 64), np.linspace(lo[1], hi[1], 64)
+    pu = _profile(gu, s.uv_m[0], s.width_m[0], s.sigma_m[0])
+    pv = _profile(gv, s.uv_m[1], s.width_m[1], s.sigma_m[1])
+    flux = s.power_w * np.multiply.outer(pv, pu)
+    diff = gain * flux
+    peak = float(diff.max())
+    if peak < lim.min_contrast:
+        return ("no_spot" if peak < 0.5 * lim.min_contrast else "low_contrast",
+                f"the spot's peak difference {peak:.0f} grey levels is below {lim.min_contrast:.0f}.", None)
+    region = diff >= threshold_fraction * peak
+    w = np.where(region, flux, 0.0)
+    centroid = np.array([np.sum(w.sum(axis=0) * gu), np.sum(w.sum(axis=1) * gv)]) / max(float(w.sum()), 1e-12)
+    cell = np.abs(gu[1] - gu[0]) + np.abs(gv[1] - gv[0])
+    rim = ((np.abs(gu) >= half[0] - cell)[None, :] | (np.abs(gv) >= half[1] - cell)[:, None]) & region
+    if np.count_nonzero(rim) > 0:
+        return "clipped", "the spot reaches the board's rim.", centroid
+    level = gain * (flux + ambient_after)
+    saturated = np.count_nonzero(region & (level >= SATURATED_LEVEL)) / max(np.count_nonzero(region), 1)
+    if saturated > lim.max_saturated_fraction:
+        return "saturated", f"{100 * saturated:.0f} % of the spot is saturated.", centroid
+    change = abs(ambient_after / max(ambient_before, 1e-9) - 1.0)
+    if change > lim.max_ambient_change:
+        return "ambient_change", f"the ambient light changed by {100 * change:.0f} % since the before frame.", None
+    return "ok", "ok", centroid
+
+
 class FastSensor:
     """The simulated fast sensor of one board (see the module docstring).
 
@@ -133,42 +171,6 @@ class FastSensor:
                                                       dni, clean)
         return SpotPhysics(uv[0], width[0], sigma[0], float(power[0]), bool(near[0]))
 
-    def _judge(self, s: SpotPhysics, ambient_before: float, ambient_after: float):
-        """(reason, message, centroid (2,) or None) of one spot by the vision's limits."""
-        lim, spec, half = self.limits, self.spec, np.asarray(self.target.size_m, dtype=float) / 2.0
-        if not s.on_plane or not np.all(np.isfinite(s.uv_m)):
-            return "no_spot", "no spot on the board.", None
-        gain = spec.gain_counts_per_wm2 * spec.board_albedo
-        # the irradiance over the spot's support (clipped to the board), on a 64 × 64 grid
-        reach = s.width_m / 2.0 + 3.0 * s.sigma_m
-        lo, hi = np.maximum(s.uv_m - reach, -half), np.minimum(s.uv_m + reach, half)
-        if np.any(hi <= lo):
-            return "no_spot", "no spot on the board: the beam lands beside it.", None
-        gu, gv = np.linspace(lo[0], hi[0], 64), np.linspace(lo[1], hi[1], 64)
-        pu = _profile(gu, s.uv_m[0], s.width_m[0], s.sigma_m[0])
-        pv = _profile(gv, s.uv_m[1], s.width_m[1], s.sigma_m[1])
-        flux = s.power_w * np.multiply.outer(pv, pu)
-        diff = gain * flux
-        peak = float(diff.max())
-        if peak < lim.min_contrast:
-            return ("no_spot" if peak < 0.5 * lim.min_contrast else "low_contrast",
-                    f"the spot's peak difference {peak:.0f} grey levels is below {lim.min_contrast:.0f}.", None)
-        region = diff >= self.model.threshold_fraction * peak
-        w = np.where(region, flux, 0.0)
-        centroid = np.array([np.sum(w.sum(axis=0) * gu), np.sum(w.sum(axis=1) * gv)]) / max(float(w.sum()), 1e-12)
-        cell = np.abs(gu[1] - gu[0]) + np.abs(gv[1] - gv[0])
-        rim = ((np.abs(gu) >= half[0] - cell)[None, :] | (np.abs(gv) >= half[1] - cell)[:, None]) & region
-        if np.count_nonzero(rim) > 0:
-            return "clipped", "the spot reaches the board's rim.", centroid
-        level = gain * (flux + ambient_after)
-        saturated = np.count_nonzero(region & (level >= SATURATED_LEVEL)) / max(np.count_nonzero(region), 1)
-        if saturated > lim.max_saturated_fraction:
-            return "saturated", f"{100 * saturated:.0f} % of the spot is saturated.", centroid
-        change = abs(ambient_after / max(ambient_before, 1e-9) - 1.0)
-        if change > lim.max_ambient_change:
-            return "ambient_change", f"the ambient light changed by {100 * change:.0f} % since the before frame.", None
-        return "ok", "ok", centroid
-
     # ------------------------------------------------------------------ the protocol
     def before(self, ctx) -> Before:
         t = float(ctx.now())
@@ -183,7 +185,8 @@ class FastSensor:
                 yield 1.0
         capture_s = float(np.mean(times))
         s = spots[-1]
-        reason, message, centroid = self._judge(s, float(before.state), self._ambient_wm2(times[-1]))
+        reason, message, centroid = judge_spot(s, self.target, self.spec, self.limits, self.model.threshold_fraction,
+                                               float(before.state), self._ambient_wm2(times[-1]))
         if reason == "ok" and len(spots) > 1:
             uvs = np.array([x.uv_m for x in spots])
             jitter = float(np.sqrt(np.mean(np.sum((uvs - uvs.mean(axis=0)) ** 2, axis=1))))
@@ -209,9 +212,3 @@ def fast_sensors(plant, seed: int = 0, model: SensorErrorModel | None = None) ->
     model = model or SensorErrorModel.load()
     return {t.id: FastSensor(plant, t.id, model, seed) for t in plant.cfg.targets}
 
-
-def true_spot_uv(plant, index: int, target, t_s: float | None = None) -> np.ndarray:
-    """Where heliostat ``index``'s true beam meets ``target``'s plane now (u, v) [m] (the fit's truth)."""
-    beam = plant.true_beam_of(index, t_s)
-    uv, _hit, _ok = optics.intersect_target(beam.origin_enu, beam.direction_enu, target)
-    return uv[0]
