@@ -267,7 +267,13 @@ def test_kill_9_loses_no_recorded_observation(tmp_path):
         proc.wait()
         proc.stdout.close()
     assert proc.returncode == -signal.SIGKILL
-    with Store.open(db) as s:
+    # the kill may land mid-frame; make sure a half-written frame is there either way
+    leftover = db.parent / "images" / "c1" / "H0001" / ".v999_i0_after0.png.4242.tmp"
+    leftover.write_bytes(b"partial")
+    with Store.open(db) as s:  # a reader sees everything and deletes nothing
+        assert set(reported) <= {o.id for o in s.observations()}
+    assert leftover.exists()
+    with Store.open(db, owner="run") as s:  # the next owner removes the half-written frames
         stored = s.observations()
         ids = {o.id for o in stored}
         assert set(reported) <= ids  # every id the writer had been told about is there
