@@ -20,7 +20,7 @@ dataclasses out.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -215,6 +215,46 @@ spots measure poorly) took about 150 visits each without getting there. The verd
 refuses them and says why."""
 
 
+@dataclass(frozen=True)
+class Need:
+    """Something a verdict still lacks, without its timing: what :func:`gaps` times against the sun.
+
+    ``kind`` and ``window`` as in :class:`Gap`; ``n_windows``: the verdict's high windows (for a
+    window need, which fraction of each day's high span it is). Needs compare equal across
+    heliostats whatever their descriptions say (point counts, RMS), so the planner can time each
+    distinct set of needs once for a whole field (:func:`needs_key`)."""
+
+    kind: str
+    window: int | None
+    n_windows: int
+    description: str = field(compare=False)
+
+
+def needs(verdict: AcceptanceVerdict, rules) -> tuple[Need, ...]:
+    """What ``verdict`` still lacks (rules 1-3, more points, a better RMS), in rule order."""
+    out: list[Need] = []
+    lo, hi = rules.low_band_deg
+    n = verdict.n_windows
+    if not verdict.rising_ok:
+        out.append(Need("rising", None, n, f"a valid point while the sun rises through {lo:g}–{hi:g}°"))
+    if not verdict.setting_ok:
+        out.append(Need("setting", None, n, f"a valid point while the sun sets through {hi:g}–{lo:g}°"))
+    for k in verdict.missing_windows:
+        out.append(Need("window", k, n, f"a valid point in high-elevation window {k + 1} of {n}"))
+    if verdict.n_points < rules.min_points:
+        need = rules.min_points - verdict.n_points
+        out.append(Need("points", None, n, f"{need} more valid point{'s' if need != 1 else ''}"))
+    if (verdict.rms_mrad is not None and verdict.rms_mrad > rules.max_rms_mrad
+            and verdict.n_points < RMS_GAP_POINTS_FACTOR * rules.min_points):
+        out.append(Need("rms", None, n, f"RMS error {verdict.rms_mrad:.2f} mrad down to {rules.max_rms_mrad:g} mrad"))
+    return tuple(out)
+
+
+def needs_key(verdict: AcceptanceVerdict, rules) -> tuple:
+    """A hashable key equal for verdicts with the same :func:`needs` (so the same gaps at any time)."""
+    return tuple((nd.kind, nd.window, nd.n_windows) for nd in needs(verdict, rules))
+
+
 def gaps(verdict: AcceptanceVerdict, rules, days: Sequence[SunDay], now_s: float) -> tuple[Gap, ...]:
     """What ``verdict`` still lacks and the next opening of each, soonest first.
 
@@ -223,6 +263,11 @@ def gaps(verdict: AcceptanceVerdict, rules, days: Sequence[SunDay], now_s: float
     better RMS, up to :data:`RMS_GAP_POINTS_FACTOR` × ``min_points`` points) can be had whenever
     the sun is above ``low_band_deg[0]``.
     """
+    return time_needs(needs(verdict, rules), days, now_s)
+
+
+def time_needs(wanted: Sequence[Need], days: Sequence[SunDay], now_s: float) -> tuple[Gap, ...]:
+    """The :class:`Gap` of each need: its next opening at or after ``now_s``, soonest first."""
 
     def next_opening(spans) -> tuple[float | None, float | None]:
         for a, b in spans:
@@ -231,24 +276,15 @@ def gaps(verdict: AcceptanceVerdict, rules, days: Sequence[SunDay], now_s: float
         return None, None
 
     out: list[Gap] = []
-    lo, hi = rules.low_band_deg
-    if not verdict.rising_ok:
-        a, b = next_opening((d.rise_band_start_s, d.rise_band_end_s) for d in days)
-        out.append(Gap("rising", None, a, b, f"a valid point while the sun rises through {lo:g}–{hi:g}°"))
-    if not verdict.setting_ok:
-        a, b = next_opening((d.set_band_start_s, d.set_band_end_s) for d in days)
-        out.append(Gap("setting", None, a, b, f"a valid point while the sun sets through {hi:g}–{lo:g}°"))
-    for k in verdict.missing_windows:
-        spans = (d.high_window(k, verdict.n_windows) or (None, None) for d in days)
+    for nd in wanted:
+        if nd.kind == "rising":
+            spans = ((d.rise_band_start_s, d.rise_band_end_s) for d in days)
+        elif nd.kind == "setting":
+            spans = ((d.set_band_start_s, d.set_band_end_s) for d in days)
+        elif nd.kind == "window":
+            spans = (d.high_window(nd.window, nd.n_windows) or (None, None) for d in days)
+        else:  # points, rms: whenever the sun is up
+            spans = (d.daylight or (None, None) for d in days)
         a, b = next_opening(spans)
-        out.append(Gap("window", k, a, b, f"a valid point in high-elevation window {k + 1} of {verdict.n_windows}"))
-    daylight = [d.daylight or (None, None) for d in days]
-    if verdict.n_points < rules.min_points:
-        a, b = next_opening(daylight)
-        need = rules.min_points - verdict.n_points
-        out.append(Gap("points", None, a, b, f"{need} more valid point{'s' if need != 1 else ''}"))
-    if (verdict.rms_mrad is not None and verdict.rms_mrad > rules.max_rms_mrad
-            and verdict.n_points < RMS_GAP_POINTS_FACTOR * rules.min_points):
-        a, b = next_opening(daylight)
-        out.append(Gap("rms", None, a, b, f"RMS error {verdict.rms_mrad:.2f} mrad down to {rules.max_rms_mrad:g} mrad"))
+        out.append(Gap(nd.kind, nd.window, a, b, nd.description))
     return tuple(sorted(out, key=lambda g: (g.next_start_s is None, g.next_start_s or 0.0)))

@@ -96,6 +96,20 @@ def _eligible(c: Candidate, now_s: float, gating) -> bool:
     return c.cooldown_until_s <= now_s and math.isfinite(clean) and clean > gating.cleanliness_min
 
 
+def gap_tier(open_gaps: Sequence[Gap]) -> tuple[int, float]:
+    """The tier of an unaccepted heliostat whose gaps open now are ``open_gaps``, and when the
+    gap that sets it closes [UTC s] (inf when that does not matter)."""
+    band = [g.next_end_s for g in open_gaps if g.kind in ("rising", "setting")]
+    window = [g.next_end_s for g in open_gaps if g.kind == "window"]
+    if band:
+        return TIER_LOW_BAND, min(band)
+    if window:
+        return TIER_WINDOW, min(window)
+    if open_gaps:
+        return TIER_OPEN, math.inf
+    return TIER_EXTRA, math.inf
+
+
 def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False, refine: bool = False) -> tuple | None:
     """The sort key of a candidate at ``now_s`` (smaller goes first), or None when it should not go.
 
@@ -111,16 +125,7 @@ def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False, ref
             return None
         tier, closes = TIER_REFINE, math.inf
     else:
-        band = [g.next_end_s for g in open_gaps if g.kind in ("rising", "setting")]
-        window = [g.next_end_s for g in open_gaps if g.kind == "window"]
-        if band:
-            tier, closes = TIER_LOW_BAND, min(band)
-        elif window:
-            tier, closes = TIER_WINDOW, min(window)
-        elif open_gaps:
-            tier, closes = TIER_OPEN, math.inf
-        else:
-            tier, closes = TIER_EXTRA, math.inf
+        tier, closes = gap_tier(open_gaps)
     if c.borrowed and tier not in BORROW_TIERS:
         return None
     err = math.inf if c.predicted_error_mrad is None else float(c.predicted_error_mrad)

@@ -49,6 +49,12 @@ class HeliostatBook:
     measured_at_s: float = -math.inf
     fit: object | None = None                       # newest FitResult over ``points``; None before one
 
+    def __setattr__(self, name: str, value) -> None:
+        object.__setattr__(self, name, value)
+        sink = self.__dict__.get("_sink")
+        if sink is not None and name in PlanTable.TRACKED:  # keep the book's planning arrays current
+            sink[0].update(sink[1], self)
+
 
 class Book:
     """Per-heliostat campaign state, rebuilt from the store on resume."""
@@ -59,11 +65,15 @@ class Book:
         self.cursor: dict[str, str | None] = {}
         self._days: tuple = ()
         self._days_span = (math.inf, -math.inf)
+        self.table = PlanTable(cfg, list(self.h))
+        for row, b in enumerate(self.h.values()):
+            object.__setattr__(b, "_sink", (self.table, row))
 
     def add(self, obs) -> None:
         b = self.h[obs.heliostat_id]
         if obs.valid and obs.spot_enu_m is not None and all(map(math.isfinite, obs.spot_enu_m)):
             b.points.append(obs)
+            self.table.update(self.table.row[obs.heliostat_id], b)
         measured = getattr(obs, "cleanliness_measured", None)
         if measured is not None and obs.capture_time_s >= b.measured_at_s:
             b.measured_cleanliness, b.measured_at_s = float(measured), obs.capture_time_s
@@ -103,6 +113,75 @@ class Book:
     def first_time(self, default: float) -> float:
         times = [p.capture_time_s for b in self.h.values() for p in b.points]
         return min(times + [default])
+
+
+class PlanTable:
+    """The gaps planner's view of a campaign's heliostats as arrays, one row per heliostat.
+
+    A :class:`Book` keeps it current: every write to a :class:`HeliostatBook` field in
+    :data:`TRACKED` (and every point added) updates that heliostat's row, so a decision reads
+    arrays instead of walking the field (:func:`choose_next_vectorised`). Verdicts enter as the
+    key of their needs (:func:`helicalib.calibration.acceptance.needs_key`): heliostats that lack
+    the same things share one entry of :attr:`needs`, timed once per decision.
+
+    Rows without a verdict have need id ``BLANK`` (no point yet: every such heliostat lacks the
+    same) or ``UNJUDGED`` (points but no verdict yet: judged one by one when they are candidates).
+    """
+
+    TRACKED = frozenset({"visits", "cooldown_until_s", "last_first_error_mrad", "verdict",
+                         "measured_cleanliness", "points"})
+    BLANK, UNJUDGED = -1, -2
+
+    def __init__(self, cfg, ids: list[str]):
+        self.cfg = cfg
+        self.ids = list(ids)
+        self.row = {h: i for i, h in enumerate(self.ids)}
+        n = len(self.ids)
+        self.visits = np.zeros(n, dtype=np.int64)
+        self.cooldown_until_s = np.zeros(n)
+        self.predicted_error_mrad = np.full(n, np.nan)   # NaN: no model yet
+        self.accepted = np.zeros(n, dtype=bool)
+        self.need = np.full(n, self.BLANK, dtype=np.int64)
+        self.measured_cleanliness = np.full(n, np.nan)
+        self.id_rank = np.argsort(np.argsort(np.array(self.ids, dtype=object)))  # ties broken by id
+        self.needs: list[tuple] = []        # need id -> the needs (acceptance.Need) of that key
+        self._need_ids: dict[tuple, int] = {}
+        targets = [t.id for t in cfg.targets]
+        self.target_index = {t: k for k, t in enumerate(targets)}
+        self.own = np.array([self.target_index[cfg.heliostat(h).target] for h in self.ids], dtype=np.int64)
+        self.own_rows = {t: np.flatnonzero(self.own == k) for t, k in self.target_index.items()}
+        self.guest_rows = {t: np.zeros(0, dtype=np.int64) for t in targets}
+        self.guest_rank = {t: np.zeros(0, dtype=np.int64) for t in targets}
+
+    def set_guests(self, guests: dict[str, dict[str, int]]) -> None:
+        """The heliostats that may borrow each target and the board's rank for them
+        (:func:`shared_targets`)."""
+        for t, by_hid in guests.items():
+            rows = [self.row[h] for h in by_hid if h in self.row]
+            self.guest_rows[t] = np.array(rows, dtype=np.int64)
+            self.guest_rank[t] = np.array([by_hid[self.ids[r]] for r in rows], dtype=np.int64)
+
+    def update(self, row: int, b: HeliostatBook) -> None:
+        """Copy one heliostat's book into its row."""
+        self.visits[row] = b.visits
+        self.cooldown_until_s[row] = b.cooldown_until_s
+        self.predicted_error_mrad[row] = np.nan if b.last_first_error_mrad is None else b.last_first_error_mrad
+        self.measured_cleanliness[row] = np.nan if b.measured_cleanliness is None else b.measured_cleanliness
+        v = b.verdict
+        if v is None:
+            self.accepted[row] = False
+            self.need[row] = self.UNJUDGED if b.points else self.BLANK
+        else:
+            self.accepted[row] = bool(v.accepted)
+            self.need[row] = self.need_id(acceptance.needs(v, self.cfg.acceptance))
+
+    def need_id(self, wanted: tuple) -> int:
+        key = tuple((nd.kind, nd.window, nd.n_windows) for nd in wanted)
+        k = self._need_ids.get(key)
+        if k is None:
+            k = self._need_ids[key] = len(self.needs)
+            self.needs.append(wanted)
+        return k
 
 
 # ---------------------------------------------------------------------------------- gate
@@ -200,6 +279,110 @@ def choose_next(cfg, book: Book, candidates, now_s: float, cleanliness: dict, *,
         busy.add(hid)
         if _try == MAX_GUEST_TRIES - 1:  # give up on guests for this target now
             busy.update(guests)
+    return None
+
+
+def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanliness, *, recheck: bool = False,
+                           busy_heliostats=(), refine: bool = False, spreads: dict | None = None,
+                           active_targets=(), usable=None) -> str | None:
+    """:func:`choose_next` for the gaps planner, over the book's arrays (:class:`PlanTable`).
+
+    The same choice as ``choose_next(cfg, book, own heliostats of target_id, now_s, cleanliness,
+    planner="gaps", guests=<the target's guests whose own board is in active_targets>, ...)``
+    (tested), at a cost per decision that does not grow with the field's history: each distinct
+    set of needs is timed once, the rest is array arithmetic over the target's candidates.
+
+    ``cleanliness(rows)``: the plant's cleanliness of those table rows (NaN where it gives none);
+    ``active_targets``: the boards with a visit under way (their heliostats may borrow this one).
+    """
+    tb = book.table
+    rules = cfg.acceptance
+    rows = tb.own_rows[target_id]
+    borrowed = np.zeros(rows.size, dtype=np.int64)
+    g_rows, g_rank = tb.guest_rows[target_id], tb.guest_rank[target_id]
+    active = [tb.target_index[t] for t in active_targets if t in tb.target_index]
+    if g_rows.size and active:
+        on = np.zeros(len(tb.target_index), dtype=bool)
+        on[active] = True
+        keep = on[tb.own[g_rows]]
+        rows, borrowed = np.concatenate([rows, g_rows[keep]]), np.concatenate([borrowed, g_rank[keep]])
+    keep = tb.cooldown_until_s[rows] <= now_s
+    if recheck:
+        keep &= tb.visits[rows] == 0
+    busy = [tb.row[h] for h in busy_heliostats if h in tb.row]
+    if busy:
+        keep &= ~np.isin(rows, busy)
+    rows, borrowed = rows[keep], borrowed[keep]
+    if not rows.size:
+        return None
+    plant = np.asarray(cleanliness(rows), dtype=float)
+    clean = np.where(np.isfinite(plant), plant, tb.measured_cleanliness[rows])
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(clean) & (clean > cfg.gating.cleanliness_min)
+    rows, borrowed, clean = rows[ok], borrowed[ok], clean[ok]
+    if not rows.size:
+        return None
+
+    # each distinct set of needs, timed once: its tier and when the gap that sets it closes
+    days = book.days(now_s)
+    need = tb.need[rows].copy()
+    accepted = tb.accepted[rows].copy()
+    timed: dict[int, tuple[int, float]] = {}
+
+    def tier_of(wanted) -> tuple[int, float]:
+        gaps = acceptance.time_needs(wanted, days, now_s)
+        return planner_mod.gap_tier([g for g in gaps if g.is_open(now_s)])
+
+    blank = np.flatnonzero(need == PlanTable.BLANK)
+    if blank.size:
+        v = _verdict_of(cfg, book, tb.ids[rows[blank[0]]], None, now_s)
+        timed[PlanTable.BLANK] = tier_of(acceptance.needs(v, rules))
+        accepted[blank] = bool(v.accepted)
+    for k in np.flatnonzero(need == PlanTable.UNJUDGED):  # points but no verdict yet: one by one
+        v = _verdict_of(cfg, book, tb.ids[rows[k]], None, now_s)
+        need[k] = tb.need_id(acceptance.needs(v, rules))
+        accepted[k] = bool(v.accepted)
+    for k in np.unique(need):
+        if k not in timed:
+            timed[int(k)] = tier_of(tb.needs[int(k)])
+    keys = np.array(sorted(timed))
+    pos = np.searchsorted(keys, need)
+    tier = np.array([timed[int(k)][0] for k in keys], dtype=np.int64)[pos]
+    closes = np.array([timed[int(k)][1] for k in keys], dtype=float)[pos]
+
+    accepted &= not recheck
+    pred = tb.predicted_error_mrad[rows]
+    spread = np.full(rows.size, np.nan)
+    if spreads:
+        for k in np.flatnonzero(borrowed == 0):
+            spread[k] = spreads.get(tb.ids[rows[k]], np.nan)
+    go = ~accepted
+    if refine:  # accepted heliostats whose model is uncertain at this sun
+        refine_rows = accepted & (spread >= planner_mod.REFINE_MIN_SPREAD_MRAD)
+        tier[refine_rows], closes[refine_rows] = planner_mod.TIER_REFINE, math.inf
+        go |= refine_rows
+    go &= (borrowed == 0) | np.isin(tier, planner_mod.BORROW_TIERS)
+    if not (recheck or refine):  # a target stays idle rather than spend time on points no gap asks for
+        go &= tier != planner_mod.TIER_EXTRA
+    err = np.where(np.isnan(pred), np.inf, pred)
+    by_spread = np.isin(tier, (planner_mod.TIER_EXTRA, planner_mod.TIER_REFINE)) & ~np.isnan(spread) & ~np.isnan(pred)
+    err = np.where(by_spread, spread, err)
+    not_preferred = ~(clean > cfg.gating.cleanliness_preferred)
+    sel = np.flatnonzero(go)
+    if not sel.size:
+        return None
+    order = sel[np.lexsort((tb.id_rank[rows[sel]], tb.visits[rows[sel]], -err[sel], not_preferred[sel],
+                            borrowed[sel], closes[sel], tier[sel]))]
+    refused = 0
+    for k in order:
+        hid = tb.ids[rows[k]]
+        if not borrowed[k] or usable is None:
+            return hid
+        if refused >= MAX_GUEST_TRIES:  # given up on guests for this target now
+            continue
+        if usable(hid):
+            return hid
+        refused += 1
     return None
 
 

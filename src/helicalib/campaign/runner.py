@@ -41,6 +41,8 @@ from helicalib.store.records import off_tracking
 
 WEATHER_POLL_S = 60.0
 """Plant seconds between weather polls (a stow follows within one poll)."""
+CLEANLINESS_MAX_AGE_S = WEATHER_POLL_S
+"""The planner re-reads a heliostat's cleanliness register when its last read is this old [plant s]."""
 PLANNER_TICK_S = 30.0
 """Plant seconds between planner ticks while a target is free."""
 SHARE_REACH_S = 1800.0
@@ -135,6 +137,7 @@ class CampaignRunner:
         self.models: dict[str, HeliostatModel] = {hid: base.subset([i]) for i, hid in enumerate(self.ids)}
         self._index = {hid: i for i, hid in enumerate(self.ids)}
         self.book = policy.Book(cfg, self.ids)
+        self.book.table.set_guests(self._guests)
         self.stats = RunnerStats()
         self.active: dict[str, tuple[float, str, object, VisitContext]] = {}
         self.stowed = False
@@ -144,6 +147,7 @@ class CampaignRunner:
         self.last_refresh_s = -math.inf
         self._nominal_one: dict[str, HeliostatModel] = {}
         self._clean_cache: dict[str, tuple[float, float | None]] = {}
+        self._clean_rows = (np.full(len(self.ids), np.nan), np.full(len(self.ids), -math.inf))  # values, read at
         self.corrections: dict[str, np.ndarray | None] = {hid: None for hid in self.ids}
         self.listeners: list[Callable[[RunEvent], None]] = list(listeners)
         """Called with every :class:`RunEvent` after the fact (views, JSON lines); a listener that
@@ -417,20 +421,25 @@ class CampaignRunner:
     # ------------------------------------------------------------------ visits
     def _start_visit(self, target_id: str, now: float) -> None:
         cands = self._home[target_id]
-        # a board is lent only to heliostats whose own board is busy (a free own board takes them)
-        guests = {h: r for h, r in self._guests.get(target_id, {}).items()
-                  if self.cfg.heliostat(h).target in self.active}
-        cleanliness = {hid: self._cleanliness(hid, now) for hid in cands}
-        cleanliness.update({hid: self._cleanliness(hid, now) for hid in guests})
         busy = [h for (_w, h, _g, _c) in self.active.values()]
         spreads = None
         if self.refine:
             spreads = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows,
                                            [h for h in cands if h not in busy], self.sun(now)[0], now)
-        choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
-                                    recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
-                                    target_id=target_id, guests=guests,
-                                    usable=lambda hid: self._reaches(hid, target_id, now))
+        usable = lambda hid: self._reaches(hid, target_id, now)  # noqa: E731
+        if self.planner_kind == "gaps":
+            # a board is lent only to heliostats whose own board is busy (a free own board takes them)
+            choice = policy.choose_next_vectorised(
+                self.cfg, self.book, target_id, now, lambda rows: self._cleanliness_of_rows(rows, now),
+                recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
+                active_targets=list(self.active), usable=usable)
+        else:
+            guests = {h: r for h, r in self._guests.get(target_id, {}).items()
+                      if self.cfg.heliostat(h).target in self.active}
+            cleanliness = {hid: self._cleanliness(hid, now) for hid in [*cands, *guests]}
+            choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
+                                        recheck=self.recheck, busy_heliostats=busy, target_id=target_id,
+                                        guests=guests, usable=usable)
         if choice is None:
             return
         hid = choice
@@ -493,6 +502,19 @@ class CampaignRunner:
             value = None
         self._clean_cache[hid] = (now, value)
         return value
+
+    def _cleanliness_of_rows(self, rows: np.ndarray, now: float) -> np.ndarray:
+        """:meth:`_cleanliness` of the heliostats at ``rows`` of :attr:`ids` (NaN where the plant
+        gives none), read only for those whose last read is :data:`CLEANLINESS_MAX_AGE_S` old."""
+        values, read_at = self._clean_rows
+        for r in rows[now - read_at[rows] >= CLEANLINESS_MAX_AGE_S]:
+            try:
+                value = self.plant.status(self.cfg.heliostat_index(self.ids[r])).cleanliness
+            except PlantError:
+                value = None
+            values[r] = np.nan if value is None else value
+            read_at[r] = now
+        return values[rows]
 
     def _step(self, target_id: str, now: float) -> None:
         _wake, hid, gen, ctx = self.active[target_id]
