@@ -6,6 +6,10 @@ Accuracy: a suite of rendered frames of the demo board (the demo camera's steep 
 1280×1024, uneven light, noise 1.5 grey levels) with Gaussian and flat-topped elliptical spots
 of random size, shape, angle and position; the error of each method's centre against the
 spot's true centre, RMS in mm on the board and in frame pixels; also the marks' vertex error.
+The same spots on four boards: the demo board seen by the demo camera and the east board of
+``simulations/fields/dots_cylinder.yaml`` seen obliquely (36° off its normal) by its camera, each
+with the four L marks and with nine dots; on dot boards split into spots that reach a dot and
+spots that do not.
 
 Throughput: frame pairs per second of ``measure_spot`` (marks found once on the before frame,
 as the campaign does) on one core at 1280×1024 and 2448×2048, against the floor cost of one
@@ -25,22 +29,55 @@ import cv2
 import numpy as np
 
 from helicalib.vision.marks import board_to_image, find_marks
-from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Spot, demo_target, look_at_pose,
+from helicalib.config import load_field_config
+from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Spot, demo_dot_target, demo_target, look_at_pose,
                                      project_board_points, render_frame)
 from helicalib.vision.spot import METHODS, measure_spot
 
 OUT = Path(__file__).resolve().parent / "out" / "bench_spot.json"
+CYLINDER = Path(__file__).resolve().parents[1] / "simulations" / "fields" / "dots_cylinder.yaml"
 
 
-def accuracy(n_frames: int, seed: int = 2024) -> dict:
-    target = demo_target()
-    pose = look_at_pose(DEMO_CAMERA_ENU_M, target, 5200, (1280, 1024))
+def _side_board():
+    """The east board of ``simulations/fields/dots_cylinder.yaml`` and its camera: 36° off the normal."""
+    cfg = load_field_config(CYLINDER)
+    cam = next(c for c in cfg.cameras if c.target == "TE")
+    return cfg.target("TE"), cam.position_enu_m
+
+
+def boards() -> dict:
+    """Board cases: (target, camera position, fx): the demo view and the oblique side of the cylinder,
+    each with the four L marks and with nine dots (the same board, only its marks differ)."""
+    demo = demo_target()
+    side, side_cam = _side_board()
+    l_marks = demo.marks
+    return {"marks, demo view": (demo, DEMO_CAMERA_ENU_M),
+            "dots, demo view": (demo_dot_target(), DEMO_CAMERA_ENU_M),
+            "marks, side of the cylinder": (side.model_copy(update={"marks": l_marks}), side_cam),
+            "dots, side of the cylinder": (side, side_cam)}
+
+
+def _touches_a_dot(target, spot: Spot) -> bool:
+    """The spot's 2σ ellipse (or flat edge) reaches one of the board's dots."""
+    if target.marks.kind != "dots":
+        return False
+    reach = 2.0 * max(spot.size_m) if spot.shape == "gaussian" else max(spot.size_m) * (1 + spot.edge / 2)
+    gap = np.linalg.norm(target.marks.dots_m() - np.asarray(spot.center_m), axis=1) - target.marks.diameters_m() / 2
+    return bool(np.any(gap < reach))
+
+
+def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAMERA_ENU_M) -> dict:
+    target = target or demo_target()
+    pose = look_at_pose(camera_enu_m, target, 5200, (1280, 1024))
     rng = np.random.default_rng(seed)
     before = render_frame(target, pose, rng=int(rng.integers(1 << 30)))
     marks = find_marks(before, target)
-    truth_v = project_board_points(pose, target, np.array(target.marks.vertices_m))
+    if target.marks.kind == "dots":
+        truth_v = project_board_points(pose, target, target.marks.dots_m()[[0, 2, 8, 6]])
+    else:
+        truth_v = project_board_points(pose, target, np.array(target.marks.vertices_m))
     truth_c = project_board_points(pose, target, np.zeros((1, 2)))[0]
-    errs = {m: {"mm": [], "px": []} for m in METHODS}
+    errs = {m: {"mm": [], "px": [], "on_dot": []} for m in METHODS}
     invalid = {m: 0 for m in METHODS}
     for _ in range(n_frames):
         shape = str(rng.choice(["gaussian", "flat"]))
@@ -56,15 +93,21 @@ def accuracy(n_frames: int, seed: int = 2024) -> dict:
                 continue
             errs[m]["mm"].append(1000 * np.linalg.norm(r.offset_m - centre))
             errs[m]["px"].append(np.linalg.norm(board_to_image(marks, r.offset_m[None])[0] - true_px))
+            errs[m]["on_dot"].append(_touches_a_dot(target, spot))
     out = {"frames": n_frames, "frame_px": [1280, 1024], "board_px_per_m": round(marks.px_per_m, 2),
+           "marks_kind": target.marks.kind,
            "marks_vertex_error_rms_px": float(np.sqrt(np.mean(np.sum((marks.vertices_px - truth_v) ** 2, axis=1)))),
            "marks_centre_error_px": float(np.linalg.norm(marks.center_px - truth_c)),
            "marks_reprojection_px": marks.reprojection_px, "methods": {}}
     for m in METHODS:
-        mm, px = np.array(errs[m]["mm"]), np.array(errs[m]["px"])
+        mm, px, on = np.array(errs[m]["mm"]), np.array(errs[m]["px"]), np.array(errs[m]["on_dot"], dtype=bool)
         out["methods"][m] = {"rms_mm": float(np.sqrt(np.mean(mm**2))), "max_mm": float(mm.max()),
                              "rms_px": float(np.sqrt(np.mean(px**2))), "max_px": float(px.max()),
                              "invalid": invalid[m]}
+        if target.marks.kind == "dots":  # spots that reach a dot and spots that do not
+            for key, sel in (("on_dot", on), ("off_dots", ~on)):
+                out["methods"][m][f"{key}_frames"] = int(sel.sum())
+                out["methods"][m][f"{key}_rms_mm"] = float(np.sqrt(np.mean(mm[sel] ** 2))) if sel.any() else None
     return out
 
 
@@ -109,11 +152,16 @@ def main() -> int:
     cv2.setNumThreads(1)
     n, reps = (12, 10) if args.quick else (40, 30)
     acc = accuracy(n)
+    cases = {}
+    for name, (target, cam) in boards().items():
+        print(f"rendering {n} frames: {name} ...", flush=True)
+        cases[name] = accuracy(n, target=target, camera_enu_m=cam)
     thr = {"1280x1024": throughput((1280, 1024), 5200, reps), "2448x2048": throughput((2448, 2048), 9950, reps)}
     import os
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
-    out = {"threads": 1, "load_average_1min": load, "cpus": os.cpu_count(), "accuracy": acc, "throughput": thr, "goal_pairs_per_s": 15}
+    out = {"threads": 1, "load_average_1min": load, "cpus": os.cpu_count(), "accuracy": acc, "boards": cases,
+           "throughput": thr, "goal_pairs_per_s": 15}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=2))
     print(f"accuracy over {n} rendered frames ({acc['board_px_per_m']} px/m on the board):")
@@ -122,6 +170,16 @@ def main() -> int:
     for m, r in acc["methods"].items():
         print(f"  {m:<14} {r['rms_mm']:6.2f} mm RMS (max {r['max_mm']:.2f})  {r['rms_px']:.3f} px RMS "
               f"(max {r['max_px']:.3f})  invalid {r['invalid']}")
+    print(f"mark boards against dot boards, {n} rendered frames each (grlm-centroid, the default method):")
+    for name, c in cases.items():
+        r = c["methods"]["grlm-centroid"]
+        split = ""
+        if c["marks_kind"] == "dots":
+            fmt = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
+            split = (f"  spot reaching a dot {fmt(r['on_dot_rms_mm'])} mm RMS ({r['on_dot_frames']}), "
+                     f"off the dots {fmt(r['off_dots_rms_mm'])} mm RMS ({r['off_dots_frames']})")
+        print(f"  {name:<28} {c['board_px_per_m']:5.1f} px/m  centre {c['marks_centre_error_px']:.3f} px  "
+              f"{r['rms_mm']:6.2f} mm RMS (max {r['max_mm']:.1f})  invalid {r['invalid']}{split}")
     print("throughput, one core (frame pairs per second, marks reused):")
     for key, t in thr.items():
         line = "  ".join(f"{m} {r['pairs_per_s']:.0f}/s ({r['ms_per_pair']:.1f} ms, ×{t['ratio_to_floor'][m]:.1f})"

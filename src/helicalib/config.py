@@ -18,7 +18,8 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, PrivateAttr, Tag,
+                      ValidationError, field_validator)
 
 from helicalib.errors import ConfigError, HelicalibError
 
@@ -127,6 +128,9 @@ _CORNERS = (("TL", -1, 1), ("TR", 1, 1), ("BR", 1, -1), ("BL", -1, -1))
 
 
 class Marks(_Model):
+    """T/GRLM 02-2014 annex A.1: four black right-angle (L) marks, ``kind: right-angles`` (the default)."""
+
+    kind: Literal["right-angles"] = "right-angles"
     vertices_m: tuple[Vec2, Vec2, Vec2, Vec2]
     arm_m: PositiveFloat
     thickness_m: PositiveFloat
@@ -176,13 +180,90 @@ class Marks(_Model):
         return value
 
 
+DOT_POSITIONS: dict[str, tuple[int, int]] = {
+    "top-left": (-1, 1), "top": (0, 1), "top-right": (1, 1),
+    "left": (-1, 0), "centre": (0, 0), "right": (1, 0),
+    "bottom-left": (-1, -1), "bottom": (0, -1), "bottom-right": (1, -1)}
+"""The nine dots of a 田 board by name → (column, row) in pitches, u to the right, v up."""
+
+
+class DotMarks(_Model):
+    """Nine round dots of two sizes in a 3 × 3 (田) grid, ``kind: dots`` (the 2019 calibration article).
+
+    ``layout`` gives the rows top to bottom, left to right, ``L`` large and ``s`` small; the dot named
+    by ``reference`` is the reference measuring point and lies at the board centre (u, v) = (0, 0),
+    the grid around it.
+    """
+
+    kind: Literal["dots"]
+    large_diameter_m: PositiveFloat = 1.7
+    small_diameter_m: PositiveFloat = 0.85
+    layout: tuple[str, str, str] = ("LsL", "sLs", "LsL")
+    reference: Literal["top-left", "top", "top-right", "left", "centre", "right", "bottom-left", "bottom",
+                       "bottom-right"] = "centre"
+    pitch_m: PositiveFloat = 4.25  # after the sizes and layout: its check needs them
+
+    @field_validator("layout")
+    @classmethod
+    def _rows(cls, value):
+        for i, row in enumerate(value):
+            if len(row) != 3 or set(row) - {"L", "s"}:
+                raise ValueError(f"row [{i}] {_short(row)}: expected three letters, L (large dot) or s (small dot), "
+                                 "e.g. [LsL, sLs, LsL]")
+        return value
+
+    @field_validator("small_diameter_m")
+    @classmethod
+    def _smaller(cls, value: float, info):
+        large = info.data.get("large_diameter_m")
+        if large is not None and value > large:
+            raise ValueError(f"{value:g} m is larger than large_diameter_m ({large:g} m)")
+        return value
+
+    @field_validator("pitch_m")
+    @classmethod
+    def _apart(cls, value: float, info):
+        # neighbours along a row or column at least a quarter of a large dot apart, so the finder separates them
+        large, small, layout = (info.data.get(k) for k in ("large_diameter_m", "small_diameter_m", "layout"))
+        if None in (large, small, layout):
+            return value
+        d = np.array([[large if c == "L" else small for c in row] for row in layout])
+        widest = max(float(np.max(d[:, :-1] + d[:, 1:])), float(np.max(d[:-1, :] + d[1:, :]))) / 2
+        if value - widest < 0.25 * large:
+            raise ValueError(f"{value:g} m leaves neighbouring dots less than a quarter of a large dot apart "
+                             f"(needs at least {widest + 0.25 * large:g} m)")
+        return value
+
+    def dots_m(self) -> np.ndarray:
+        """Dot centres (9, 2) [m, target frame], rows top to bottom, each left to right."""
+        ref = np.array(DOT_POSITIONS[self.reference], dtype=float)
+        cols, rows = np.meshgrid([-1.0, 0.0, 1.0], [1.0, 0.0, -1.0])
+        return (np.column_stack([cols.ravel(), rows.ravel()]) - ref) * self.pitch_m
+
+    def diameters_m(self) -> np.ndarray:
+        """Dot diameters (9,) [m], in the order of :meth:`dots_m`."""
+        return np.array([self.large_diameter_m if c == "L" else self.small_diameter_m for row in self.layout
+                         for c in row])
+
+
+def _marks_kind(value: Any) -> str:
+    kind = value.get("kind", "right-angles") if isinstance(value, Mapping) else getattr(value, "kind", None)
+    return f"kind={kind}" if isinstance(kind, str) else "kind=?"
+
+
+AnyMarks = Annotated[Annotated[Marks, Tag("kind=right-angles")] | Annotated[DotMarks, Tag("kind=dots")],
+                     Discriminator(_marks_kind, custom_error_type="marks_kind",
+                                   custom_error_message="kind: expected right-angles (the default) or dots")]
+"""``marks`` of a target: the kind is told by ``kind`` (absent: right-angles, T/GRLM's four L marks)."""
+
+
 class Target(_Model):
     id: Id
     center_enu_m: PointENU
     normal_enu: Vec3
     size_m: Annotated[tuple[PositiveFloat, PositiveFloat], _numbers(2)]
     standby_offset_m: Annotated[tuple[float, ...], BeforeValidator(lambda v: _standby(v))] | None = None
-    marks: Marks | None = None
+    marks: AnyMarks | None = None
 
     _normal = field_validator("normal_enu")(classmethod(lambda cls, v: _unit(v)))
 
@@ -190,7 +271,13 @@ class Target(_Model):
     @classmethod
     def _marks_on_board(cls, value, info):
         size = info.data.get("size_m")
-        if value is not None and size is not None:
+        if isinstance(value, DotMarks) and size is not None:
+            dots, radii = value.dots_m(), value.diameters_m() / 2
+            for (u, v), r, name in zip(dots, radii, DOT_POSITIONS):
+                if abs(u) + r > size[0] / 2 + 1e-9 or abs(v) + r > size[1] / 2 + 1e-9:
+                    raise ValueError(f"the {name} dot (centre ({u:g}, {v:g}) m, diameter {2 * r:g} m) runs off the "
+                                     f"{size[0]:g} x {size[1]:g} m board; a smaller pitch_m or a larger board")
+        elif value is not None and size is not None:
             for k, (u, v) in enumerate(value.vertices_m):
                 if abs(u) > size[0] / 2 + 1e-9 or abs(v) > size[1] / 2 + 1e-9:
                     raise ValueError(f"vertices_m[{k}] ({u:g}, {v:g}) lies off the {size[0]:g} x {size[1]:g} m board")
@@ -640,7 +727,9 @@ def _message(err: Mapping[str, Any]) -> str:
 
 def _clean_loc(loc: Sequence[Any]) -> list[Any]:
     # pydantic inserts the branch name of union / tagged types ("tuple[float, float]", "function-before"...)
-    return [p for p in loc if not (isinstance(p, str) and ("[" in p or "-" in p and p.startswith("function")))]
+    # and the tag of a tagged union ("kind=dots": the marks of a target)
+    return [p for p in loc if not (isinstance(p, str) and ("[" in p or "-" in p and p.startswith("function")
+                                                           or p.startswith("kind=")))]
 
 
 def _read_heliostats_csv(path: Path, where: str) -> list[dict[str, Any]]:

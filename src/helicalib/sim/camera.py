@@ -1,7 +1,7 @@
 """Target-camera renderer of the simulated plant and ``SimCamera`` (``devices.protocols.Camera``).
 
 A frame is rendered in two steps. The board is rastered in its own plane (target frame u, v):
-a static albedo image (white board, four black L marks) lit by the ambient light (tied to DNI)
+a static albedo image (white board, four black L marks or nine black dots, ``sim.boards``) lit by the ambient light (tied to DNI)
 plus the spot of every heliostat whose *true* beam meets the board. Each spot is the mirror's
 footprint (mirror size × incidence, stretched by the board's obliquity) blurred by a Gaussian of
 the sun shape and twice the slope error, carrying ``DNI · area · cos(incidence) · reflectivity ·
@@ -21,6 +21,7 @@ from scipy.special import ndtr
 
 from helicalib.devices.protocols import Frame
 from helicalib.geometry import optics
+from helicalib.sim.boards import dark_mask
 from helicalib.sim.scenario import CameraSpec, Optics
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -143,7 +144,7 @@ class BoardRenderer:
         shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
         self.h_raster = self.h_board @ raster_to_board @ shift
         uu, vv = np.meshgrid(self.u_m, self.v_m)
-        self.albedo = np.where(mark_mask(target, uu, vv), spec.mark_albedo, spec.board_albedo).astype(np.float32)
+        self.albedo = np.where(dark_mask(target, uu, vv), spec.mark_albedo, spec.board_albedo).astype(np.float32)
         rng = np.random.default_rng(seed)
         w, h = self.size_px
         self._noise = rng.standard_normal((h + 64, w + 64)).astype(np.float32) * np.float32(spec.noise_counts)

@@ -66,12 +66,18 @@ class MarksResult:
     px_per_m: float = float("nan")
     camera_matrix: np.ndarray | None = None
     distortion: np.ndarray | None = None
+    kind: str = "right-angles"
+    """The board's marks kind (``marks.kind`` of the target): "right-angles" or "dots"."""
+    dots_px: np.ndarray | None = None
+    """Dot boards: the nine dot centres (9, 2) [frame px], rows top to bottom, NaN for a dot not used."""
 
     def to_json(self) -> dict:
         def lst(a):
             return None if a is None or not np.all(np.isfinite(a)) else np.round(np.asarray(a, float), 4).tolist()
 
-        return {"found": self.found, "reason": self.reason, "message": self.message,
+        extra = {} if self.dots_px is None else {
+            "dots_px": [None if not np.all(np.isfinite(p)) else np.round(p, 4).tolist() for p in self.dots_px]}
+        return {"found": self.found, "reason": self.reason, "message": self.message, "kind": self.kind, **extra,
                 "vertices_px": lst(self.vertices_px), "center_px": lst(self.center_px),
                 "reprojection_px": None if not np.isfinite(self.reprojection_px) else round(self.reprojection_px, 4),
                 "px_per_m": None if not np.isfinite(self.px_per_m) else round(self.px_per_m, 3)}
@@ -248,6 +254,10 @@ def find_marks(gray: np.ndarray, target: Target, camera: Camera | None = None, *
 
     if target.marks is None:
         return MarksResult(False, "marks_not_found", f"target {target.id} has no marks in the field config.")
+    if target.marks.kind == "dots":
+        from helicalib.vision.dots import find_dots
+
+        return find_dots(gray, target, camera, max_reprojection_px=max_reprojection_px)
     K, dist = camera_model(camera)
     gray = np.ascontiguousarray(gray, dtype=np.uint8)
     cands = _candidates(gray)
@@ -292,17 +302,26 @@ def find_marks(gray: np.ndarray, target: Target, camera: Camera | None = None, *
     Hib, _ = cv2.findHomography(ideal, model.reshape(-1, 2), 0)  # ideal image → board
     if Hib is None or not np.all(np.isfinite(Hib)):
         return MarksResult(False, "marks_not_found", "the mark corners do not define a homography.")
+    return finish_homography(Hib, model.reshape(-1, 2), ideal, K, dist, max_reprojection_px, "4 marks found",
+                             vertices_px=refined.reshape(4, 6, 2)[:, 0, :].copy(), corners_px=refined)
+
+
+def finish_homography(Hib: np.ndarray, model_m: np.ndarray, ideal_px: np.ndarray, K, dist,
+                      max_reprojection_px: float, found_text: str, **extra) -> MarksResult:
+    """The result of a fitted homography ``Hib`` (ideal image → board) of the points ``ideal_px``
+    (N, 2) whose board positions are ``model_m`` (N, 2): RMS reprojection error, the board centre
+    and scale in the frame, and the reprojection limit. ``extra`` fills the kind's own fields
+    (``vertices_px`` at least)."""
     Hbi = np.linalg.inv(Hib)
-    reproj = float(np.sqrt(np.mean(np.sum((_apply_h(Hbi, model.reshape(-1, 2)) - ideal) ** 2, axis=1))))
+    reproj = float(np.sqrt(np.mean(np.sum((_apply_h(Hbi, model_m) - ideal_px) ** 2, axis=1))))
     centre_ideal = _apply_h(Hbi, np.zeros((1, 2)))
     # board scale at the centre: image length of 1 m along u and along v
     J = _apply_h(Hbi, np.array([[0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]]))
     px_per_m = float(max(np.linalg.norm(J[0] - J[1]), np.linalg.norm(J[2] - J[3])))
-    kw = dict(vertices_px=refined.reshape(4, 6, 2)[:, 0, :].copy(), homography=Hib / Hib[2, 2],
-              reprojection_px=reproj, center_px=distort_px(centre_ideal, K, dist)[0], corners_px=refined,
-              px_per_m=px_per_m, camera_matrix=K, distortion=dist)
+    kw = dict(homography=Hib / Hib[2, 2], reprojection_px=reproj, center_px=distort_px(centre_ideal, K, dist)[0],
+              px_per_m=px_per_m, camera_matrix=K, distortion=dist, **extra)
     if not np.isfinite(reproj) or reproj > max_reprojection_px:  # NaN compares False: refuse it explicitly
         return MarksResult(False, "reprojection",
                            f"the marks fit the board layout only to {reproj:.2f} px RMS "
                            f"(limit {max_reprojection_px:.2f} px).", **kw)
-    return MarksResult(True, "ok", f"4 marks found, reprojection {reproj:.3f} px RMS.", **kw)
+    return MarksResult(True, "ok", f"{found_text}, reprojection {reproj:.3f} px RMS.", **kw)

@@ -13,7 +13,7 @@ GREEN, RED, CYAN, YELLOW, MAGENTA = (0, 200, 0), (0, 0, 255), (255, 200, 0), (0,
 def draw_overlay(gray: np.ndarray, result, target: Target) -> np.ndarray:
     """A BGR uint8 image (H, W, 3): the frame with the measurement drawn on it.
 
-    Marks corners (green), board outline (cyan), the square window (yellow), the target centre
+    Marks corners or dot centres (green), board outline (cyan), the square window (yellow), the target centre
     (magenta cross) and the spot centre (red cross), and a status line.
     """
     import cv2
@@ -33,7 +33,7 @@ def draw_overlay(gray: np.ndarray, result, target: Target) -> np.ndarray:
 
     marks = result.marks
     if marks is not None and np.all(np.isfinite(marks.homography)):
-        for c in marks.corners_px:
+        for c in marks.corners_px if marks.dots_px is None else marks.dots_px:  # L corners or dot centres
             if np.all(np.isfinite(c)):
                 cv2.circle(img, tuple(pts(c)), 3 * scale, GREEN, 1, cv2.LINE_AA, shift)
         w, h = target.size_m[0] / 2, target.size_m[1] / 2

@@ -1,7 +1,7 @@
 """A small synthetic target-board renderer for tests and benchmarks (not a physical simulator).
 
 It draws what a target camera sees: the white board in perspective from a camera pose, the four
-black L marks (``marks`` of the field config), uneven ambient lighting, a darker background around
+black L marks or nine black dots (``marks`` of the field config), uneven ambient lighting, a darker background around
 the board, zero or more heliostat spots (Gaussian or flat-topped elliptical, in board metres, so
 their true centre is known exactly), sensor noise and 8-bit saturation. Every pixel is evaluated
 analytically at ``supersample²`` points (anti-aliased edges), so ground truth does not depend
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from helicalib.config import Target
+from helicalib.config import DotMarks, Target
 
 
 @dataclass(frozen=True)
@@ -125,11 +125,15 @@ class Lighting:
 
 
 def mark_mask(target: Target, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """True where board point (u, v) [m] lies on one of the four L marks."""
+    """True where board point (u, v) [m] lies on one of the four L marks (or the nine dots of a dot board)."""
     m = target.marks
     inside = np.zeros(np.broadcast(u, v).shape, dtype=bool)
     if m is None:
         return inside
+    if m.kind == "dots":
+        from helicalib.sim.boards import dot_mask
+
+        return dot_mask(m, u, v)
     for pu, pv in m.vertices_m:
         su, sv = -np.sign(pu), -np.sign(pv)  # arms run toward the board centre
         a = su * (u - pu)  # distance from the vertex along the horizontal arm
@@ -219,6 +223,11 @@ def demo_target() -> Target:
                   standby_offset_m=(-15.0, 0.0),
                   marks={"vertices_m": [[-5.5, 5.5], [5.5, 5.5], [5.5, -5.5], [-5.5, -5.5]],
                          "arm_m": 1.4, "thickness_m": 0.35})
+
+
+def demo_dot_target() -> Target:
+    """The demo board T1 with nine dots (``kind: dots``, the defaults: 1.7 / 0.85 m dots, pitch 4.25 m)."""
+    return demo_target().model_copy(update={"marks": DotMarks(kind="dots")})
 
 
 DEMO_CAMERA_ENU_M = (14.0, 75.0, 2.0)

@@ -268,8 +268,10 @@ def _ambient_ratio(a_s: np.ndarray, b_s: np.ndarray, lit: np.ndarray) -> tuple[f
     return k, ref
 
 
-def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limits: SpotLimits) -> FrameSpot:
-    """One after frame; ``B``, ``A`` are the before and after frames sampled on the grid (uint8)."""
+def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limits: SpotLimits,
+                fill=None) -> FrameSpot:
+    """One after frame; ``B``, ``A`` are the before and after frames sampled on the grid (uint8);
+    ``fill`` (a :class:`~helicalib.vision.dots.DotFill`) restores the spot's light on a dot board's dots."""
     import cv2
 
     inside = grid.inside
@@ -285,6 +287,8 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
         raise _Invalid("low_contrast", "the board is too dark or saturated to compare before and after.")
     k, d0 = _ambient_ratio(a_s, b_s, lit)
     D = cv2.addWeighted(A, 1.0, B, -k, 0.0, dtype=cv2.CV_32F)  # after - k·before
+    if fill is not None:
+        D = fill.correct(D)
     # noise sigma of the difference, from the board cells outside the spot (second pass above)
     noise = max(0.5, 1.4826 * float(np.median(np.abs(d0 - np.median(d0)))))
     Dm = cv2.multiply(D, grid.inside_f32)  # zero off the board's inner part
@@ -414,11 +418,16 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
                           f"(limit {limits.max_reprojection_px:.2f} px).", method, marks)
     grid = _grid_for(marks, target, before.shape, cells_per_m)
     B = grid.sample(before, dtype=None)
+    fill = None
+    if target.marks is not None and target.marks.kind == "dots":
+        from helicalib.vision.dots import DotFill
+
+        fill = DotFill(grid, B, target.marks)
     base = dict(method=method, marks=marks, target_center_px=marks.center_px, cells_per_m=grid.cells_per_m)
     frames: list[FrameSpot] = []
     for i, a in enumerate(afters):
         try:
-            frames.append(_frame_spot(B, grid.sample(a, dtype=None), grid, method, limits))
+            frames.append(_frame_spot(B, grid.sample(a, dtype=None), grid, method, limits, fill))
         except _Invalid as bad:
             extra = dict(threshold=None, spot_area_px=None)
             if bad.partial is not None and bad.partial.area_cells:

@@ -1,0 +1,222 @@
+"""Nine-dot (田) boards: the dot finder, its homography against the renderer's truth, the spot on a
+dot board, the config kind, the simulated plant's dot boards and a short campaign on them.
+
+Ground truth: the renderer's camera pose projects board points into the frame independently of
+the detector (``cv2.projectPoints`` of the 3-D board points; the simulated camera's own
+board→pixel homography).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import yaml
+
+from helicalib.config import ConfigError, DotMarks, load_field_config, parse_field_config
+from helicalib.vision.frames import read_frame, write_png
+from helicalib.vision.marks import _apply_h, find_marks, image_to_board
+from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_dot_target, demo_target, look_at_pose,
+                                     project_board_points, render_frame)
+from helicalib.vision.spot import measure_spot
+
+from conftest import ROOT
+
+TARGET = demo_dot_target()
+DOTS_M = TARGET.marks.dots_m()
+CYLINDER = ROOT / "simulations" / "fields" / "dots_cylinder.yaml"
+
+SCENES = {
+    # the demo camera: ~70 m in front of the 12 m board at 95 m, a steep upward view
+    "frontal": dict(cam=DEMO_CAMERA_ENU_M, fx=5200, roll=0.0, light=Lighting()),
+    # from the side (about 50° off the normal), rolled, strong light gradient, more noise
+    "oblique": dict(cam=(60.0, 60.0, 20.0), fx=4200, roll=12.0,
+                    light=Lighting(ambient=120, gradient=(0.35, -0.3), noise_sigma=3.0)),
+}
+
+
+def _roundtrip(tmp_path, img, name="f.png"):
+    return read_frame(write_png(tmp_path / name, img))
+
+
+def _pose(name):
+    sc = SCENES[name]
+    return look_at_pose(sc["cam"], TARGET, sc["fx"], (1280, 1024), roll_deg=sc["roll"], aim_uv_m=(0.4, -0.3))
+
+
+def _check_homography(r, pose, dots_max_px=0.5):
+    assert r.found and r.kind == "dots", r.message
+    truth = project_board_points(pose, TARGET, DOTS_M)
+    # the board centre (the reference dot) and every true dot centre, through the homography
+    centre = project_board_points(pose, TARGET, np.zeros((1, 2)))[0]
+    assert np.linalg.norm(r.center_px - centre) < 0.1
+    assert np.abs(image_to_board(r, truth) - DOTS_M).max() < 0.005  # 5 mm on the board
+    # board points far from the dots too (the board's corners)
+    corners = np.array([[-6.0, 6.0], [6.0, 6.0], [6.0, -6.0], [-6.0, -6.0]])
+    assert np.abs(image_to_board(r, project_board_points(pose, TARGET, corners)) - corners).max() < 0.01
+    used = np.all(np.isfinite(r.dots_px), axis=1)
+    # the measured ellipse centres sit within a fraction of a pixel of the projected circle centres
+    # (the ellipse centre is not the projected centre: the difference is corrected in the fit)
+    assert np.linalg.norm(r.dots_px[used] - truth[used], axis=1).max() < dots_max_px
+    assert r.reprojection_px < 0.2
+    return used
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_dot_board_found_and_its_homography_matches_the_renderer(tmp_path, name):
+    pose = _pose(name)
+    gray = _roundtrip(tmp_path, render_frame(TARGET, pose, lighting=SCENES[name]["light"], rng=7))
+    r = find_marks(gray, TARGET)
+    used = _check_homography(r, pose)
+    assert used.all()
+    # the outer dots are the result's vertices (TL, TR, BR, BL)
+    truth = project_board_points(pose, TARGET, DOTS_M[[0, 2, 8, 6]])
+    assert np.linalg.norm(r.vertices_px - truth, axis=1).max() < 0.1
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_dot_board_found_with_the_centre_dot_washed_out_by_the_spot(tmp_path, name):
+    pose = _pose(name)
+    # a concentrated beam on the reference dot, 40 times the ambient light: the dot is lit nearly as
+    # bright as the white board around it and the frame saturates
+    spot = Spot(center_m=(0.1, -0.15), size_m=(0.9, 0.8), peak=6000.0)
+    gray = _roundtrip(tmp_path, render_frame(TARGET, pose, [spot], lighting=SCENES[name]["light"], rng=3))
+    r = find_marks(gray, TARGET)
+    used = _check_homography(r, pose)
+    assert not used[4] and used.sum() == 8  # the centre dot is not used; the other eight are
+
+
+def test_dot_board_found_with_a_dot_painted_over(tmp_path):
+    pose = _pose("frontal")
+    gray = render_frame(TARGET, pose, rng=5)
+    x, y = project_board_points(pose, TARGET, DOTS_M[[2]])[0].astype(int)  # the top-right dot
+    gray[y - 45: y + 45, x - 60: x + 60] = 150
+    r = find_marks(_roundtrip(tmp_path, gray), TARGET)
+    used = _check_homography(r, pose)
+    assert not used[2] and used.sum() == 8
+
+
+def test_dots_not_found_on_a_mark_board_a_blank_frame_or_with_five_dots_hidden(tmp_path):
+    blank = np.full((1024, 1280), 140, np.uint8)
+    r = find_marks(blank, TARGET)
+    assert not r.found and r.reason == "marks_not_found" and np.all(np.isnan(r.homography))
+    pose = _pose("frontal")
+    # a frame of the L-mark board: no dots in it, whatever the dot finder sees
+    r = find_marks(render_frame(demo_target(), pose, rng=1), TARGET)
+    assert not r.found and r.reason == "marks_not_found"
+    gray = render_frame(TARGET, pose, rng=5)
+    for k in (0, 1, 2, 4, 6):  # five dots hidden: four remain, one short of a checked homography
+        x, y = project_board_points(pose, TARGET, DOTS_M[[k]])[0].astype(int)
+        gray[y - 45: y + 45, x - 60: x + 60] = 150
+    r = find_marks(_roundtrip(tmp_path, gray), TARGET)
+    assert not r.found and r.reason == "marks_not_found" and "dots" in r.message
+
+
+def test_a_too_strict_reprojection_limit_reports_reprojection():
+    r = find_marks(render_frame(TARGET, _pose("frontal"), rng=2), TARGET, max_reprojection_px=0.001)
+    assert not r.found and r.reason == "reprojection" and np.isfinite(r.reprojection_px)
+
+
+@pytest.mark.parametrize("centre, tol_mm", [((2.2, -1.9), 5.0), ((0.45, 0.35), 25.0)])
+def test_spot_centre_on_a_dot_board_off_and_on_the_reference_dot(centre, tol_mm):
+    """Off the dots the spot is measured as on a mark board; on the reference dot (the usual aim)
+    its light, dimmed by the dot, is restored from the before frame (without that the centre is
+    pushed 0.1-0.7 m off the dot)."""
+    pose = _pose("frontal")
+    before = render_frame(TARGET, pose, rng=11)
+    errs = []
+    for seed in range(3):
+        after = render_frame(TARGET, pose, [Spot(centre, (0.8, 0.7), peak=60, angle_deg=30)], rng=20 + seed)
+        r = measure_spot(before, [after], TARGET)
+        assert r.valid, r.message
+        errs.append(1000 * np.linalg.norm(r.offset_m - centre))
+    assert max(errs) < tol_mm, errs
+
+
+# ---------------------------------------------------------------------------- config
+def _demo_data(demo_field_path):
+    return yaml.safe_load(demo_field_path.read_text())
+
+
+def test_marks_kind_defaults_to_right_angles_and_dots_take_the_article_sizes(demo_field_path):
+    data = _demo_data(demo_field_path)
+    cfg = parse_field_config(data, "f.yaml")
+    assert all(t.marks.kind == "right-angles" for t in cfg.targets)
+    data["targets"][1]["marks"] = {"kind": "dots"}
+    m = parse_field_config(data, "f.yaml").targets[1].marks
+    assert isinstance(m, DotMarks) and (m.large_diameter_m, m.small_diameter_m, m.pitch_m) == (1.7, 0.85, 4.25)
+    assert m.diameters_m().tolist() == [1.7, 0.85, 1.7, 0.85, 1.7, 0.85, 1.7, 0.85, 1.7]
+    # the reference dot lies at the board centre, the grid around it
+    data["targets"][1]["marks"] = {"kind": "dots", "reference": "top-left", "pitch_m": 2.5}
+    m = parse_field_config(data, "f.yaml").targets[1].marks
+    assert m.dots_m()[0].tolist() == [0.0, 0.0] and m.dots_m()[8].tolist() == [5.0, -5.0]
+
+
+@pytest.mark.parametrize("marks, where, says", [
+    ({"kind": "circles"}, "targets[1].marks", "kind: expected right-angles"),
+    ({"kind": "dots", "pitch_m": 1.5}, "targets[1].marks.pitch_m", "less than a quarter of a large dot"),
+    ({"kind": "dots", "pitch_m": 5.5}, "targets[1].marks", "the top-left dot"),
+    ({"kind": "dots", "layout": ["LsL", "sXs", "LsL"]}, "targets[1].marks.layout", "row [1]"),
+    ({"kind": "dots", "small_diameter_m": 2.0}, "targets[1].marks.small_diameter_m", "larger than large_diameter_m"),
+    ({"kind": "dots", "reference": "middle"}, "targets[1].marks.reference", "centre"),
+    ({"kind": "dots", "arm_m": 1.4}, "targets[1].marks.arm_m", "unknown key"),
+    ({"kind": "right-angles", "pitch_m": 4.0, "vertices_m": [[-5.5, 5.5], [5.5, 5.5], [5.5, -5.5], [-5.5, -5.5]],
+      "arm_m": 1.4, "thickness_m": 0.35}, "targets[1].marks.pitch_m", "unknown key"),
+])
+def test_bad_dot_marks_name_their_key_path(demo_field_path, marks, where, says):
+    data = _demo_data(demo_field_path)
+    data["targets"][1]["marks"] = marks
+    with pytest.raises(ConfigError) as exc:
+        parse_field_config(data, "f.yaml")
+    first = str(exc.value).splitlines()[0]
+    assert first.startswith(f"f.yaml: {where}: ") and says in first, first
+
+
+# ---------------------------------------------------------------------------- simulated plant
+@pytest.fixture(scope="module")
+def cylinder():
+    return load_field_config(CYLINDER)
+
+
+def test_simulated_cameras_render_dot_boards_the_vision_finds(cylinder):
+    from helicalib.campaign.simulate import default_start_s
+    from helicalib.sim.camera import SimCamera
+    from helicalib.sim.plant import SimulatedPlant
+
+    plant = SimulatedPlant(cylinder, start_s=default_start_s(cylinder) + 11 * 3600)
+    normals, obliquity = [], {}
+    for cam in cylinder.cameras:
+        target = cylinder.target(cam.target)
+        normals.append(np.asarray(target.normal_enu))
+        sim = SimCamera(plant, cam.id)
+        img, _ = sim.render()
+        r = find_marks(img, target, cam)
+        assert r.found and r.kind == "dots", (cam.id, r.message)
+        H = sim.renderer.h_board  # the renderer's own board → pixel homography
+        truth = _apply_h(H, DOTS_M)
+        assert np.linalg.norm(r.center_px - _apply_h(H, np.zeros((1, 2)))[0]) < 0.1, cam.id
+        assert np.abs(image_to_board(r, truth) - DOTS_M).max() < 0.01, cam.id
+        to_cam = np.asarray(cam.position_enu_m) - np.asarray(target.center_enu_m)
+        obliquity[target.id] = np.degrees(np.arccos(to_cam @ np.asarray(target.normal_enu) / np.linalg.norm(to_cam)))
+    # the side boards are seen more obliquely than the centre board, which its camera sees along its azimuth
+    assert min(obliquity["TW"], obliquity["TE"]) > obliquity["TN"] + 15, obliquity
+    # the boards stand on a cylinder: each normal points away from the tower axis at its own azimuth
+    for t, n in zip(cylinder.targets, normals):
+        radial = np.asarray(t.center_enu_m[:2]) / np.linalg.norm(t.center_enu_m[:2])
+        assert n[:2] @ radial / np.linalg.norm(n[:2]) > 0.9999
+
+
+def test_short_simulated_campaign_on_dot_boards_gives_valid_observations(cylinder, tmp_path):
+    from helicalib.campaign.simulate import default_start_s, simulate_campaign
+    from helicalib.store.sqlite import Store
+
+    start = default_start_s(cylinder) + 9.5 * 3600
+    ids = ["H0001", "H0004", "H0008"]  # one on each board (west, north, east)
+    res = simulate_campaign(cylinder, tmp_path, days=1.0 / 24, seed=5, start_s=start, heliostat_ids=ids)
+    store = Store.open(res.database)
+    obs = store.observations()
+    store.close()
+    valid = [o for o in obs if o.valid]
+    assert {o.heliostat_id for o in valid} == set(ids), sorted({(o.heliostat_id, o.reason) for o in obs})
+    assert not [o for o in obs if o.reason in ("marks_not_found", "reprojection")]
