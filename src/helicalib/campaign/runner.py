@@ -41,8 +41,10 @@ from helicalib.store.records import off_tracking
 
 WEATHER_POLL_S = 60.0
 """Plant seconds between weather polls (a stow follows within one poll)."""
-CLEANLINESS_MAX_AGE_S = WEATHER_POLL_S
-"""The planner re-reads a heliostat's cleanliness register when its last read is this old [plant s]."""
+CLEANLINESS_MAX_AGE_S = 1800.0
+"""The gaps planner re-reads a heliostat's cleanliness register when its last read is this old
+[plant s]. Soiling changes over days; a washed mirror counts as clean within half an hour. Re-read
+every minute, a 10⁴-heliostat field would cost 10⁴ register reads a minute."""
 PLANNER_TICK_S = 30.0
 """Plant seconds between planner ticks while a target is free."""
 SHARE_REACH_S = 1800.0
@@ -487,7 +489,7 @@ class CampaignRunner:
     def nominal_of(self, hid: str) -> HeliostatModel:
         model = self._nominal_one.get(hid)
         if model is None:
-            model = self._nominal_one[hid] = self.nominal.subset([self.ids.index(hid)])
+            model = self._nominal_one[hid] = self.nominal.subset([self._index[hid]])
         return model
 
     def _cleanliness(self, hid: str, now: float) -> float | None:
@@ -620,7 +622,7 @@ class CampaignRunner:
         ids = [hid for hid in self.ids if hid not in busy and self.book.points(hid)]
         if not ids:
             return
-        rows = [self.ids.index(hid) for hid in ids]
+        rows = [self._index[hid] for hid in ids]
         calibrated = self.nominal.subset(rows).with_params(np.vstack([self.models[h].params for h in ids]))
         later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
         corr = policy.tracking_corrections(self.cfg, self.nominal.subset(rows), calibrated, vec, later)

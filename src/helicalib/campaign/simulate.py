@@ -170,10 +170,10 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
     rms = lambda x: round(float(np.sqrt(np.mean(np.square(x)))), 3) if x else None  # noqa: E731
     all_ids = [h.id for h in cfg.heliostats]
     params = np.zeros((len(all_ids), runner.nominal.params.shape[1]))
-    rows = [all_ids.index(hid) for hid in ids]
+    rows = [cfg.heliostat_index(hid) for hid in ids]
     params[rows] = runner.calibrated_model().params
 
-    accepted_rows = [all_ids.index(hid) for hid in accepted]
+    accepted_rows = [cfg.heliostat_index(hid) for hid in accepted]
 
     def sky_of(backlash: str) -> dict:
         ev = evaluate_model(sim.truth, params, backlash=backlash)
