@@ -65,7 +65,8 @@ class Recording:
         return value
 
 
-def record(field: Path, days: float, seed: int, scenario_path: str | None, rows: list) -> None:
+def record(field: Path, days: float, seed: int, scenario_path: str | None, rows: list, start_s: float | None = None,
+           heliostats: int | None = None) -> None:
     from helicalib.campaign.runner import CampaignRunner
     from helicalib.campaign.sensor import camera_sensors
     from helicalib.campaign.simulate import default_start_s
@@ -79,7 +80,7 @@ def record(field: Path, days: float, seed: int, scenario_path: str | None, rows:
 
     cfg = load_field_config(field)
     scenario = load_scenario(scenario_path).model_copy(update={"seed": seed})
-    start = default_start_s(cfg)
+    start = default_start_s(cfg) if start_s is None else start_s
     sim = SimulatedPlant(cfg, scenario, start_s=start)
     clock = VirtualClock(start)
     clock.on_advance(sim.advance_to)
@@ -88,15 +89,22 @@ def record(field: Path, days: float, seed: int, scenario_path: str | None, rows:
     with tempfile.TemporaryDirectory() as tmp:
         store = Store.open(Path(tmp) / "fit.db", durable=False)
         ids = [h.id for h in cfg.heliostats]
+        if heliostats is not None and heliostats < len(ids):  # every k-th heliostat
+            ids = [ids[i] for i in np.round(np.linspace(0, len(ids) - 1, heliostats)).astype(int)]
         cid = store.start_campaign(name="fit", mode="simulate", started_s=start,
                                    heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
-        runner = CampaignRunner(cfg, sim, sensors, clock, store, cid)
+        runner = CampaignRunner(cfg, sim, sensors, clock, store, cid, heliostat_ids=ids)
         runner.run_until(start + days * 86400.0)
         store.close()
 
 
-def fit(rows: list, spec, limits, fractions=np.arange(0.10, 0.61, 0.05)) -> dict:
-    """The error model from the recorded rows; ``spec`` the scenario's camera, ``limits`` the vision's."""
+def fit(rows: list, spec, limits, fractions=np.arange(0.20, 0.51, 0.05), scales=np.arange(0.80, 1.61, 0.05),
+        no_spot_fractions=(0.3, 0.4, 0.5, 0.6, 0.7, 0.8)) -> dict:
+    """The error model from the recorded rows; ``spec`` the scenario's camera, ``limits`` the vision's.
+
+    The threshold fraction, the contrast scale and the no-spot fraction are chosen together: the
+    triple whose verdicts on the recorded spots agree with the rendered ones most often (the same
+    reason on the same spot); ties go to the smallest largest difference in the reasons' shares."""
     from helicalib.sim.fast_sensor import judge_spot
 
     valid = [r for r in rows if r["reason"] == "ok" and r["measured"] is not None]
@@ -114,22 +122,27 @@ def fit(rows: list, spec, limits, fractions=np.arange(0.10, 0.61, 0.05)) -> dict
     a = np.column_stack([np.ones_like(s2), s2])
     coef, *_ = np.linalg.lstsq(a, r2, rcond=None)
     floor2, k2 = max(coef[0], 1e-8), max(coef[1], 0.0)
-    # threshold fraction: agreement of the vision's verdicts with the rendered ones on the same spots
+    # threshold, contrast scale, no-spot fraction: agreement with the rendered verdicts on the same spots
+    rendered = Counter(r["reason"] for r in rows)
     best = None
     for f in fractions:
-        agree = 0
-        for r in rows:
-            reason = judge_spot(r["spot"], r["target"], spec, limits, float(f), r["ambient_before"],
-                                r["ambient_after"])[0]
-            agree += (reason == "ok") == (r["reason"] == "ok") and (reason == r["reason"] or r["reason"] == "ok")
-        if best is None or agree > best[1]:
-            best = (float(f), agree)
+        for scale in scales:
+            for ns in no_spot_fractions:
+                judged = [judge_spot(r["spot"], r["target"], spec, limits, float(f), r["ambient_before"],
+                                     r["ambient_after"], float(scale), float(ns))[0] for r in rows]
+                agree = sum(j == r["reason"] for j, r in zip(judged, rows))
+                shares = Counter(judged)
+                worst = max(abs(shares[k] - rendered[k]) for k in set(shares) | set(rendered))
+                key = (agree, -worst)
+                if best is None or key > best[1]:
+                    best = ((float(f), float(scale), float(ns)), key)
     cl = [(r["clean"], r["true_clean"]) for r in valid if r["clean"] is not None]
     rel = np.array([c / t - 1.0 for c, t in cl]) if cl else np.zeros(1)
     return {"bias_m": [round(float(b), 5) for b in bias], "floor_m": round(float(np.sqrt(floor2)), 5),
-            "per_sigma": round(float(np.sqrt(k2)), 5), "threshold_fraction": round(best[0], 3),
+            "per_sigma": round(float(np.sqrt(k2)), 5), "threshold_fraction": round(best[0][0], 3),
             "cleanliness_sigma": round(float(np.sqrt(np.mean(rel ** 2))), 5),
-            "_agreement": best[1] / max(len(rows), 1), "_valid": int(len(valid)), "_kept": int(keep.sum()),
+            "contrast_scale": round(best[0][1], 3), "no_spot_fraction": round(best[0][2], 3),
+            "_agreement": best[1][0] / max(len(rows), 1), "_valid": int(len(valid)), "_kept": int(keep.sum()),
             "_residual_rms_m": [round(float(x), 5) for x in np.sqrt(np.mean((res[keep] - bias) ** 2, axis=0))]}
 
 
@@ -139,24 +152,30 @@ def main(argv=None) -> int:
     ap.add_argument("--days", type=float, default=1.0)
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--scenario", default=None)
+    ap.add_argument("--start", default=None, help="ISO start (default: the field's local midnight of 1 June)")
+    ap.add_argument("--heliostats", type=int, default=None, help="every k-th heliostat, this many (default all)")
     ap.add_argument("--out", default=str(ROOT / "src" / "helicalib" / "sim" / "fast_sensor.json"))
     args = ap.parse_args(argv)
     from helicalib.sim.scenario import load_scenario
     from helicalib.vision.spot import SpotLimits
 
+    from helicalib.geometry.sun import parse_time, to_unix_seconds
+
+    start_s = float(to_unix_seconds([parse_time(args.start)])[0]) if args.start else None
     rows: list = []
     t0 = time.perf_counter()
     seeds = [int(s) for s in args.seeds.split(",")]
     for seed in seeds:
         n0 = len(rows)
-        record(Path(args.field), args.days, seed, args.scenario, rows)
+        record(Path(args.field), args.days, seed, args.scenario, rows, start_s, args.heliostats)
         print(f"fit_fast_sensor: seed {seed}: {len(rows) - n0} rendered measurements "
               f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     model = fit(rows, load_scenario(args.scenario).camera, SpotLimits())
     reasons = Counter(r["reason"] for r in rows)
     out = {"note": "fitted by simulations/fit_fast_sensor.py on rendered measurements; see docs/simulator.md",
            "fitted_on": {"field": Path(args.field).name, "days": args.days, "seeds": seeds,
-                         "scenario": args.scenario or "default", "measurements": len(rows),
+                         "scenario": Path(args.scenario).name if args.scenario else "default",
+                         "start": args.start, "heliostats": args.heliostats, "measurements": len(rows),
                          "render_reasons": dict(reasons), "validity_agreement": round(model.pop("_agreement"), 4),
                          "valid": model.pop("_valid"), "kept": model.pop("_kept"),
                          "residual_rms_m": model.pop("_residual_rms_m")},

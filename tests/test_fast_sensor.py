@@ -86,3 +86,29 @@ def test_the_shipped_model_says_what_it_was_fitted_on():
     m = SensorErrorModel.load()
     # its spread is the rendered measurements' residual at a typical blur, within the fit's reach
     assert 0 < m.floor_m < 0.05 and m.per_sigma >= 0 and 0.1 <= m.threshold_fraction <= 0.6
+
+
+def test_faint_spots_are_judged_on_the_fitted_contrast_scale_and_no_spot_fraction(cfg):
+    """judge_spot's peak is linear in the spot's power: find the power at which the analytic peak
+    crosses min_contrast (scale 1), then check the fitted scale and no-spot fraction move a faint
+    spot's verdict exactly across the vision's limits."""
+    from helicalib.sim.fast_sensor import SpotPhysics, judge_spot
+    from helicalib.sim.scenario import parse_scenario
+    from helicalib.vision.spot import SpotLimits
+
+    target, spec, lim = cfg.targets[0], parse_scenario({}).camera, SpotLimits()
+
+    def verdict(power, scale=1.0, no_spot=0.5):
+        s = SpotPhysics(np.array([0.3, -0.2]), np.array([1.5, 1.2]), np.array([0.3, 0.3]), power, True)
+        return judge_spot(s, target, spec, lim, 0.35, 100.0, 100.0, scale, no_spot)[0]
+
+    lo, hi = 1.0, 1e7  # bisection on the low_contrast / ok edge (peak == min_contrast)
+    assert verdict(lo) == "no_spot" and verdict(hi) != "low_contrast"
+    for _ in range(80):
+        mid = np.sqrt(lo * hi)
+        lo, hi = (mid, hi) if verdict(mid) in ("no_spot", "low_contrast") else (lo, mid)
+    edge = hi
+    assert verdict(0.7 * edge) == "low_contrast" and verdict(0.7 * edge, scale=1.5) == "ok"
+    assert verdict(0.7 * edge, scale=1.4) == "low_contrast"  # 0.98 of the limit
+    assert verdict(0.45 * edge) == "no_spot" and verdict(0.45 * edge, no_spot=0.3) == "low_contrast"
+    assert verdict(0.55 * edge) == "low_contrast" and verdict(0.55 * edge, no_spot=0.6) == "no_spot"

@@ -55,13 +55,20 @@ class SensorErrorModel:
     """Annex A threshold as a fraction of the spot's peak difference (Otsu's, on rendered spots)."""
     cleanliness_sigma: float = 0.004
     """Relative spread of the measured cleanliness."""
+    contrast_scale: float = 1.0
+    """The vision's peak difference over the spot's analytic peak (3×3 smoothing, pixel footprint,
+    noise on the brightest pixel), as fitted: faint spots are judged on the scaled peak."""
+    no_spot_fraction: float = 0.5
+    """A peak below this fraction of ``min_contrast`` reads as no spot (the vision's signal-to-noise
+    limit) rather than a faint one, as fitted."""
 
     @classmethod
     def load(cls, path: Path | str = MODEL_PATH) -> SensorErrorModel:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
         p = data["model"]
         return cls(bias_m=tuple(p["bias_m"]), floor_m=p["floor_m"], per_sigma=p["per_sigma"],
-                   threshold_fraction=p["threshold_fraction"], cleanliness_sigma=p["cleanliness_sigma"])
+                   threshold_fraction=p["threshold_fraction"], cleanliness_sigma=p["cleanliness_sigma"],
+                   contrast_scale=p.get("contrast_scale", 1.0), no_spot_fraction=p.get("no_spot_fraction", 0.5))
 
     def spread_m(self, sigma_spot_m: np.ndarray) -> np.ndarray:
         """Spread (2,) [m] of the measured centre of a spot blurred by ``sigma_spot_m`` (2,)."""
@@ -86,9 +93,10 @@ class SpotPhysics:
 
 
 def judge_spot(s: SpotPhysics, target, spec, limits: SpotLimits, threshold_fraction: float, ambient_before: float,
-               ambient_after: float):
+               ambient_after: float, contrast_scale: float = 1.0, no_spot_fraction: float = 0.5):
     """(reason, message, centroid (2,) or None) of one spot by the vision's limits: ``spec`` is the
-    scenario's camera (gain, albedo), ``threshold_fraction`` the annex A threshold over the peak."""
+    scenario's camera (gain, albedo), ``threshold_fraction`` the annex A threshold over the peak;
+    ``contrast_scale`` and ``no_spot_fraction`` as in :class:`SensorErrorModel`."""
     lim, half = limits, np.asarray(target.size_m, dtype=float) / 2.0
     if not s.on_plane or not np.all(np.isfinite(s.uv_m)):
         return "no_spot", "no spot on the board.", None
@@ -103,9 +111,9 @@ def judge_spot(s: SpotPhysics, target, spec, limits: SpotLimits, threshold_fract
     pv = _profile(gv, s.uv_m[1], s.width_m[1], s.sigma_m[1])
     flux = s.power_w * np.multiply.outer(pv, pu)
     diff = gain * flux
-    peak = float(diff.max())
+    peak = contrast_scale * float(diff.max())
     if peak < lim.min_contrast:
-        return ("no_spot" if peak < 0.5 * lim.min_contrast else "low_contrast",
+        return ("no_spot" if peak < no_spot_fraction * lim.min_contrast else "low_contrast",
                 f"the spot's peak difference {peak:.0f} grey levels is below {lim.min_contrast:.0f}.", None)
     region = diff >= threshold_fraction * peak
     w = np.where(region, flux, 0.0)
@@ -185,8 +193,10 @@ class FastSensor:
                 yield 1.0
         capture_s = float(np.mean(times))
         s = spots[-1]
-        reason, message, centroid = judge_spot(s, self.target, self.spec, self.limits, self.model.threshold_fraction,
-                                               float(before.state), self._ambient_wm2(times[-1]))
+        m = self.model
+        reason, message, centroid = judge_spot(s, self.target, self.spec, self.limits, m.threshold_fraction,
+                                               float(before.state), self._ambient_wm2(times[-1]), m.contrast_scale,
+                                               m.no_spot_fraction)
         if reason == "ok" and len(spots) > 1:
             uvs = np.array([x.uv_m for x in spots])
             jitter = float(np.sqrt(np.mean(np.sum((uvs - uvs.mean(axis=0)) ** 2, axis=1))))
