@@ -156,6 +156,7 @@ class CampaignRunner:
         self._band_cache: tuple[float, str] = (-math.inf, "")
         self._last_gate = None
         self._clock_ok = True
+        self.operator = None  # operator actions: a campaign.operator.OperatorDesk the console attaches (or None)
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
@@ -322,6 +323,8 @@ class CampaignRunner:
 
     def tick(self, now: float) -> float:
         """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
+        if self.operator is not None:  # operator actions (campaign/operator.py): the crew's requests first
+            self.operator.apply(self, now)
         if now - self.last_poll_s >= WEATHER_POLL_S:
             self._poll_weather(now)
         if now - self.last_refresh_s >= policy.TRACKING_REFRESH_S:
@@ -335,7 +338,7 @@ class CampaignRunner:
         gate = None
         if free and not self.stowed:
             gate = self._gate(now)
-            if gate.open:
+            if gate.open and not (self.operator is not None and self.operator.paused):  # operator: paused
                 for tid in free:
                     self._start_visit(tid, now)
         wakes = [w for (w, *_r) in self.active.values()]
@@ -427,10 +430,12 @@ class CampaignRunner:
         if self.refine:
             spreads = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows,
                                            [h for h in cands if h not in busy], self.sun(now)[0], now)
-        choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
-                                    recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
-                                    target_id=target_id, guests=guests,
-                                    usable=lambda hid: self._reaches(hid, target_id, now))
+        # operator actions (campaign/operator.py): a queued re-check goes before the planner's choice
+        choice = self.operator.next_for(self, target_id, now) if self.operator is not None else None
+        choice = choice or policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
+                                              recheck=self.recheck, busy_heliostats=busy, refine=self.refine,
+                                              spreads=spreads, target_id=target_id, guests=guests,
+                                              usable=lambda hid: self._reaches(hid, target_id, now))
         if choice is None:
             return
         hid = choice
