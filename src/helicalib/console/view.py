@@ -209,6 +209,23 @@ def _when(a, b, now_s: float) -> str:
     return "passed" if b <= now_s else ("open now" if a <= now_s else "later today")
 
 
+def log_rows(events, visits, limit: int = EVENTS_SHOWN) -> list[dict]:
+    """The event log, newest first: the stored events and each ended visit (``visit_end``, from the
+    visits table, so the log reads the same live and from the database alone)."""
+    rows = [{"time_s": e.time_s, "kind": e.kind, "heliostat": e.heliostat_id, "reason": e.reason}
+            for e in events[-limit:]]
+    for v in visits[-limit:]:
+        if v.outcome == "running" or v.ended_s is None:
+            continue
+        errs = "" if v.first_error_mrad is None else (
+            f", {v.first_error_mrad:.2f} mrad" if v.final_error_mrad is None or v.iterations <= 1 else
+            f", {v.first_error_mrad:.2f} -> {v.final_error_mrad:.2f} mrad in {v.iterations} placements")
+        rows.append({"time_s": v.ended_s, "kind": "visit_end", "heliostat": v.heliostat_id,
+                     "reason": f"{v.heliostat_id} off {v.target_id}: {v.outcome} ({v.reason}){errs}"})
+    rows.sort(key=lambda r: r["time_s"], reverse=True)
+    return rows[:limit]
+
+
 def read_view(src: Sources, snapshot=None) -> dict:
     """Everything the page shows (see the module's docstring); ``snapshot``: the controller's newest."""
     from helicalib.campaign.operator import replay
@@ -251,9 +268,8 @@ def read_view(src: Sources, snapshot=None) -> dict:
         "progress": {"heliostats": len(ids), "accepted": counts["accepted"],
                      "next_band": None if snapshot is None else snapshot.next_band,
                      "visits": len(visits), "bands": _bands(cfg, now, ids, verdicts, states)},
-        "events": [{"time_s": e.time_s, "kind": e.kind, "heliostat": e.heliostat_id, "reason": e.reason}
-                   for e in reversed(events[-EVENTS_SHOWN:])],
-        "kinds": sorted({e.kind for e in events}),
+        "events": log_rows(events, visits),
+        "kinds": sorted({e.kind for e in events} | ({"visit_end"} if visits else set())),
         "actions": [{"id": a.id, "kind": a.kind, "heliostats": list(a.heliostat_ids), "who": a.who,
                      "requested_wall_s": a.requested_wall_s, "done_s": a.done_s, "outcome": a.outcome}
                     for a in reversed(actions[-20:])],

@@ -31,11 +31,10 @@
     Object.keys(panels).forEach(function (name) {
       if (name === "actions" && document.activeElement && document.activeElement.closest &&
           document.activeElement.closest("#action-form")) {
-        var table = document.getElementById("actions-table");  // keep what the operator is typing
-        var holder = document.createElement("div");
+        var holder = document.createElement("div");  // keep what the operator is typing: the list only
         holder.innerHTML = panels[name];
-        var fresh = holder.querySelector("#actions-table");
-        if (table && fresh) { table.replaceWith(fresh); }
+        var list = document.getElementById("actions-list"), fresh = holder.querySelector("#actions-list");
+        if (list && fresh) { list.innerHTML = fresh.innerHTML; }
         return;
       }
       var el = document.getElementById("panel-" + name);
