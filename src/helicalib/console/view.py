@@ -271,7 +271,7 @@ def read_view(src: Sources, snapshot=None) -> dict:
         "events": log_rows(events, visits),
         "kinds": sorted({e.kind for e in events} | ({"visit_end"} if visits else set())),
         "actions": [{"id": a.id, "kind": a.kind, "heliostats": list(a.heliostat_ids), "who": a.who,
-                     "requested_wall_s": a.requested_wall_s, "done_s": a.done_s, "outcome": a.outcome}
+                     "requested_wall_s": a.requested_wall_s, "requested_s": a.requested_s, "done_s": a.done_s, "outcome": a.outcome}
                     for a in reversed(actions[-20:])],
         "pending": len(pending),
         "paused": standing.paused,
