@@ -76,4 +76,5 @@ def run(args) -> int:
     finally:
         console.close()
         sources.store.close()
+        console.remove_cache()
     return 0

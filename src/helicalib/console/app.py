@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from urllib.parse import quote
 
-from helicalib.console.view import STATES, Sources, read_view
+from helicalib.console.view import FRAMES_KEPT, STATES, Sources, read_view
 
 TEMPLATES = Path(__file__).with_name("templates")
 STATIC = Path(__file__).with_name("static")
@@ -90,6 +90,12 @@ class Console:
         """Stop the live streams (the server is stopping)."""
         self.closing.set()
 
+    def remove_cache(self) -> None:
+        """Delete the drawn frames, plots and sheets (once the server has stopped)."""
+        import shutil
+
+        shutil.rmtree(self.cache, ignore_errors=True)
+
     def render(self, name: str, **context) -> str:
         from helicalib.report.html import render
 
@@ -137,6 +143,9 @@ class Console:
                 drawn = overlay_latest(self.src.store.images_dir, latest, self.src.cfg, path, width_px=800)
             if drawn["png"] is None:
                 return None
+            old = sorted(path.parent.glob("*.png"), key=lambda f: int(f.stem))[:-FRAMES_KEPT]
+            for f in old:  # a week of visits must not fill the disk
+                f.unlink(missing_ok=True)
         return path
 
     def sheet(self, heliostat_id: str) -> str:

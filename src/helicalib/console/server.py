@@ -180,6 +180,7 @@ def attach_console(args, runner, output):
         console.close()
         server.stop()
         reader.close()
+        console.remove_cache()
 
     tee = Tee(output, feed, on_stop=stop)
     runner.listeners[:] = [tee.on_event if fn == output.on_event else fn for fn in runner.listeners]

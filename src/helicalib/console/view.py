@@ -27,6 +27,9 @@ STATES = {
 }
 """Heliostat states on the field map, with their meaning (the legend)."""
 EVENTS_SHOWN = 300
+FRAMES_KEPT = 50
+"""Observations whose frames the page may ask for (the boards' newest; older ones are forgotten)."""
+_DAYS: dict = {}
 
 
 @dataclass
@@ -158,6 +161,8 @@ def _boards(cfg, snapshot, visits, last_obs, framed, frames_cache, live_visits: 
         f = framed.get(tid)
         if f is not None:
             frames_cache[int(f.id)] = _frames_of(f)
+            for old in sorted(frames_cache)[:-FRAMES_KEPT]:
+                frames_cache.pop(old, None)
             row["frames"] = {"id": int(f.id), "heliostat": f.heliostat_id, "iteration": int(f.iteration),
                              "time_s": f.capture_time_s, "valid": bool(f.valid), "reason": f.reason,
                              "error_mrad": _num(f.error_mrad)}
@@ -174,8 +179,11 @@ def _bands(cfg, now_s: float, ids, verdicts, states) -> dict:
     if cfg is None:
         return {"available": False, "rows": []}
     acc = cfg.acceptance
-    days = sun_days(cfg.site, now_s - 86400.0, now_s + 86400.0, acc.low_band_deg, acc.high_elevation_deg,
-                    step_s=300.0)
+    key = (id(cfg), int(now_s // 600.0))  # the day's bands move by seconds a day: recomputed every 10 min
+    if _DAYS.get("key") != key:
+        _DAYS.update(key=key, days=sun_days(cfg.site, now_s - 86400.0, now_s + 86400.0, acc.low_band_deg,
+                                            acc.high_elevation_deg, step_s=300.0))
+    days = _DAYS["days"]
     today = min(days, key=lambda d: abs(d.noon_s - now_s), default=None)
     if today is None:
         return {"available": False, "rows": []}
@@ -271,7 +279,8 @@ def read_view(src: Sources, snapshot=None) -> dict:
         "events": log_rows(events, visits),
         "kinds": sorted({e.kind for e in events} | ({"visit_end"} if visits else set())),
         "actions": [{"id": a.id, "kind": a.kind, "heliostats": list(a.heliostat_ids), "who": a.who,
-                     "requested_wall_s": a.requested_wall_s, "requested_s": a.requested_s, "done_s": a.done_s, "outcome": a.outcome}
+                     "requested_wall_s": a.requested_wall_s, "requested_s": a.requested_s, "done_s": a.done_s,
+                     "outcome": a.outcome}
                     for a in reversed(actions[-20:])],
         "pending": len(pending),
         "paused": standing.paused,
