@@ -102,7 +102,7 @@ def campaign(tmp_path_factory):
         thread.start()
         try:
             yield {"runner": runner, "store": store, "url": f"http://127.0.0.1:{output.server.port}/", "log": log,
-                   "db": tmp / "c.db", "cid": cid}
+                   "db": tmp / "c.db", "cid": cid, "data": data, "server": _server, "tmp": tmp}
         finally:
             stop.set()
             thread.join(timeout=60)
@@ -257,3 +257,37 @@ def test_beyond_loopback_every_request_needs_the_token(campaign, browser):
         proc.wait(timeout=15)
     assert not campaign["store"].actions(campaign["cid"], pending=True)
     assert sorted(p.name for p in db.parent.iterdir()) == before  # the reader left no file behind
+
+
+def test_run_serves_the_console_of_its_dry_run(campaign):
+    """``helicalib run FIELD --console 127.0.0.1:0 --json`` (no --arm: it only reads the plant, beside the
+    armed campaign): the address comes as a JSON line, the page is served, read-only, until the run stops."""
+    import signal
+    import subprocess
+    import sys
+
+    data, server, tmp = dict(campaign["data"]), campaign["server"], campaign["tmp"]
+    data["plant"] = dict(data["plant"], scs=dict(data["plant"]["scs"], port=server.modbus_port))
+    data["cameras"] = [dict(c, url=server.camera_url(c["id"])) for c in data["cameras"]]
+    data["storage"] = {"database": "sqlite:///dry/helicalib.db", "images_dir": "dry/images"}
+    field = tmp / "dry.yaml"
+    field.write_text(yaml.safe_dump(data, sort_keys=False))
+    proc = subprocess.Popen([sys.executable, "-m", "helicalib", "run", str(field), "--heliostats", "H0002,H0021",
+                             "--days", "1", "--console", "127.0.0.1:0", "--json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = iter(proc.stdout.readline, "")
+        line = next(x for x in map(json.loads, lines) if x.get("event") == "console")
+        assert line["token"] is None and line["url"].startswith("http://127.0.0.1:")
+        code, page = _get(line["url"])
+        assert code == 200 and "Read-only: actions need the controller running with" in page
+        view = json.loads(_get(line["url"] + "api/view")[1])
+        assert view["campaign"]["mode"] == "dry-run" and view["armed_actions"] is False
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-2000:]
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["event"] == "summary" and summary["status"] == "stopped"
+    with pytest.raises(urllib.error.URLError):
+        urllib.request.urlopen(line["url"], timeout=5)  # the page stops with the run
