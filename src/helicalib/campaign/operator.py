@@ -38,7 +38,7 @@ KINDS = {
 }
 """Every action kind, with what it does (``docs/console.md`` lists them)."""
 WITH_HELIOSTATS = frozenset({"recheck", "repaired", "out_of_service", "in_service"})
-MAX_WHO_CHARS = 80
+MAX_WHO_CHARS = 120
 
 
 def check_request(kind: str, heliostat_ids, known, who: str) -> tuple[str, ...]:
