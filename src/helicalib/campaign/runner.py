@@ -156,7 +156,7 @@ class CampaignRunner:
         self._band_cache: tuple[float, str] = (-math.inf, "")
         self._last_gate = None
         self._clock_ok = True
-        self.operator = None  # operator actions: a campaign.operator.OperatorDesk the console attaches (or None)
+        self.operator = None  # operator actions: a campaign.operator.OperatorDesk (armed live runs: console.server)
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
