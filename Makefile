@@ -7,7 +7,12 @@ STAMP   := $(VENV)/.installed-stamp
 FIELD   ?= field_config/demo_north.yaml
 DEMO_OUT ?= demo_out
 
-.PHONY: demo test venv clean
+# The crew console's browser tests drive Debian's Chromium through its chromedriver: installed
+# here when missing (apt-get, with sudo when not root); nothing is downloaded by selenium itself.
+BROWSER := /usr/bin/chromium /usr/bin/chromedriver
+SUDO    := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: demo test venv clean browser
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -20,7 +25,14 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/helicalib demo $(FIELD) --out $(DEMO_OUT)
 
-test: $(STAMP)
+browser:
+	@if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then \
+	  echo "installing chromium and chromium-driver (the console's browser tests)"; \
+	  $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	fi
+
+test: $(STAMP) browser
 	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 clean:

@@ -79,6 +79,7 @@ def test_version_1_database_is_migrated_in_place_and_keeps_its_rows(tmp_path):
     conn = sqlite3.connect(path)  # make it what helicalib's schema version 1 wrote
     conn.execute("ALTER TABLE observations DROP COLUMN approach_1")
     conn.execute("ALTER TABLE observations DROP COLUMN approach_2")
+    conn.execute("DROP TABLE operator_actions")
     conn.execute("UPDATE schema_version SET version = 1")
     conn.commit()
     conn.close()
@@ -89,7 +90,8 @@ def test_version_1_database_is_migrated_in_place_and_keeps_its_rows(tmp_path):
     assert [o.approach for o in s.observations()] == [None, (1, -1)]
     s.close()
     conn = sqlite3.connect(path)
-    assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == SCHEMA_VERSION == 2
+    assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == SCHEMA_VERSION == 3
+    assert conn.execute("SELECT COUNT(*) FROM operator_actions").fetchone()[0] == 0  # version 3 made it
     conn.close()
 
 

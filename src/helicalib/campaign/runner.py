@@ -162,6 +162,7 @@ class CampaignRunner:
         self._band_cache: tuple[float, str] = (-math.inf, "")
         self._last_gate = None
         self._clock_ok = True
+        self.operator = None  # operator actions: a campaign.operator.OperatorDesk (armed live runs: console.server)
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
@@ -328,6 +329,8 @@ class CampaignRunner:
 
     def tick(self, now: float) -> float:
         """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
+        if self.operator is not None:  # operator actions (campaign/operator.py): the crew's requests first
+            self.operator.apply(self, now)
         if now - self.last_poll_s >= WEATHER_POLL_S:
             self._poll_weather(now)
         if now - self.last_refresh_s >= policy.TRACKING_REFRESH_S:
@@ -341,7 +344,7 @@ class CampaignRunner:
         gate = None
         if free and not self.stowed:
             gate = self._gate(now)
-            if gate.open:
+            if gate.open and not (self.operator is not None and self.operator.paused):  # operator: paused
                 for tid in free:
                     self._start_visit(tid, now)
         wakes = [w for (w, *_r) in self.active.values()]
@@ -429,13 +432,15 @@ class CampaignRunner:
             spreads = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows,
                                            [h for h in cands if h not in busy], self.sun(now)[0], now)
         usable = lambda hid: self._reaches(hid, target_id, now)  # noqa: E731
-        if self.planner_kind == "gaps":
+        # operator actions (campaign/operator.py): a queued re-check goes before the planner's choice
+        choice = self.operator.next_for(self, target_id, now) if self.operator is not None else None
+        if choice is None and self.planner_kind == "gaps":
             # a board is lent only to heliostats whose own board is busy (a free own board takes them)
             choice = policy.choose_next_vectorised(
                 self.cfg, self.book, target_id, now, lambda rows: self._cleanliness_of_rows(rows, now),
                 recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
                 active_targets=list(self.active), usable=usable)
-        else:
+        elif choice is None:
             guests = {h: r for h, r in self._guests.get(target_id, {}).items()
                       if self.cfg.heliostat(h).target in self.active}
             cleanliness = {hid: self._cleanliness(hid, now) for hid in [*cands, *guests]}

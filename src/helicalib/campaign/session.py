@@ -106,6 +106,7 @@ def live_session(args, mode: str) -> int:
     from helicalib.campaign.live import run_live
     from helicalib.campaign.runner import CampaignRunner
     from helicalib.config import load_field_config
+    from helicalib.console.server import attach_console
     from helicalib.devices.camera_http import cameras_from_config
     from helicalib.devices.clock import make_clock
     from helicalib.devices.modbus import ModbusPlant
@@ -151,6 +152,7 @@ def live_session(args, mode: str) -> int:
                                 heliostat_ids=opened.heliostat_ids, planner=args.planner, recheck=args.recheck,
                                 armed=args.arm, refine=getattr(args, "refine", False),
                                 listeners=[output.on_event])  # a restart's own events are shown too
+        output = attach_console(args, runner, output)  # operator actions; the crew console with --console
         orphans = store.remove_orphan_frames(opened.campaign_id)
         if orphans:
             output.message(f"removed {orphans} frame file(s) no observation points to (a visit the previous "

@@ -16,6 +16,9 @@ exit with status 2, before the command runs.
 ``site_text``          ``LAT,LON[,ALT]`` with each number in range (returned as the text)
 ``iso_time``           an ISO 8601 instant with offset, years 1678..2261 (returned as the text)
 =====================  ====================================================================
+
+:func:`add_console` adds the crew console's ``--console [HOST:]PORT`` and ``--console-public`` to
+a controller command (``run``, ``check``).
 """
 
 from __future__ import annotations
@@ -117,3 +120,13 @@ def iso_time(text: str) -> str:
     if not FIRST_YEAR <= year <= LAST_YEAR:
         raise argparse.ArgumentTypeError(f"{text!r}: expected a time in the years {FIRST_YEAR}..{LAST_YEAR}")
     return text
+
+
+def add_console(p: argparse.ArgumentParser) -> None:
+    """``--console [HOST:]PORT`` and ``--console-public`` (the crew console, docs/console.md)."""
+    p.add_argument("--console", metavar="[HOST:]PORT", default=None,
+                   help="serve the crew console (a live web page; actions with --arm) on this port, on 127.0.0.1 "
+                        "unless a host is given (docs/console.md)")
+    p.add_argument("--console-public", action="store_true",
+                   help="allow --console to listen beyond loopback; every request then needs the token printed at "
+                        "start")

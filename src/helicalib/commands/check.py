@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import positive_float
+from helicalib.commands._args import add_console, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,11 +20,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true",
                    help="JSON lines on stdout: one per event, a status line every 5 s, a final summary with each "
                         "heliostat's present error, limit and verdict")
+    add_console(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from helicalib.campaign.session import live_session
+    from helicalib.console.server import check_console_args
+
+    check_console_args(args)  # a wrong --console is refused before the plant or the database is touched
 
     args.heliostats = args.heliostat
     args.until, args.days, args.planner, args.recheck = None, args.hours / 24.0, "gaps", True

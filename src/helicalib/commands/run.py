@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import iso_time, positive_float
+from helicalib.commands._args import add_console, iso_time, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,10 +29,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="start a new campaign instead of resuming the field's (its points stay in the database)")
     p.add_argument("--json", action="store_true",
                    help="JSON lines on stdout: one per event, a status line every 5 s, a final summary")
+    add_console(p)
     p.set_defaults(func=run, recheck=False)
 
 
 def run(args) -> int:
     from helicalib.campaign.session import live_session
+    from helicalib.console.server import check_console_args
+
+    check_console_args(args)  # a wrong --console is refused before the plant or the database is touched
 
     return live_session(args, mode="live")

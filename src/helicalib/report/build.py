@@ -159,8 +159,21 @@ _JOB: dict = {}
 """The sheet job a forked worker inherits (set just before the pool forks)."""
 
 
+def write_sheet(data: CampaignData, rep: dict, out_dir, heliostat_id: str, site=None) -> dict:
+    """One heliostat's sheet exactly as the report draws it (page, plots, frames, JSON) in
+    ``out_dir/heliostats/``; ``rep`` is :func:`compute` of ``data``. Returns its summary (``href``
+    relative to ``out_dir``). The crew console draws its sheets with this."""
+    out = Path(out_dir)
+    (out / "heliostats").mkdir(parents=True, exist_ok=True)
+    if heliostat_id not in data.heliostat_ids:
+        from helicalib.errors import ConfigError
+
+        raise ConfigError(f"heliostat {heliostat_id!r} is not in campaign {data.campaign.id if data.campaign else '-'}")
+    return _write_sheets(data, rep, out, True, 1, site, only=[heliostat_id])[0]
+
+
 def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: int | None = None,
-                  site=None) -> list[dict]:
+                  site=None, only: list[str] | None = None) -> list[dict]:
     """Each heliostat's plot, frames, JSON and page; returns the sheet summaries for ``report.json``.
 
     With ``jobs`` > 1 (default: the CPU count, at most 4) and a field of at least
@@ -187,7 +200,7 @@ def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: 
         max_error=float(valid["error_mrad"].max()) if len(valid) else 0.0,
         max_placements=int(valid["iteration"].max()) + 1 if len(valid) else 1,
     )
-    ids = data.heliostat_ids
+    ids = data.heliostat_ids if only is None else list(only)
     jobs = min(4, os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
     methods = multiprocessing.get_all_start_methods()
     try:

@@ -59,22 +59,27 @@ def local(site: SiteTime, value) -> str:
     return f"{site.local(t, '%H:%M' if same_day else '%m-%d %H:%M')} {site.name}"
 
 
-@lru_cache(maxsize=1)
-def environment():
-    """The Jinja2 environment of the report's templates (autoescape on; undefined values are errors)."""
+@lru_cache(maxsize=4)
+def environment(*extra_dirs: str):
+    """The Jinja2 environment of the report's templates (autoescape on; undefined values are errors).
+
+    ``extra_dirs``: folders searched first (the crew console's templates extend and import the
+    report's: the same pieces live and after the fact)."""
     import jinja2
 
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(TEMPLATES)), autoescape=True,
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader([*extra_dirs, str(TEMPLATES)]), autoescape=True,
                              undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
     env.filters.update(v=v, pct=pct, arrows=arrows, utc=utc,
                        local=jinja2.pass_context(lambda ctx, value: local(ctx["site"], value)))
     return env
 
 
-def render(name: str, site: SiteTime | None = None, **context) -> str:
-    """Render template ``name`` with ``context``, the site's clock and the error measures' names."""
-    return environment().get_template(name).render(site=site or site_time(None),
-                                                   names={k: m.name for k, m in MEASURES.items()}, **context)
+def render(name: str, site: SiteTime | None = None, *, extra_dirs: tuple[str, ...] = (), **context) -> str:
+    """Render template ``name`` with ``context``, the site's clock and the error measures' names
+    (``extra_dirs``: template folders searched before the report's, see :func:`environment`)."""
+    return environment(*extra_dirs).get_template(name).render(site=site or site_time(None),
+                                                              names={k: m.name for k, m in MEASURES.items()},
+                                                              **context)
 
 
 def index_page(rep: dict, images: dict, sheets: list[dict], site: SiteTime | None = None) -> str:

@@ -11,11 +11,12 @@ See ``docs/campaign.md`` (storage) for the schema.
 """
 
 from helicalib.store.observation_rows import OBSERVATION_COLUMNS
-from helicalib.store.records import Campaign, CampaignHeliostat, Event, Fit, Observation, Verdict, Visit
+from helicalib.store.records import (Campaign, CampaignHeliostat, Event, Fit, Observation, OperatorAction,
+                                     Verdict, Visit)
 from helicalib.store.schema import SCHEMA_VERSION
 from helicalib.store.sqlite import Store
 
 __all__ = [
-    "Store", "Campaign", "CampaignHeliostat", "Visit", "Observation", "Fit", "Verdict", "Event",
+    "Store", "Campaign", "CampaignHeliostat", "Visit", "Observation", "Fit", "Verdict", "Event", "OperatorAction",
     "OBSERVATION_COLUMNS", "SCHEMA_VERSION",
 ]

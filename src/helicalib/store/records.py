@@ -215,6 +215,27 @@ class Event:
     data: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class OperatorAction:
+    """A crew's request from the console (:mod:`helicalib.console`), applied by the runner.
+
+    ``kind`` is ``'pause'``, ``'resume'``, ``'recheck'``, ``'repaired'``, ``'out_of_service'`` or
+    ``'in_service'``; ``who`` the name the operator gave with the address the request came from;
+    ``requested_wall_s`` the controller's wall clock, ``requested_s`` plant time (None when the
+    plant clock could not be read); ``done_s`` the plant time the runner applied it (None while
+    pending) and ``outcome`` what it did."""
+
+    id: int
+    campaign_id: int
+    kind: str
+    heliostat_ids: tuple[str, ...]
+    who: str
+    requested_wall_s: float
+    requested_s: float | None
+    done_s: float | None = None
+    outcome: str = ""
+
+
 def off_tracking(events) -> list[str]:
     """Heliostats left off tracking: those whose newest ``off_tracking`` event has no
     ``back_to_tracking`` after it (a run that stopped before the plant confirmed their return;

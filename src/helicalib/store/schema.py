@@ -1,10 +1,11 @@
-"""The SQLite schema of a campaign database (version 2) and its creation.
+"""The SQLite schema of a campaign database (version 3) and its creation.
 
 One file holds every campaign run against it. Times are plant time in UTC seconds (REAL);
 vectors are stored one column per component; JSON columns hold dictionaries and lists.
 The ``schema_version`` table holds one row; a database of a newer version is refused, one of an
 older version is brought up to date in place (:data:`MIGRATIONS`: version 2 added each
-observation's approach directions, ``approach_1`` / ``approach_2``, NULL in older rows).
+observation's approach directions, ``approach_1`` / ``approach_2``, NULL in older rows; version 3
+the ``operator_actions`` table of the crew console, :mod:`helicalib.console`).
 """
 
 from __future__ import annotations
@@ -13,7 +14,23 @@ import sqlite3
 
 from helicalib.errors import ConfigError
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
+
+OPERATOR_ACTIONS = (
+    """CREATE TABLE IF NOT EXISTS operator_actions (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    kind TEXT NOT NULL,               -- pause, resume, recheck, repaired, out_of_service, in_service
+    heliostats_json TEXT NOT NULL DEFAULT '[]',
+    who TEXT NOT NULL,                -- the name the operator gave, and the address the request came from
+    requested_wall_s REAL NOT NULL,   -- the controller's wall clock [UTC s]
+    requested_s REAL,                 -- plant time [UTC s] (NULL when the plant clock could not be read)
+    done_s REAL,                      -- plant time the runner applied it (NULL while pending)
+    outcome TEXT NOT NULL DEFAULT ''
+)""",
+    "CREATE INDEX IF NOT EXISTS operator_actions_pending ON operator_actions (campaign_id, done_s)",
+)
+"""The crew console's actions (version 3): created with the schema, and by the migration."""
 
 DDL = """
 CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL);
@@ -134,12 +151,13 @@ CREATE TABLE IF NOT EXISTS events (
     data_json TEXT NOT NULL DEFAULT '{}'
 );
 CREATE INDEX IF NOT EXISTS events_by_campaign ON events (campaign_id, time_s);
-"""
+""" + "".join(stmt + ";\n" for stmt in OPERATOR_ACTIONS)
 
 
 MIGRATIONS: dict[int, tuple[str, ...]] = {
     2: ("ALTER TABLE observations ADD COLUMN approach_1 INTEGER",
         "ALTER TABLE observations ADD COLUMN approach_2 INTEGER"),
+    3: OPERATOR_ACTIONS,
 }
 """Statements that take a database from the version before the key to the key's version."""
 

@@ -23,7 +23,8 @@ import numpy as np
 from helicalib.errors import ConfigError
 from helicalib.store import frames as _frames
 from helicalib.store.observation_rows import OBSERVATION_COLUMNS, observation_from_row, observation_to_row
-from helicalib.store.records import Campaign, CampaignHeliostat, Event, Fit, Observation, Verdict, Visit
+from helicalib.store.records import (Campaign, CampaignHeliostat, Event, Fit, Observation, OperatorAction, Verdict,
+                                     Visit)
 from helicalib.store.schema import check_schema, ensure_schema
 
 FrameData = bytes | np.ndarray
@@ -377,6 +378,14 @@ class Store:
         frame["valid"] = frame["valid"].astype(bool)
         return frame
 
+    def latest_by_target(self, campaign_id: int, with_frames: bool = False) -> dict[str, Observation]:
+        """Each target's newest observation of a campaign (``with_frames``: the newest with a before and
+        an after frame), by target id."""
+        frames = " AND before_frame_path IS NOT NULL AND after_frame_paths_json != '[]'" if with_frames else ""
+        rows = self._read(f"SELECT * FROM observations WHERE id IN (SELECT MAX(id) FROM observations WHERE "
+                          f"campaign_id = ?{frames} GROUP BY target_id)", (int(campaign_id),))
+        return {r["target_id"]: observation_from_row(r) for r in rows}
+
     def count_observations(self, campaign_id: int | None = None, valid: bool | None = None) -> int:
         where, params = _where(campaign_id=campaign_id, valid=None if valid is None else int(bool(valid)))
         return int(self._read(f"SELECT COUNT(*) FROM observations{where}", params)[0][0])
@@ -468,6 +477,30 @@ class Store:
         return [Event(id=r["id"], campaign_id=r["campaign_id"], time_s=r["time_s"], kind=r["kind"], reason=r["reason"],
                       heliostat_id=r["heliostat_id"], data=json.loads(r["data_json"]))
                 for r in self._read(f"SELECT * FROM events{where} ORDER BY time_s, id", params)]
+
+    # ------------------------------------------------------------------ operator actions (the console)
+    def request_action(self, *, campaign_id: int, kind: str, heliostat_ids: Sequence[str] = (), who: str,
+                       requested_wall_s: float, requested_s: float | None) -> int:
+        """Record a crew's request (pending until :meth:`finish_action`); returns its id."""
+        return self._write(
+            "INSERT INTO operator_actions (campaign_id, kind, heliostats_json, who, requested_wall_s, requested_s)"
+            " VALUES (?, ?, ?, ?, ?, ?)",
+            (int(campaign_id), kind, _json(list(heliostat_ids)), who, float(requested_wall_s), _opt(requested_s)))
+
+    def finish_action(self, action_id: int, *, done_s: float, outcome: str) -> None:
+        """Mark an action applied at plant time ``done_s``, with what it did."""
+        self._write("UPDATE operator_actions SET done_s = ?, outcome = ? WHERE id = ?",
+                    (float(done_s), outcome, int(action_id)))
+
+    def actions(self, campaign_id: int, pending: bool | None = None) -> list[OperatorAction]:
+        """A campaign's operator actions, oldest first (``pending`` True: not applied yet; False: applied)."""
+        extra = "" if pending is None else (" AND done_s IS NULL" if pending else " AND done_s IS NOT NULL")
+        return [OperatorAction(id=r["id"], campaign_id=r["campaign_id"], kind=r["kind"],
+                               heliostat_ids=tuple(json.loads(r["heliostats_json"])), who=r["who"],
+                               requested_wall_s=r["requested_wall_s"], requested_s=r["requested_s"],
+                               done_s=r["done_s"], outcome=r["outcome"])
+                for r in self._read(f"SELECT * FROM operator_actions WHERE campaign_id = ?{extra} ORDER BY id",
+                                    (int(campaign_id),))]
 
     # ------------------------------------------------------------------ summary
     def progress(self, campaign_id: int) -> list[dict[str, Any]]:

@@ -1,0 +1,299 @@
+"""The console's Starlette application: the page, its live updates, sheets, frames and actions.
+
+Routes (every one behind the token when the console listens beyond loopback, :class:`TokenGate`):
+
+=============================  ==============================================================
+``GET /``                      the page (``templates/console.html``): every panel drawn
+``GET /stream``                server-sent events: the panels again whenever they change
+                               (each second at most; the page swaps them in, no reload)
+``GET /api/view``              the page's figures as JSON (scripts)
+``GET /frames/{id}.png``       a board's newest before/after frames with the spot overlay
+                               (:func:`helicalib.report.overlay.overlay_latest`)
+``GET /progress.png``          acceptance over time (the report's plot)
+``GET /heliostat/{id}``        the heliostat's sheet, drawn as the report draws it
+``POST /api/action``           an operator action (JSON; only when the controller runs armed)
+``/static/...``                the page's script and style sheet (no CDN: the plant LAN has no
+                               internet)
+=============================  ==============================================================
+
+Pages come from Jinja2 templates with autoescaping (the console's folder first, then the
+report's: ``base.html`` and ``macros.html`` are the report's own); no HTML is built in Python.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import tempfile
+import threading
+import time
+from pathlib import Path
+from urllib.parse import quote
+
+from helicalib.console.view import FRAMES_KEPT, STATES, Sources, read_view
+
+TEMPLATES = Path(__file__).with_name("templates")
+STATIC = Path(__file__).with_name("static")
+COOKIE = "helicalib_console"
+PANELS = ("clock", "gate", "boards", "map", "progress", "events", "actions")
+VIEW_EVERY_S = 1.0
+"""The page's figures are read from the database at most this often (shared by every viewer)."""
+REPORT_EVERY_S = 30.0
+"""The report-side figures (progress plot) are recomputed at most this often."""
+
+
+class Console:
+    """The state behind the app: where it reads, what it caches, who may act.
+
+    Parameters
+    ----------
+    sources : Sources
+        The read-only store, field config, campaign and site clock.
+    feed : LiveFeed, optional
+        The controller's snapshots and event version (None: ``helicalib console DB``, polling).
+    act : callable, optional
+        ``act(kind, heliostat_ids, who) -> action id``: records an operator action (only in an
+        armed controller; None: read-only, the actions panel says so).
+    token : str, optional
+        Required on every request when set.
+    """
+
+    def __init__(self, sources: Sources, feed=None, act=None, token: str | None = None, title: str = "helicalib",
+                 reopen=None):
+        self.src, self.feed, self.act, self.token, self.title = sources, feed, act, token, title
+        self.reopen = reopen
+        """``reopen()`` → a fresh read-only store (``console DB``: each read sees a process that started since)."""
+        self.closing = threading.Event()
+        self.cache = Path(tempfile.mkdtemp(prefix="helicalib-console-"))
+        self._lock = threading.Lock()
+        self._view: tuple[float, object, dict] | None = None
+        self._report: tuple[float, object, object, dict] | None = None
+        self._draw_lock = threading.Lock()
+
+    # ------------------------------------------------------------------ figures
+    def view(self) -> dict:
+        """The page's figures, read at most every :data:`VIEW_EVERY_S` or when an event came."""
+        snapshot, version = self.feed.latest() if self.feed is not None else (None, None)
+        with self._lock:
+            now = time.monotonic()
+            if self._view is not None and self._view[1] == version and now - self._view[0] < VIEW_EVERY_S:
+                return self._view[2]
+            if self.reopen is not None:
+                old, self.src.store = self.src.store, self.reopen()
+                old.close()
+            v = read_view(self.src, snapshot)
+            self._view = (now, version, v)
+            return v
+
+    def close(self) -> None:
+        """Stop the live streams (the server is stopping)."""
+        self.closing.set()
+
+    def remove_cache(self) -> None:
+        """Delete the drawn frames, plots and sheets (once the server has stopped)."""
+        import shutil
+
+        shutil.rmtree(self.cache, ignore_errors=True)
+
+    def render(self, name: str, **context) -> str:
+        from helicalib.report.html import render
+
+        return render(name, self.src.site, extra_dirs=(str(TEMPLATES),), states=STATES, title=self.title, sortable=False,
+                      token_mode=self.token is not None, **context)
+
+    def panels(self, v: dict) -> dict[str, str]:
+        return {p: self.render(f"panel_{p}.html", v=v) for p in PANELS}
+
+    def report_data(self):
+        """(CampaignData, report figures) of the campaign, recomputed at most every :data:`REPORT_EVERY_S`."""
+        from helicalib.report.build import compute
+        from helicalib.report.data import load_campaign
+
+        with self._draw_lock:
+            now = time.monotonic()
+            if self._report is None or now - self._report[0] >= REPORT_EVERY_S:
+                data = load_campaign(self.src.store.path, self.src.campaign_id, images_dir=self.src.store.images_dir)
+                if self.src.cfg is not None:
+                    data.cfg = data.cfg or self.src.cfg
+                self._report = (now, data, None, compute(data, self.src.site))
+            return self._report[1], self._report[3]
+
+    def progress_png(self) -> Path:
+        from helicalib.report import plots
+
+        _data, rep = self.report_data()
+        path = self.cache / "progress.png"
+        with self._draw_lock:
+            stamp = self._report[0]
+            if not path.exists() or self._report[2] != stamp:
+                plots.plot_progress(rep["progress"], path, self.src.site)
+                self._report = (self._report[0], self._report[1], stamp, self._report[3])
+        return path
+
+    def frames_png(self, obs_id: int) -> Path | None:
+        from helicalib.report.overlay import overlay_latest
+
+        latest = self.src.frames.get(int(obs_id))
+        if latest is None:
+            return None
+        path = self.cache / "frames" / f"{int(obs_id)}.png"
+        if not path.exists():
+            with self._draw_lock:
+                drawn = overlay_latest(self.src.store.images_dir, latest, self.src.cfg, path, width_px=800)
+            if drawn["png"] is None:
+                return None
+            old = sorted(path.parent.glob("*.png"), key=lambda f: int(f.stem))[:-FRAMES_KEPT]
+            for f in old:  # a week of visits must not fill the disk
+                f.unlink(missing_ok=True)
+        return path
+
+    def sheet(self, heliostat_id: str) -> str:
+        """Draw the heliostat's sheet (as the report does) into the cache; its path under ``/sheets/``."""
+        from helicalib.report.build import write_sheet
+
+        data, rep = self.report_data()
+        with self._draw_lock:
+            summary = write_sheet(data, rep, self.cache / "sheets", heliostat_id, self.src.site)
+        return summary["href"]
+
+
+# ---------------------------------------------------------------------------------------------- token
+class TokenGate:
+    """ASGI middleware: every request needs the token (``X-Helicalib-Token`` header, ``?token=``
+    once, then the cookie it sets); without it: 401 and one line saying how to get in."""
+
+    def __init__(self, app, token: str):
+        self.app, self.token = app, token
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        from starlette.requests import Request
+        from starlette.responses import PlainTextResponse
+
+        req = Request(scope)
+        given = req.headers.get("x-helicalib-token") or req.query_params.get("token") or req.cookies.get(COOKIE) or ""
+        if not hmac.compare_digest(given.encode(), self.token.encode()):
+            resp = PlainTextResponse("helicalib console: token required (open the address printed at start, "
+                                     "with ?token=..., or send the X-Helicalib-Token header)\n", status_code=401)
+            return await resp(scope, receive, send)
+        if req.query_params.get("token"):
+            async def send_with_cookie(message):
+                if message["type"] == "http.response.start":
+                    headers = list(message.get("headers", []))
+                    headers.append((b"set-cookie", f"{COOKIE}={self.token}; Path=/; HttpOnly; SameSite=Strict"
+                                    .encode()))
+                    message = dict(message, headers=headers)
+                await send(message)
+
+            return await self.app(scope, receive, send_with_cookie)
+        return await self.app(scope, receive, send)
+
+
+# ---------------------------------------------------------------------------------------------- app
+def create_app(console: Console):
+    """The Starlette application of ``console``."""
+    from starlette.applications import Starlette
+    from starlette.concurrency import run_in_threadpool
+    from starlette.middleware import Middleware
+    from starlette.requests import Request
+    from starlette.responses import FileResponse, HTMLResponse, JSONResponse, RedirectResponse, Response, \
+        StreamingResponse
+    from starlette.routing import Mount, Route
+    from starlette.staticfiles import StaticFiles
+
+    from helicalib.errors import HelicalibError
+
+    async def page(request: Request):
+        v = await run_in_threadpool(console.view)
+        panels = await run_in_threadpool(console.panels, v)
+        return HTMLResponse(console.render("console.html", v=v, panels=panels, live=console.feed is not None))
+
+    async def stream(request: Request):
+        async def events():
+            last: dict[str, str] = {}
+            while not console.closing.is_set():
+                if await request.is_disconnected():
+                    break
+                try:
+                    v = await run_in_threadpool(console.view)
+                    panels = await run_in_threadpool(console.panels, v)
+                except Exception as err:  # noqa: BLE001 - a page that cannot be read says so, the stream goes on
+                    panels = {"clock": console.render("panel_error.html", error=f"{type(err).__name__}: {err}")}
+                changed = {k: h for k, h in panels.items() if last.get(k) != h}
+                if changed:
+                    last.update(changed)
+                    yield f"data: {json.dumps({'panels': changed})}\n\n"
+                else:
+                    yield ": idle\n\n"
+                await asyncio.sleep(VIEW_EVERY_S)
+
+        return StreamingResponse(events(), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
+    async def api_view(request: Request):
+        v = await run_in_threadpool(console.view)
+        return JSONResponse(json.loads(json.dumps(v, default=str)))
+
+    async def frames(request: Request):
+        path = await run_in_threadpool(console.frames_png, int(request.path_params["obs"]))
+        if path is None:
+            return Response("frames not available\n", status_code=404, media_type="text/plain")
+        return FileResponse(path, media_type="image/png", headers={"Cache-Control": "max-age=3600"})
+
+    async def progress(request: Request):
+        try:
+            path = await run_in_threadpool(console.progress_png)
+        except HelicalibError as err:
+            return Response(f"{err}\n", status_code=404, media_type="text/plain")
+        return FileResponse(path, media_type="image/png", headers={"Cache-Control": "no-store"})
+
+    async def heliostat(request: Request):
+        hid = request.path_params["hid"]
+        try:
+            href = await run_in_threadpool(console.sheet, hid)
+        except HelicalibError as err:
+            return Response(f"{err}\n", status_code=404, media_type="text/plain")
+        return RedirectResponse("/sheets/" + quote(href), status_code=303)
+
+    async def action(request: Request):
+        if console.act is None:
+            return JSONResponse({"error": "read-only console: actions need the controller running with --arm and "
+                                          "--console"}, status_code=403)
+        if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
+            return JSONResponse({"error": "actions are JSON requests (Content-Type: application/json)"},
+                                status_code=415)
+        origin = request.headers.get("origin")
+        if origin and origin.split("://", 1)[-1] != request.headers.get("host"):
+            return JSONResponse({"error": f"action refused: request from another site ({origin})"}, status_code=403)
+        try:
+            body = await request.json()
+            kind = str(body.get("kind", ""))
+            ids = body.get("heliostats") or []
+            if isinstance(ids, str):
+                ids = ids.split(",")
+            who = str(body.get("who", "")).strip()
+            client = request.client.host if request.client else "?"
+            action_id = await run_in_threadpool(console.act, kind, ids, f"{who} ({client})" if who else "")
+        except HelicalibError as err:
+            return JSONResponse({"error": str(err)}, status_code=400)
+        except (ValueError, AttributeError) as err:
+            return JSONResponse({"error": f"action: not a JSON object ({err})"}, status_code=400)
+        return JSONResponse({"id": action_id, "kind": kind, "status": "recorded; the controller applies it at "
+                                                                      "its next decision"})
+
+    async def sheets_index(request: Request):
+        return RedirectResponse("/", status_code=303)
+
+    routes = [
+        Route("/", page), Route("/stream", stream), Route("/api/view", api_view),
+        Route("/api/action", action, methods=["POST"]), Route("/frames/{obs:int}.png", frames),
+        Route("/progress.png", progress), Route("/heliostat/{hid:path}", heliostat),
+        Route("/sheets/index.html", sheets_index),
+        Mount("/sheets", app=StaticFiles(directory=console.cache / "sheets", check_dir=False)),
+        Mount("/static", app=StaticFiles(directory=STATIC)),
+    ]
+    middleware = [Middleware(TokenGate, token=console.token)] if console.token else []
+    (console.cache / "sheets").mkdir(parents=True, exist_ok=True)
+    return Starlette(routes=routes, middleware=middleware)

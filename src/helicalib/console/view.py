@@ -1,0 +1,289 @@
+"""The console page's figures: read from the campaign database (read-only) and the newest snapshot.
+
+:func:`read_view` is the only I/O: one read-only :class:`~helicalib.store.Store` connection of
+the console's own (never the controller's, never the owner lock), so reading never blocks the
+control loop and works as well on a campaign another process runs. The result is a plain dict
+the templates draw (``templates/panels.html``):
+
+* ``clock``: plant time (the controller's snapshot, or the newest record of the database);
+* ``gate``: wind, DNI, the limits of the field config, stowed or not and why, paused by the crew;
+* ``boards``: per board the heliostat on it, placement, last error, since when, its newest frames;
+* ``map``: every heliostat's position and state (:data:`STATES`);
+* ``progress``: accepted, and today's bands with how many heliostats still need each;
+* ``events``: the newest stored events with their reasons, and the crew's actions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+STATES = {
+    "waiting": "waiting for its turn (no verdict yet, or not accepted)",
+    "on-board": "on a board now",
+    "accepted": "accepted",
+    "refused": "the plant refused its last visit, or the crew took it out of service",
+    "attention": "needs attention: its last visit faulted, or it is not confirmed back to tracking",
+}
+"""Heliostat states on the field map, with their meaning (the legend)."""
+EVENTS_SHOWN = 300
+FRAMES_KEPT = 50
+"""Observations whose frames the page may ask for (the boards' newest; older ones are forgotten)."""
+_DAYS: dict = {}
+
+
+@dataclass
+class Sources:
+    """Where a view reads from: the database (read-only store), the field config, the campaign."""
+
+    store: object
+    cfg: object
+    campaign_id: int
+    site: object
+    armed_actions: bool = False
+    frames: dict = field(default_factory=dict)
+    """Observation id → the ``latest`` dict :func:`helicalib.report.overlay.overlay_latest` draws."""
+
+
+def _num(x, nd: int = 2):
+    return None if x is None or not math.isfinite(float(x)) else round(float(x), nd)
+
+
+def heliostat_states(ids, verdicts, visits, on_board, off_tracking, out_of_service) -> dict[str, str]:
+    """Each heliostat's state on the map (pure): on a board, out of service or refused, needs
+    attention, accepted, else waiting."""
+    last = {}
+    for v in visits:  # oldest first: the newest ended visit wins
+        if v.outcome != "running":
+            last[v.heliostat_id] = v.outcome
+    out = {}
+    for hid in ids:
+        verdict = verdicts.get(hid)
+        if hid in on_board:
+            out[hid] = "on-board"
+        elif hid in out_of_service or last.get(hid) == "refused":
+            out[hid] = "refused"
+        elif hid in off_tracking or last.get(hid) == "fault":
+            out[hid] = "attention"
+        elif verdict is not None and verdict.accepted:
+            out[hid] = "accepted"
+        else:
+            out[hid] = "waiting"
+    return out
+
+
+def _map(cfg, ids, states, width: int = 640, height: int = 420, pad: int = 24) -> dict:
+    """SVG coordinates of the heliostats (east right, north up) and the tower."""
+    pos = {h.id: h.position_enu_m for h in cfg.heliostats} if cfg is not None else {}
+    have = [hid for hid in ids if hid in pos]
+    tower = cfg.tower.receiver_aim_enu_m if cfg is not None else None
+    if not have:
+        return {"available": False, "points": [], "width": width, "height": height}
+    xs = [pos[h][0] for h in have] + ([tower[0]] if tower is not None else [])
+    ys = [pos[h][1] for h in have] + ([tower[1]] if tower is not None else [])
+    x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
+    scale = min((width - 2 * pad) / max(x1 - x0, 1.0), (height - 2 * pad) / max(y1 - y0, 1.0))
+
+    def xy(e, n):
+        return round(pad + (e - x0) * scale, 1), round(height - pad - (n - y0) * scale, 1)
+
+    r = max(3.0, min(9.0, 0.45 * scale * _spacing(pos, have)))
+    points = [{"id": h, "state": states[h], "xy": xy(pos[h][0], pos[h][1])} for h in have]
+    return {"available": True, "points": points, "width": width, "height": height, "r": round(r, 1),
+            "tower": None if tower is None else xy(tower[0], tower[1])}
+
+
+def _spacing(pos, ids) -> float:
+    """A typical distance between neighbouring heliostats [m] (the median nearest-neighbour distance)."""
+    import numpy as np
+
+    p = np.array([pos[h][:2] for h in ids], dtype=float)
+    if len(p) < 2:
+        return 10.0
+    d = np.hypot(*(p[:, None, :] - p[None, :, :]).transpose(2, 0, 1))
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(axis=1)))
+
+
+def _gate(cfg, snapshot, events, last_obs, standing) -> dict:
+    from helicalib.campaign.console import gate_text
+
+    g = cfg.gating if cfg is not None else None
+    limits = None if g is None else {"wind_max_ms": g.wind_max_ms, "stow_wind_ms": g.stow_wind_ms,
+                                     "dni_min_wm2": g.dni_min_wm2, "cleanliness_min": g.cleanliness_min}
+    if snapshot is not None:
+        return {"source": "controller", "wind_ms": _num(snapshot.wind_ms, 1), "dni_wm2": _num(snapshot.dni_wm2, 0),
+                "stowed": snapshot.stowed, "text": gate_text(snapshot), "limits": limits, "paused": standing.paused,
+                "night": snapshot.night}
+    marks = [e for e in events if e.kind in ("stow", "resume")]
+    gates = [e for e in events if e.kind in ("gated", "ungated")]
+    stowed = bool(marks) and marks[-1].kind == "stow"
+    if stowed:
+        text = f"STOWED for wind ({marks[-1].reason})"
+    elif gates:
+        text = ("open: " if gates[-1].kind == "ungated" else "paused: ") + gates[-1].reason
+    else:
+        text = "no gate change recorded"
+    obs = max(last_obs.values(), key=lambda o: o.capture_time_s, default=None)
+    return {"source": "database", "wind_ms": None if obs is None else _num(obs.wind_ms, 1),
+            "dni_wm2": None if obs is None else _num(obs.dni_wm2, 0), "stowed": stowed, "text": text,
+            "limits": limits, "paused": standing.paused, "night": False,
+            "as_of_s": None if obs is None else obs.capture_time_s}
+
+
+def _frames_of(obs) -> dict:
+    return {"id": int(obs.id), "visit_id": obs.visit_id, "iteration": int(obs.iteration), "target_id": obs.target_id,
+            "before": obs.before_frame_path, "after": list(obs.after_frame_paths), "valid": bool(obs.valid),
+            "reason": obs.reason, "error_mrad": _num(obs.error_mrad),
+            "spot_px": None if obs.spot_x_px is None else [float(obs.spot_x_px), float(obs.spot_y_px)]}
+
+
+def _boards(cfg, snapshot, visits, last_obs, framed, frames_cache, live_visits: bool) -> list[dict]:
+    running = {v.target_id: v for v in visits if v.outcome == "running"} if live_visits else {}
+    targets = [t.id for t in cfg.targets] if cfg is not None else sorted({v.target_id for v in visits})
+    live = {b.target_id: b for b in snapshot.boards} if snapshot is not None else {}
+    out = []
+    for tid in targets:
+        b = live.get(tid)
+        v = running.get(tid)
+        obs = last_obs.get(tid)
+        if snapshot is not None:
+            hid = b.heliostat_id if b is not None else None
+            row = {"target": tid, "heliostat": hid, "iteration": None if b is None else b.iteration,
+                   "last_error_mrad": None if b is None else _num(b.last_error_mrad), "since_s": None if b is None
+                   else b.since_s}
+        else:
+            hid = v.heliostat_id if v is not None else None
+            same = obs is not None and v is not None and obs.visit_id == v.id
+            row = {"target": tid, "heliostat": hid, "iteration": obs.iteration if same else None,
+                   "last_error_mrad": _num(obs.error_mrad) if same and obs.valid else None,
+                   "since_s": None if v is None else v.started_s}
+        f = framed.get(tid)
+        if f is not None:
+            frames_cache[int(f.id)] = _frames_of(f)
+            for old in sorted(frames_cache)[:-FRAMES_KEPT]:
+                frames_cache.pop(old, None)
+            row["frames"] = {"id": int(f.id), "heliostat": f.heliostat_id, "iteration": int(f.iteration),
+                             "time_s": f.capture_time_s, "valid": bool(f.valid), "reason": f.reason,
+                             "error_mrad": _num(f.error_mrad)}
+        else:
+            row["frames"] = None
+        out.append(row)
+    return out
+
+
+def _bands(cfg, now_s: float, ids, verdicts, states) -> dict:
+    """Today's rising and setting low bands and high windows, each with the heliostats that still need it."""
+    from helicalib.calibration.sun_days import n_high_windows, sun_days
+
+    if cfg is None:
+        return {"available": False, "rows": []}
+    acc = cfg.acceptance
+    key = (id(cfg), int(now_s // 600.0))  # the day's bands move by seconds a day: recomputed every 10 min
+    if _DAYS.get("key") != key:
+        _DAYS.update(key=key, days=sun_days(cfg.site, now_s - 86400.0, now_s + 86400.0, acc.low_band_deg,
+                                            acc.high_elevation_deg, step_s=300.0))
+    days = _DAYS["days"]
+    today = min(days, key=lambda d: abs(d.noon_s - now_s), default=None)
+    if today is None:
+        return {"available": False, "rows": []}
+    todo = [h for h in ids if states.get(h) not in ("accepted", "refused")]
+
+    def need(key) -> int:
+        return sum(1 for h in todo if not ((verdicts.get(h).details if verdicts.get(h) else {}) or {}).get(key))
+
+    rows = []
+    for name, key, a, b in (("rising band", "rising_ok", today.rise_band_start_s, today.rise_band_end_s),
+                            ("setting band", "setting_ok", today.set_band_start_s, today.set_band_end_s)):
+        rows.append({"name": name, "start_s": a, "end_s": b, "need": need(key), "state": _when(a, b, now_s)})
+    if today.high_start_s is not None:
+        n_win = n_high_windows(today.high_span_s, acc.high_window_h)
+        for k in range(n_win):
+            a, b = today.high_window(k, n_win)
+            missing = sum(1 for h in todo if not _window_done(verdicts.get(h), k))
+            rows.append({"name": f"high window {k + 1}", "start_s": a, "end_s": b, "need": missing,
+                         "state": _when(a, b, now_s)})
+    return {"available": True, "rows": rows, "open": [r for r in rows if r["state"] != "passed"]}
+
+
+def _window_done(verdict, k: int) -> bool:
+    counts = ((verdict.details or {}).get("window_counts") if verdict is not None else None) or []
+    return k < len(counts) and bool(counts[k])
+
+
+def _when(a, b, now_s: float) -> str:
+    if a is None or b is None:
+        return "none today"
+    return "passed" if b <= now_s else ("open now" if a <= now_s else "later today")
+
+
+def log_rows(events, visits, limit: int = EVENTS_SHOWN) -> list[dict]:
+    """The event log, newest first: the stored events and each ended visit (``visit_end``, from the
+    visits table, so the log reads the same live and from the database alone)."""
+    rows = [{"time_s": e.time_s, "kind": e.kind, "heliostat": e.heliostat_id, "reason": e.reason}
+            for e in events[-limit:]]
+    for v in visits[-limit:]:
+        if v.outcome == "running" or v.ended_s is None:
+            continue
+        errs = "" if v.first_error_mrad is None else (
+            f", {v.first_error_mrad:.2f} mrad" if v.final_error_mrad is None or v.iterations <= 1 else
+            f", {v.first_error_mrad:.2f} -> {v.final_error_mrad:.2f} mrad in {v.iterations} placements")
+        rows.append({"time_s": v.ended_s, "kind": "visit_end", "heliostat": v.heliostat_id,
+                     "reason": f"{v.heliostat_id} off {v.target_id}: {v.outcome} ({v.reason}){errs}"})
+    rows.sort(key=lambda r: r["time_s"], reverse=True)
+    return rows[:limit]
+
+
+def read_view(src: Sources, snapshot=None) -> dict:
+    """Everything the page shows (see the module's docstring); ``snapshot``: the controller's newest."""
+    from helicalib.campaign.operator import replay
+
+    store, cfg, cid = src.store, src.cfg, src.campaign_id
+    campaign = store.campaign(cid)
+    ids = [h.heliostat_id for h in store.campaign_heliostats(cid)]
+    verdicts = store.latest_verdicts(cid)
+    visits = store.visits(campaign_id=cid)
+    events = store.events(campaign_id=cid)
+    actions = store.actions(cid)
+    standing = replay(actions)
+    last_obs = store.latest_by_target(cid)
+    framed = store.latest_by_target(cid, with_frames=True)
+    from helicalib.store.records import off_tracking
+
+    off = set(snapshot.off_tracking) if snapshot is not None else set(off_tracking(events))
+    if snapshot is not None:
+        on_board = {b.heliostat_id for b in snapshot.boards if b.heliostat_id}
+    else:
+        on_board = {v.heliostat_id for v in visits if v.outcome == "running"} if campaign.status == "running" else set()
+    states = heliostat_states(ids, verdicts, visits, on_board, off, standing.out_of_service)
+    times = [campaign.started_s] + [e.time_s for e in events[-1:]] + [o.capture_time_s for o in last_obs.values()]
+    times += [v.started_s for v in visits[-1:]]
+    now = snapshot.time_s if snapshot is not None else max(times)
+    counts = {k: 0 for k in STATES}
+    for st in states.values():
+        counts[st] += 1
+    pending = [a for a in actions if a.done_s is None]
+    return {
+        "campaign": {"id": campaign.id, "name": campaign.name, "mode": campaign.mode, "status": campaign.status},
+        "clock": {"time_s": now, "source": "plant" if snapshot is not None else "newest record",
+                  "rate": None if snapshot is None else snapshot.rate, "armed": None if snapshot is None
+                  else snapshot.armed},
+        "gate": _gate(cfg, snapshot, events, last_obs, standing),
+        "boards": _boards(cfg, snapshot, visits, last_obs, framed, src.frames, campaign.status == "running"),
+        "map": _map(cfg, ids, states),
+        "states": states,
+        "counts": counts,
+        "progress": {"heliostats": len(ids), "accepted": counts["accepted"],
+                     "next_band": None if snapshot is None else snapshot.next_band,
+                     "visits": len(visits), "bands": _bands(cfg, now, ids, verdicts, states)},
+        "events": log_rows(events, visits),
+        "kinds": sorted({e.kind for e in events} | ({"visit_end"} if visits else set())),
+        "actions": [{"id": a.id, "kind": a.kind, "heliostats": list(a.heliostat_ids), "who": a.who,
+                     "requested_wall_s": a.requested_wall_s, "requested_s": a.requested_s, "done_s": a.done_s,
+                     "outcome": a.outcome}
+                    for a in reversed(actions[-20:])],
+        "pending": len(pending),
+        "paused": standing.paused,
+        "out_of_service": sorted(standing.out_of_service),
+        "armed_actions": src.armed_actions,
+    }

@@ -1,0 +1,293 @@
+"""The crew console in a real headless Chromium, against a live simulated campaign over loopback.
+
+One campaign for the module: the simulated plant served on loopback Modbus TCP + HTTP cameras
+(plant time 150x real), the real clients, a real SQLite file, the runner on APScheduler
+(:func:`helicalib.campaign.live.run_live`) in a thread, armed, with ``--console 127.0.0.1:0``
+attached exactly as ``helicalib run`` attaches it. One heliostat's id carries markup and a script
+(``H<script>…</script>``), so escaping is checked on every panel that shows it. Chromium and
+chromedriver are Debian's (``make test`` installs them); a missing browser fails these tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import tempfile
+import threading
+import time
+import urllib.error
+import urllib.request
+from contextlib import ExitStack
+from pathlib import Path
+
+import pytest
+import yaml
+
+from conftest import DEMO_FIELD
+from helicalib.campaign import live
+from helicalib.campaign.console import LineLog
+from helicalib.config import load_field_config
+from helicalib.console.server import attach_console
+from helicalib.store.sqlite import Store
+
+CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+EVIL = "H<script>window.pwned=1</script>01"
+"""H0001 renamed: an id with markup and a script in it (shown as text, never run)."""
+IDS = [EVIL, "H0002", "H0003", "H0021", "H0022", "H0023"]
+RATE = 150.0
+
+
+def _until(what, timeout_s: float = 30.0, every_s: float = 0.2):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout_s:
+        value = what()
+        if value:
+            return value
+        time.sleep(every_s)
+    raise AssertionError(f"not within {timeout_s:.0f} s: {what.__doc__ or what}")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium through chromedriver (no download: the Debian binaries, named explicitly)."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    assert CHROMIUM.exists() and CHROMEDRIVER.exists(), (
+        "Chromium and chromedriver are needed (Debian packages chromium and chromium-driver): run `make test`, "
+        "which installs them")
+    profile = tempfile.mkdtemp(prefix="helicalib-chromium-")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = str(CHROMIUM)
+    for arg in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                "--window-size=1400,1800", f"--user-data-dir={profile}"):
+        opts.add_argument(arg)
+    driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
+    driver.set_page_load_timeout(30)
+    yield driver
+    driver.quit()
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    """A live armed campaign of six heliostats with its console on 127.0.0.1 (a free port)."""
+    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.campaign.simulate import _network_plant, default_start_s
+    from helicalib.sim.scenario import Scenario
+
+    tmp = tmp_path_factory.mktemp("console")
+    data = yaml.safe_load(DEMO_FIELD.read_text())
+    data["heliostats"][0]["id"] = EVIL
+    field = tmp / "field.yaml"
+    field.write_text(yaml.safe_dump(data, sort_keys=False))
+    cfg = load_field_config(field)
+    log = io.StringIO()
+    stop = threading.Event()
+    with ExitStack() as stack:
+        plant, cameras, clock, _sim, _server = _network_plant(cfg, Scenario(seed=3), default_start_s(cfg) + 9 * 3600,
+                                                              RATE, stack)
+        store = Store.open(tmp / "c.db", tmp / "img", owner="test console")
+        stack.callback(store.close)
+        cid = store.start_campaign(name="console test", mode="live", started_s=clock.now_s(),
+                                   heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in IDS],
+                                   config_path=str(field))
+        output = LineLog(dt_utc(), log)
+        runner = CampaignRunner(cfg, plant, cameras, clock, store, cid, heliostat_ids=IDS, listeners=[output.on_event])
+        args = argparse.Namespace(console="127.0.0.1:0", console_public=False, json=False)
+        output = attach_console(args, runner, output)
+        thread = threading.Thread(target=live.run_live, args=(runner, clock.now_s() + 86400.0),
+                                  kwargs={"stop_event": stop, "output": output}, daemon=True)
+        thread.start()
+        try:
+            yield {"runner": runner, "store": store, "url": f"http://127.0.0.1:{output.server.port}/", "log": log,
+                   "db": tmp / "c.db", "cid": cid, "data": data, "server": _server, "tmp": tmp}
+        finally:
+            stop.set()
+            thread.join(timeout=60)
+    assert not thread.is_alive(), "the live run did not stop"
+
+
+def dt_utc():
+    import datetime as dt
+
+    return dt.timezone.utc
+
+
+def _board(driver, target: str) -> str:
+    return driver.execute_script(f"return document.getElementById('board-{target}').dataset.heliostat")
+
+
+def _texts(driver, css: str) -> list[str]:
+    """The text of every element matching ``css``, read at once (the panels are swapped in live)."""
+    return driver.execute_script("return Array.from(document.querySelectorAll(arguments[0]))"
+                                 ".map(function (e) { return e.textContent; })", css)
+
+
+def _text(driver, element_id: str) -> str:
+    return driver.execute_script("var e = document.getElementById(arguments[0]); return e ? e.textContent : ''",
+                                 element_id)
+
+
+def test_the_page_follows_the_campaign_without_a_reload(campaign, browser):
+    runner = campaign["runner"]
+    browser.get(campaign["url"])
+    loaded = browser.execute_script("return window.helicalibConsoleLoadedAt")
+    assert loaded  # its script ran
+
+    def shows_current():
+        """the page shows the heliostat the runner has on board T1"""
+        active = {t: h for t, (_w, h, _g, _c) in list(runner.active.items())}
+        return active.get("T1") and _board(browser, "T1") == active.get("T1") and active["T1"]
+
+    first = _until(shows_current, 40)
+
+    def next_visit():
+        """board T1 shows another heliostat (the next visit), pushed by the server"""
+        now = _board(browser, "T1")
+        return now and now != first and now
+
+    _until(next_visit, 60)
+    assert browser.execute_script("return window.helicalibConsoleLoadedAt") == loaded  # never reloaded
+    assert int(browser.execute_script("return document.body.dataset.updates")) >= 2
+    assert _text(browser, "connection") == "live"
+    # the visit that ended is in the log (from the database), with its reason
+    assert any(f"{first} off T1:" in r for r in _texts(browser, "#events tbody tr[data-kind='visit_end']"))
+
+
+def test_a_queued_recheck_goes_next_and_is_logged_and_escaped(campaign, browser):
+    runner, store, cid = campaign["runner"], campaign["store"], campaign["cid"]
+    browser.get(campaign["url"])
+    _until(lambda: browser.find_elements("id", "action-form"), 10)
+    browser.find_element("id", "action-who").send_keys("crew lead")
+    browser.find_element("id", "action-heliostats").send_keys(EVIL)
+    browser.find_element("css selector", "button[data-kind='recheck']").click()
+    _until(lambda: "recorded" in _text(browser, "action-result"), 10)
+    actions = store.actions(cid)
+    assert [(a.kind, a.heliostat_ids) for a in actions] == [("recheck", (EVIL,))]
+    assert actions[0].who.startswith("crew lead (127.0.0.1")
+
+    def started():
+        """the re-check's visit started"""
+        return store.actions(cid)[0].outcome.startswith("visit started")
+
+    _until(started, 60)
+    done = store.actions(cid)[0]
+    # done next: the first visit to start on its board after the request is the re-check's
+    board = runner.cfg.heliostat(EVIL).target
+    after = [v for v in store.visits(campaign_id=cid) if v.target_id == board and v.started_s >= done.requested_s]
+    assert after and after[0].heliostat_id == EVIL, [(v.heliostat_id, v.started_s) for v in after]
+
+    def logged():
+        """the log shows the re-check going onto the board"""
+        rows = _texts(browser, "#events tbody tr[data-kind='operator']")
+        return [r for r in rows if f"re-check of {EVIL}" in r and f"onto {board} now" in r]
+
+    assert _until(logged, 20)
+    # the id is text everywhere: no script of it ran, no element was made of its markup
+    assert browser.execute_script("return window.pwned") is None
+    assert not browser.find_elements("xpath", "//script[contains(., 'pwned')]")
+    assert EVIL in _text(browser, "panel-actions")
+    assert any(t.startswith(EVIL + ":") for t in _texts(browser, "svg.field title"))
+    # its sheet opens from the map (the report's own sheet), the id still text
+    browser.find_element("css selector", f"svg.field a[data-id='{EVIL}'] circle").click()
+    _until(lambda: "heliostat" in browser.title and EVIL in browser.title, 30)
+    assert browser.execute_script("return window.pwned") is None
+    assert EVIL in browser.find_element("tag name", "h1").text
+
+
+def test_event_log_filters_by_kind(campaign, browser):
+    browser.get(campaign["url"])
+    _until(lambda: _texts(browser, "#events tbody tr[data-kind='visit_end']"), 30)
+    from selenium.webdriver.support.ui import Select
+
+    Select(browser.find_element("id", "event-kind")).select_by_value("visit_end")
+    time.sleep(2.5)  # the log is swapped in again meanwhile: the filter must hold across updates
+    shown = browser.execute_script("return Array.from(document.querySelectorAll('#events tbody tr'))"
+                                   ".filter(function (r) { return r.offsetParent !== null; })"
+                                   ".map(function (r) { return r.dataset.kind; })")
+    hidden = browser.execute_script("return document.querySelectorAll('#events tbody tr.hidden').length")
+    assert shown and set(shown) == {"visit_end"}
+    assert hidden  # the campaign and tracking rows are filtered out, not gone
+
+
+def _get(url: str, headers: dict | None = None) -> tuple[int, str]:
+    req = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, r.read().decode()
+    except urllib.error.HTTPError as err:
+        return err.code, err.read().decode()
+
+
+def test_beyond_loopback_every_request_needs_the_token(campaign, browser):
+    """``helicalib console DB --console-public`` on the running campaign's database (token mode forced
+    on 127.0.0.1): refused without the token, served with it; read-only (no action, no write)."""
+    import subprocess
+    import sys
+
+    db = campaign["db"]
+    before = sorted(p.name for p in db.parent.iterdir())
+    proc = subprocess.Popen([sys.executable, "-m", "helicalib", "console", str(db), "--listen", "127.0.0.1:0",
+                             "--console-public", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = json.loads(proc.stdout.readline())
+        url, token = line["url"], line["token"]
+        base = url.split("?")[0]
+        assert token and url.endswith(f"?token={token}")
+        for path in ("", "api/view", "stream", "progress.png", "static/console.js"):
+            code, body = _get(base + path)
+            assert code == 401 and "token required" in body, (path, code)
+        assert _get(base + "?token=wrong")[0] == 401
+        assert _get(base + "api/view", {"X-Helicalib-Token": token})[0] == 200
+        req = urllib.request.Request(base + "api/action", data=b'{"kind": "pause", "who": "x"}', method="POST",
+                                     headers={"Content-Type": "application/json", "X-Helicalib-Token": token})
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(req, timeout=10)
+        assert refused.value.code == 403  # read-only: no action from a database console
+        # the browser gets in once with ?token=, then by the cookie it set (the live stream too)
+        browser.get(url)
+        _until(lambda: _text(browser, "connection") == "live", 15)
+        browser.get(base)
+        assert "campaign" in browser.find_element("tag name", "h1").text
+        assert "token required" not in browser.page_source
+    finally:
+        proc.terminate()
+        proc.wait(timeout=15)
+    assert not campaign["store"].actions(campaign["cid"], pending=True)
+    assert sorted(p.name for p in db.parent.iterdir()) == before  # the reader left no file behind
+
+
+def test_run_serves_the_console_of_its_dry_run(campaign):
+    """``helicalib run FIELD --console 127.0.0.1:0 --json`` (no --arm: it only reads the plant, beside the
+    armed campaign): the address comes as a JSON line, the page is served, read-only, until the run stops."""
+    import signal
+    import subprocess
+    import sys
+
+    data, server, tmp = dict(campaign["data"]), campaign["server"], campaign["tmp"]
+    data["plant"] = dict(data["plant"], scs=dict(data["plant"]["scs"], port=server.modbus_port))
+    data["cameras"] = [dict(c, url=server.camera_url(c["id"])) for c in data["cameras"]]
+    data["storage"] = {"database": "sqlite:///dry/helicalib.db", "images_dir": "dry/images"}
+    field = tmp / "dry.yaml"
+    field.write_text(yaml.safe_dump(data, sort_keys=False))
+    proc = subprocess.Popen([sys.executable, "-m", "helicalib", "run", str(field), "--heliostats", "H0002,H0021",
+                             "--days", "1", "--console", "127.0.0.1:0", "--json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = iter(proc.stdout.readline, "")
+        line = next(x for x in map(json.loads, lines) if x.get("event") == "console")
+        assert line["token"] is None and line["url"].startswith("http://127.0.0.1:")
+        code, page = _get(line["url"])
+        assert code == 200 and "Read-only: actions need the controller running with" in page
+        view = json.loads(_get(line["url"] + "api/view")[1])
+        assert view["campaign"]["mode"] == "dry-run" and view["armed_actions"] is False
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-2000:]
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["event"] == "summary" and summary["status"] == "stopped"
+    with pytest.raises(urllib.error.URLError):
+        urllib.request.urlopen(line["url"], timeout=5)  # the page stops with the run
