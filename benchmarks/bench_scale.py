@@ -13,8 +13,9 @@ line back), so peak memory is that size's own. Per size it reports:
 * wall and CPU seconds of the campaign (the field loaded, the summary included), peak RSS
   (``resource.getrusage``);
 * visits, measurements (observations with iteration ≥ 0, read from the database), measurements per
-  wall second, CPU seconds per measurement; decisions (calls of ``policy.choose_next``) and the
-  profiled time per decision;
+  wall second, CPU seconds per measurement (of the whole run, and of the campaign loop alone, without
+  the end-of-run summary, which evaluates every heliostat over the sky once); decisions (calls of
+  ``policy.choose_next_vectorised``, or ``choose_next`` for the baselines) and the profiled time per decision;
 * where the time goes: cProfile self time grouped by module (each ``helicalib.*`` module,
   ``sqlite3``, ``numpy``, ``scipy``, ``pandas``, ``other``) as percentages, and the same time
   charged to the ``helicalib`` module that called the library code ("charged": numpy called from
@@ -130,7 +131,8 @@ def breakdown(stats: pstats.Stats) -> dict:
                 "cum_pct": round(100.0 * v[3] / root, 1), "cum_ms_per_call": round(1000.0 * v[3] / max(v[1], 1), 3)}
 
     ours = [(k, v) for k, v in raw.items() if module_of(k[0], k[2]).startswith("helicalib")]
-    decisions = [v for (f, _l, fn), v in raw.items() if fn == "choose_next" and f.endswith("campaign/policy.py")]
+    decisions = [v for (f, _l, fn), v in raw.items()
+                 if fn in ("choose_next", "choose_next_vectorised") and f.endswith("campaign/policy.py")]
     calls = sum(v[1] for v in decisions)
     return {
         "profiled_s": round(root, 2),
@@ -174,11 +176,12 @@ def run_size(n: int, field: Path, days: float, seed: int, start: str | None, sta
     start_s = (float(to_unix_seconds([parse_time(start)])[0]) if start
                else default_start_s(cfg) + start_hour * 3600.0)
     load_wall, rss_loaded = time.perf_counter() - wall0, peak_rss_mb()
-    state = {"last": time.perf_counter(), "ticks": 0}
+    state = {"last": time.perf_counter(), "ticks": 0, "loop_cpu": 0.0}
     end_s = start_s + days * 86400.0
 
     def progress(now_s: float) -> None:
         state["ticks"] += 1
+        state["loop_cpu"] = time.process_time()  # the last tick's: the campaign loop ends there
         t = time.perf_counter()
         if t - state["last"] >= PROGRESS_S:
             state["last"] = t
@@ -211,6 +214,10 @@ def run_size(n: int, field: Path, days: float, seed: int, start: str | None, sta
         "database_mb": db_mb, "ticks": state["ticks"], **c,
         "measurements_per_wall_s": round(c["measurements"] / max(sim_wall, 1e-9), 2),
         "cpu_s_per_measurement": round(sim_cpu / c["measurements"], 4) if c["measurements"] else None,
+        "loop_cpu_s": round(state["loop_cpu"] - sim_cpu0, 1),
+        "summary_cpu_s": round(sim_cpu - (state["loop_cpu"] - sim_cpu0), 1),
+        "loop_cpu_s_per_measurement": (round((state["loop_cpu"] - sim_cpu0) / c["measurements"], 4)
+                                       if c["measurements"] else None),
         "accepted": s.get("accepted"), "outcomes": s.get("outcomes"), "profiled": profile,
     }
     if prof:
@@ -257,7 +264,9 @@ def table(runs: list[dict]) -> str:
     rows = [("wall [s]", "wall_s"), ("CPU [s]", "cpu_s"), ("peak RSS [MB]", "peak_rss_mb"),
             ("visits", "visits"), ("measurements", "measurements"), ("  valid", "valid_measurements"),
             ("measurements / wall s", "measurements_per_wall_s"), ("CPU s / measurement", "cpu_s_per_measurement"),
-            ("decisions (choose_next)", None), ("ms per decision (profiled)", None)]
+            ("campaign loop CPU [s]", "loop_cpu_s"), ("summary CPU [s]", "summary_cpu_s"),
+            ("loop CPU s / measurement", "loop_cpu_s_per_measurement"),
+            ("decisions", None), ("ms per decision (profiled)", None)]
     w = 12
     lines = [f"{'N':40s}" + "".join(f"{r['n']:>{w}d}" for r in runs)]
     for label, key in rows:
@@ -338,13 +347,17 @@ def main(argv=None) -> int:
     small, large = runs[0], runs[-1]
     flat = (round(large["cpu_s_per_measurement"] / small["cpu_s_per_measurement"], 2)
             if len(runs) > 1 and small["cpu_s_per_measurement"] and large["cpu_s_per_measurement"] else None)
+    loop_flat = (round(large["loop_cpu_s_per_measurement"] / small["loop_cpu_s_per_measurement"], 2)
+                 if len(runs) > 1 and small["loop_cpu_s_per_measurement"] and large["loop_cpu_s_per_measurement"]
+                 else None)
     print(table(runs))
     if flat is not None:
-        print(f"flatness: CPU per measurement at N={large['n']} over N={small['n']}: {flat} (1.0 is flat)")
+        print(f"flatness: CPU per measurement at N={large['n']} over N={small['n']}: {flat} (1.0 is flat); "
+              f"the campaign loop alone: {loop_flat}")
     doc = {"date": time.strftime("%Y-%m-%d"), "args": {k: v for k, v in vars(args).items() if k not in ("one", "field")}, "site": SITE,
            "cpus": os.cpu_count(), "machine": platform.machine(), "python": platform.python_version(),
            "load_average_before": load0, "load_average_after": os.getloadavg(),
-           "flatness_cpu_per_measurement": flat, "runs": runs}
+           "flatness_cpu_per_measurement": flat, "flatness_loop_cpu_per_measurement": loop_flat, "runs": runs}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=2))
     print(f"wrote {args.out}")
