@@ -137,3 +137,19 @@ def test_fit_split_text_and_bad_share(aa23, capsys):
     assert all(f"split {k}" in out for k in splits.SPLITS) and "leave-one-out" in out
     with pytest.raises(SystemExit):
         main(args + ["--split", "azimuth", "--test-share", "1.5"])
+
+
+def test_azimuth_split_reproduces_paints_published_split_of_aa23():
+    """PAINT's own benchmark file for the AA23 samples (``test_benchmark.csv``) is an azimuth split: its
+    3 validation records are the 3 largest sun azimuths, its 3 train records the 3 smallest."""
+    import csv
+
+    with open(DATA / "AA23" / "test_benchmark.csv", newline="") as f:
+        published = {r["Id"]: r["Split"] for r in csv.DictReader(f)}
+    recs = {p.name.split("-")[0]: json.loads(p.read_text()) for p in (DATA / "AA23").glob("*-calibration-properties.json")}
+    ids = sorted(recs)
+    sun = _sun([recs[i]["sun_azimuth"] for i in ids], [recs[i]["sun_elevation"] for i in ids])
+    test = splits.make_split("azimuth", sun, 50.9, test_share=0.3).test
+    assert {ids[i] for i in test} == {i for i, s in published.items() if s == "validation"}
+    train3 = splits.make_split("azimuth", sun, 50.9, test_share=0.7).train
+    assert {ids[i] for i in train3} == {i for i, s in published.items() if s == "train"}
