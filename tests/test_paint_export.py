@@ -188,3 +188,38 @@ def test_export_without_a_database_is_one_line(tmp_path, capsys):
     assert main(["export-paint", str(tmp_path / "none.db"), "--out", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "none.db: no such database file" in err[0]
+
+
+def test_export_holds_every_key_artists_paint_parsers_read(campaign):
+    """The keys and file names ARTIST's PAINT parsers (``artist/io/paint_scenario_parser.py``,
+    ``paint_calibration_parser.py``, commit f11ff5a) read, looked up the way they look them up."""
+    out = campaign["out"]
+    tower = json.loads((out / "tower-measurements.json").read_text())
+    assert list(tower)[0] == "power_plant_properties" and len(tower["power_plant_properties"]["coordinates"]) == 3
+    for name in list(tower)[1:]:  # ARTIST: every key after the first is a target area with a type
+        area = tower[name]
+        assert area["type"] == "planar" and len(area["normal_vector"]) == 3
+        for corner in ("upper_left", "lower_left", "upper_right", "lower_right", "center"):
+            assert len(area["coordinates"][corner]) == 3
+    actuator_keys = {"increment", "initial_stroke_length", "offset", "pivot_radius", "initial_angle", "type_axis",
+                     "clockwise_axis_movement", "min_increment", "max_increment"}
+    for hid in IDS:
+        h = json.loads((out / hid / "Properties" / f"{hid}-heliostat-properties.json").read_text())
+        assert len(h["heliostat_position"]) == 3 and len(h["initial_orientation"]) == 3
+        facets = h["facet_properties"]
+        assert facets["number_of_facets"] == len(facets["facets"])
+        for f in facets["facets"]:
+            assert all(len(f[k]) == 3 for k in ("translation_vector", "canting_e", "canting_n"))
+        kin = h["kinematics_properties"]
+        for j in (1, 2):
+            assert all(isinstance(kin[f"joint_translation_{c}_{j}"], float) for c in "enu")
+        assert all(isinstance(kin[f"concentrator_translation_{c}"], float) for c in "enu")
+        assert len(kin["actuators"]) == 2 and all(actuator_keys <= set(a) for a in kin["actuators"])
+        props = sorted((out / hid / "Calibration").glob("*calibration-properties.json"))
+        assert props
+        for p in props:
+            rec = json.loads(p.read_text())
+            assert (p.parent / f"{p.stem.split('-')[0]}-raw.png").is_file()  # ARTIST's image lookup
+            assert rec["target_name"] in tower and len(rec["focal_spot"]["UTIS"]) == 3
+            assert all(isinstance(rec[k], float) for k in ("sun_azimuth", "sun_elevation"))
+            assert set(rec["motor_position"]) == {"axis_1_motor_position", "axis_2_motor_position"}
