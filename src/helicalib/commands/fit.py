@@ -1,5 +1,6 @@
-"""``helicalib fit OBSERVATIONS --field FIELD.yaml --heliostat ID [--loo] [--json]``: fit the error model
-to stored observations and report in-sample and leave-one-out errors."""
+"""``helicalib fit OBSERVATIONS --field FIELD.yaml --heliostat ID [--loo] [--split KIND] [--json]``: fit the
+error model to stored observations and report in-sample, leave-one-out and benchmark-split (out-of-sample)
+errors."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import math
 
 import numpy as np
 
-from helicalib.commands._args import positive_float
+from helicalib.calibration.splits import DEFAULT_TEST_SHARE, SPLITS
+from helicalib.commands._args import float_in, nonnegative_int, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +27,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--prior", action="append", default=[], metavar="NAME=SIGMA",
                    help="override a parameter's prior sigma (in its unit; 0 fixes it at nominal)")
     p.add_argument("--sigma-meas-mrad", type=positive_float, default=1.0, help="normal-error scatter of one observation")
+    p.add_argument("--split", action="append", default=[], choices=[*SPLITS, "all"],
+                   help="fit on the train part of a PAINT benchmark split by sun position and report the error on "
+                        "the test part (out of sample), beside leave-one-out; repeat it or give 'all'")
+    p.add_argument("--test-share", type=float_in(0.0, 1.0, open_lo=True, open_hi=True), default=DEFAULT_TEST_SHARE,
+                   help=f"share of the observations in a split's test part (default {DEFAULT_TEST_SHARE})")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the balanced split's k-means and draws (default 0)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
 
@@ -34,7 +42,31 @@ def _mean(a) -> float | None:
     return float(np.mean(a)) if a.size else None
 
 
-def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas_mrad: float = 1.0) -> dict:
+def _rms(a) -> float | None:
+    a = np.asarray(a, dtype=float)
+    return float(np.sqrt(np.mean(a**2))) if a.size else None
+
+
+def split_report(model, strokes, sun, spot, targets, split, priors: dict, sigma_meas_mrad: float,
+                 record_ids) -> dict:
+    """Fit on ``split.train``, predict ``split.test``: the out-of-sample errors of one benchmark split."""
+    from helicalib.realdata.fitting import beam_error_m, fit, normal_error_mrad
+
+    tr, te = split.train, split.test
+    res = fit(model, strokes[tr], sun[tr], spot[tr], prior_sigma=priors, sigma_meas_mrad=sigma_meas_mrad)
+    test_normal = normal_error_mrad(res.model, strokes[te], sun[te], spot[te])
+    test_beam = beam_error_m(res.model, strokes[te], sun[te], spot[te], [targets[i] for i in te])
+    train_normal = normal_error_mrad(res.model, strokes[tr], sun[tr], spot[tr])
+    return {"split": split.kind, "train": len(tr), "test": len(te),
+            "test_record_ids": [record_ids[i] for i in te],
+            "train_normal_mrad_rms": _rms(train_normal),
+            "test_normal_mrad_rms": _rms(test_normal), "test_normal_mrad_mean": _mean(test_normal),
+            "test_normal_mrad": test_normal.tolist(),
+            "test_beam_m_rms": _rms(test_beam), "test_beam_m_mean": _mean(test_beam), "converged": res.success}
+
+
+def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas_mrad: float = 1.0,
+               splits: tuple[str, ...] = (), test_share: float = DEFAULT_TEST_SHARE, seed: int = 0) -> dict:
     from helicalib.calibration.observations import observations_arrays
     from helicalib.geometry import errors as em
     from helicalib.geometry.heliostat import HeliostatModel
@@ -70,7 +102,16 @@ def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas
     if loo:
         lo = leave_one_out(model, *args, targets, prior_sigma=priors, sigma_meas_mrad=sigma_meas_mrad)
         rep.update({"loo_normal_mrad_mean": _mean(lo["normal_mrad"]), "loo_normal_mrad": lo["normal_mrad"].tolist(),
+                    "loo_normal_mrad_rms": _rms(lo["normal_mrad"]),
                     "loo_beam_m_mean": _mean(lo["beam_m"]), "loo_beam_m": lo["beam_m"].tolist()})
+    if splits:
+        from helicalib.calibration.splits import make_split
+
+        strokes, sun, spot = (np.asarray(x, dtype=float) for x in args)
+        rep["test_share"], rep["seed"] = test_share, seed
+        rep["splits"] = {kind: split_report(model, strokes, sun, spot, targets,
+                                            make_split(kind, sun, cfg.site.latitude_deg, test_share, seed),
+                                            priors, sigma_meas_mrad, rep["record_ids"]) for kind in splits}
     return rep
 
 
@@ -104,9 +145,13 @@ def run(args) -> int:
     for name in priors:
         if name not in em.NAMES:
             raise ConfigError(f"--prior {name}: unknown parameter; known: {', '.join(em.NAMES)}")
-    if args.loo and len(rows) < 3:
-        raise MeasurementError("leave-one-out needs at least 3 observations")
-    rep = fit_report(cfg, rows, args.heliostat, args.loo, priors, args.sigma_meas_mrad)
+    splits = tuple(SPLITS if "all" in args.split else dict.fromkeys(args.split))
+    loo = args.loo or bool(splits)  # a split's out-of-sample error is reported beside leave-one-out
+    if loo and len(rows) < 3:
+        raise MeasurementError(f"{args.observations}: {len(rows)} observations of {args.heliostat}; "
+                               "leave-one-out and the splits need at least 3")
+    rep = fit_report(cfg, rows, args.heliostat, loo, priors, args.sigma_meas_mrad, splits, args.test_share,
+                     args.seed)
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0
@@ -115,9 +160,13 @@ def run(args) -> int:
           f"(beam {rep['nominal_beam_m_mean']:.2f} m)")
     print(f"  normal error, in-sample  {rep['in_sample_normal_mrad_mean']:.2f} mrad mean "
           f"(beam {rep['in_sample_beam_m_mean']:.3f} m)")
-    if args.loo:
-        print(f"  normal error, leave-one-out {rep['loo_normal_mrad_mean']:.2f} mrad mean "
-              f"(beam {rep['loo_beam_m_mean']:.3f} m)")
+    if loo:
+        print(f"  normal error, leave-one-out {rep['loo_normal_mrad_mean']:.2f} mrad mean, "
+              f"{rep['loo_normal_mrad_rms']:.2f} RMS (beam {rep['loo_beam_m_mean']:.3f} m)")
+    for kind, sp in rep.get("splits", {}).items():
+        print(f"  normal error, split {kind:13s} {sp['test_normal_mrad_rms']:.2f} mrad RMS out of sample "
+              f"({sp['test']} test / {sp['train']} train; train {sp['train_normal_mrad_rms']:.2f} RMS; "
+              f"beam {sp['test_beam_m_rms']:.3f} m RMS)")
     print("  parameters (value ± posterior sigma, prior sigma; post/prior near 1 = not identified by the data):")
     ident = {d["name"]: d for d in rep["identifiability"]}
     for name, p in rep["parameters"].items():

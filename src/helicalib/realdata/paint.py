@@ -9,7 +9,10 @@ Inputs (any of them, found by name under the given directories):
 * ``*calibration-properties*.json``: one calibration record each (motor steps, sun angles, target,
   UTIS and HeliOS spot centres in WGS84);
 * ``test_metadata.csv`` / ``test_benchmark.csv``: map record ids to heliostat ids where the file
-  name does not carry it.
+  name does not carry it; in PAINT's download layout (``<heliostat>/Calibration/<id>-...``,
+  ``<heliostat>/Properties/...``) the heliostat folder says it;
+* ``<id>-calibration-item-stac.json`` beside a record: its ``properties.datetime`` is the record's
+  UTC time (PAINT's records carry none in the JSON; ``helicalib export-paint`` writes these items).
 
 Conventions and how each is mapped (see ``docs/realdata.md``):
 
@@ -106,13 +109,14 @@ class PaintHeliostat:
 class PaintRecord:
     record_id: str
     heliostat_id: str | None
-    motor_steps: tuple[int, int]
+    motor_steps: tuple[int | float, int | float]
     target_name: str
     sun_azimuth_deg: float  # PAINT: 0 = south, +90 = east
     sun_elevation_deg: float
     utis_llh: tuple[float, float, float] | None
     helios_llh: tuple[float, float, float] | None
     path: str
+    utc_time: str = ""  # the STAC item's datetime beside the record, when there is one
 
     @property
     def sun_enu(self) -> np.ndarray:
@@ -231,18 +235,42 @@ def read_calibration(path: str | Path, heliostat_id: str | None = None) -> Paint
             heliostat_id = m.group(1)
         elif _HELIOSTAT_NAME.match(path.parent.name):
             heliostat_id = path.parent.name
+        else:
+            heliostat_id = _layout_heliostat(path, "Calibration")
     fs = d.get("focal_spot", {})
     return PaintRecord(
         record_id=record_id,
         heliostat_id=heliostat_id,
-        motor_steps=(int(d["motor_position"]["axis_1_motor_position"]), int(d["motor_position"]["axis_2_motor_position"])),
+        motor_steps=(_steps(d["motor_position"]["axis_1_motor_position"]),
+                     _steps(d["motor_position"]["axis_2_motor_position"])),
         target_name=str(d["target_name"]),
         sun_azimuth_deg=float(d["sun_azimuth"]),
         sun_elevation_deg=float(d["sun_elevation"]),
         utis_llh=tuple(float(x) for x in fs["UTIS"]) if fs.get("UTIS") else None,
         helios_llh=tuple(float(x) for x in fs["HeliOS"]) if fs.get("HeliOS") else None,
         path=str(path),
+        utc_time=_item_datetime(path.with_name(f"{record_id}-calibration-item-stac.json")),
     )
+
+
+def _steps(value) -> int | float:
+    """A motor position: whole steps as an int, a fractional count (helicalib's export of strokes that are
+    no whole number of steps) kept as it is rather than truncated."""
+    v = float(value)
+    return int(v) if v.is_integer() else v
+
+
+def _layout_heliostat(path: Path, folder: str) -> str | None:
+    """PAINT's download layout ``<heliostat>/Calibration/...``, ``<heliostat>/Properties/...``: the heliostat id."""
+    return path.parent.parent.name if path.parent.name == folder and path.parent.parent.name else None
+
+
+def _item_datetime(item: Path) -> str:
+    """``properties.datetime`` of a PAINT STAC item (UTC, ISO 8601), or "" when there is no item."""
+    if not item.is_file():
+        return ""
+    when = json.loads(item.read_text()).get("properties", {}).get("datetime")
+    return str(when) if when else ""
 
 
 def scan(dirs: list[str | Path]) -> PaintImport:
@@ -276,7 +304,8 @@ def scan(dirs: list[str | Path]) -> PaintImport:
     for p in files:
         if p.name.endswith("heliostat-properties.json"):
             m = re.match(r"^([A-Z]{2}\d{2})-", p.name)
-            hid = m.group(1) if m else (p.parent.name if _HELIOSTAT_NAME.match(p.parent.name) else None)
+            hid = m.group(1) if m else (p.parent.name if _HELIOSTAT_NAME.match(p.parent.name)
+                                        else _layout_heliostat(p, "Properties"))
             if hid is None:
                 imp.notes.append(f"{p}: cannot tell which heliostat this is (name it AA00-heliostat-properties.json)")
                 continue
@@ -432,7 +461,7 @@ def observations(imp: PaintImport, which: str = "UTIS") -> tuple[list[Observatio
         strokes = [float(steps_to_stroke_mm(m, a)) for m, a in zip(rec.motor_steps, h.kinematics.actuators)]
         uv = target_uv(t, spot)
         rows.append(Observation(
-            heliostat_id=h.id, utc_time="", sun_e=float(s[0]), sun_n=float(s[1]), sun_u=float(s[2]),
+            heliostat_id=h.id, utc_time=rec.utc_time, sun_e=float(s[0]), sun_n=float(s[1]), sun_u=float(s[2]),
             stroke1_mm=strokes[0], stroke2_mm=strokes[1], target_id=t.name,
             spot_e_m=float(spot[0]), spot_n_m=float(spot[1]), spot_u_m=float(spot[2]),
             target_u_m=float(uv[0]), target_v_m=float(uv[1]), spot_method=which, source="PAINT",

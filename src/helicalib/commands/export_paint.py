@@ -1,0 +1,94 @@
+"""``helicalib export-paint DB --out DIR``: a campaign's calibration records in PAINT's layout (for ARTIST
+and the PAINT tools), with a STAC catalogue; ``helicalib import-paint DIR`` reads them back."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+from helicalib.commands._args import positive_float
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export-paint", help="write a campaign's calibration records in PAINT's layout",
+                       description="Write the valid observations of a campaign database in PAINT's layout: "
+                                   "tower-measurements.json, per heliostat Properties/<id>-heliostat-properties.json "
+                                   "(linkage) and Calibration/<record>-calibration-properties.json (motor positions, "
+                                   "target, spot centre, sun azimuth/elevation in PAINT's convention) with the "
+                                   "record's frames, and a STAC catalogue (catalog.json, relative links). "
+                                   "helicalib import-paint reads the export back.")
+    p.add_argument("database", metavar="DB", help="campaign database (SQLite file)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--field", help="field config YAML (default: the one the campaign was started with)")
+    p.add_argument("--campaign", type=int, help="campaign id (default: the newest in the database)")
+    p.add_argument("--increment", type=positive_float, metavar="STEPS_PER_M",
+                   help="motor steps per metre of actuator length (default 1000: one step = one mm of stroke, "
+                        "the field config's unit; docs/realdata.md)")
+    p.add_argument("--images", metavar="DIR", help="the database's frames directory (default: images beside it)")
+    p.add_argument("--no-frames", action="store_true", help="do not copy the frames")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(func=run)
+
+
+def campaign_rows(store, campaign_id: int, spot_method: str):
+    """The campaign's valid observations as fit rows (:meth:`Store.export_fit_csv`'s selection and columns)
+    and their frame files by record id."""
+    from helicalib.calibration.observations import read_observations
+    from helicalib.realdata.paint_export import Frames
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "observations.csv"
+        store.export_fit_csv(path, campaign_id=campaign_id, spot_method=spot_method)
+        rows = read_observations(path)
+    frames = {}
+    for o in store.observations(campaign_id=campaign_id, valid=True):
+        raw = store.images_dir / o.after_frame_path if o.after_frame_path else None
+        before = store.images_dir / o.before_frame_path if o.before_frame_path else None
+        frames[str(o.id)] = Frames(raw if raw is not None and raw.is_file() else None,
+                                   before if before is not None and before.is_file() else None)
+    return rows, frames
+
+
+def run(args) -> int:
+    from helicalib.commands._progress import ProgressReporter
+    from helicalib.config import load_field_config
+    from helicalib.errors import ConfigError
+    from helicalib.realdata.paint_export import DEFAULT_INCREMENT_STEPS_PER_M, write_export
+    from helicalib.store.sqlite import Store
+
+    if not Path(args.database).is_file():
+        raise ConfigError(f"{args.database}: no such database file")
+    store = Store.open(args.database, args.images, readonly=True)
+    try:
+        campaigns = store.campaigns()
+        if not campaigns:
+            raise ConfigError(f"{args.database}: no campaign in this database")
+        campaign = store.campaign(args.campaign) if args.campaign is not None else campaigns[-1]
+        field = args.field or campaign.config_path
+        if not field:
+            raise ConfigError(f"{args.database}: campaign {campaign.id} records no field config; give --field")
+        if not Path(field).is_file():
+            raise ConfigError(f"{field}: field config of campaign {campaign.id} not found; give --field")
+        cfg = load_field_config(field)
+        rows, frames = campaign_rows(store, campaign.id, cfg.calibration.spot_method)
+    finally:
+        store.close()
+    if not rows:
+        raise ConfigError(f"{args.database}: campaign {campaign.id} has no valid observation to export")
+    increment = args.increment or DEFAULT_INCREMENT_STEPS_PER_M
+    with ProgressReporter("export-paint", len(rows), transient=args.json) as bar:
+        summary = write_export(cfg, rows, args.out, frames=None if args.no_frames else frames,
+                               increment_steps_per_m=increment,
+                               description=f"helicalib campaign {campaign.id} ({campaign.name}) of {args.database}",
+                               progress=lambda done, total: bar.update(done, f"{done} of {total} records"))
+    summary.update({"database": str(args.database), "campaign": campaign.id, "field": str(field)})
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"wrote {summary['records']} records of {len(summary['heliostats'])} heliostats "
+              f"({summary['frames']} with frames) to {summary['out']}; catalogue {summary['catalog']}")
+        for hid, n in summary["heliostats"].items():
+            print(f"  {hid}: {n} records")
+    return 0
