@@ -219,3 +219,23 @@ def test_fast_fit_from_far_starts_reaches_the_same_minimum(recorded):
                                                 start=start), "H0017")
     with pytest.raises(ValueError, match="method"):
         fit_error_model(nominal, strokes, sun, spot, method="newton")
+
+
+def _cusp_problem(k: float, x0: float):
+    """r = (x − 1, k·|x − x0|) with a Jacobian blind to the second term: at x0 every step the
+    Jacobian proposes raises the cost, as round-off does at a real minimum."""
+    def fun_jac(x):
+        return np.array([x[0] - 1.0, k * abs(x[0] - x0)]), np.array([[1.0], [0.0]])
+    return fun_jac
+
+
+def test_gauss_newton_stalled_below_round_off_has_converged():
+    x0 = 1.0 + 2e-7  # predicted gain 4e-14 of the cost: above ftol, far below STALL_FTOL
+    x, r, _, converged, _ = fit_solver.gauss_newton(_cusp_problem(1e4, x0), np.array([x0]), "linear", 1.0)
+    assert converged and x[0] == x0 and r[1] == 0.0
+
+
+def test_gauss_newton_stalled_far_from_a_minimum_has_failed():
+    x0 = 1.0 + 1e-3  # predicted gain 1e-6 of the cost: a real failure, not round-off
+    x, _, _, converged, _ = fit_solver.gauss_newton(_cusp_problem(1e6, x0), np.array([x0]), "linear", 1.0)
+    assert not converged and x[0] == x0
