@@ -223,6 +223,9 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "stowed_hours": round(stats.stowed_s / 3600.0, 2),
         "days": round((end_s - start_s) / 86400.0, 3),
         "outcomes": dict(stats.outcomes),
+        # the scenario's injected drift events that began during the run (simulator truth)
+        "drifted": sum(1 for e in sim.truth.drift_events if e.start_s < end_s),
+        "drift_events": [e.to_dict() for e in sim.truth.drift_events if e.start_s < end_s],
     }
 
 

@@ -116,6 +116,53 @@ class Unmodelled(_Model):
     drift_mrad_per_week: float = Field(default=0.05, ge=0)  # pedestal tilt drift (settlement), per axis
 
 
+Range = tuple[float, float]
+
+
+def _range(name: str, value: Range) -> Range:
+    lo, hi = value
+    if not 0 <= lo <= hi:
+        raise ValueError(f"expected [low, high] with 0 <= low <= high, got [{lo}, {hi}]")
+    return value
+
+
+class Drift(_Model):
+    """Drift events on a share of the heliostats: step changes and slow creep at random times.
+
+    Each drifting heliostat gets one event, of a kind drawn with the ``kinds`` weights, at a time
+    drawn uniformly in ``[start + after_days, start + after_days + within_days]``:
+
+    * ``settle``: the pedestal tilts by a step of ``settle_mrad`` (uniform in the range) in a
+      random direction (foundation settling; the beam moves by up to twice the tilt);
+    * ``actuator``: one actuator's zero offset steps by ``actuator_mm`` with a random sign (an
+      actuator or encoder swapped);
+    * ``creep``: the pedestal tilts at ``creep_mrad_per_day`` in a random direction for
+      ``creep_days``, then stays.
+    """
+
+    share: float = Field(default=0.0, ge=0, le=1)           # share of the heliostats that drift
+    kinds: dict[Literal["settle", "actuator", "creep"], float] = Field(
+        default_factory=lambda: {"settle": 0.4, "actuator": 0.3, "creep": 0.3})
+    settle_mrad: Range = (2.0, 5.0)                          # pedestal tilt step [mrad]
+    actuator_mm: Range = (1.0, 3.0)                          # zero-offset step of one actuator [mm]
+    creep_mrad_per_day: Range = (0.1, 0.3)                   # pedestal tilt rate [mrad/day]
+    creep_days: float = Field(default=30.0, gt=0)
+    after_days: float = Field(default=1.0, ge=0)             # no event before start + after_days
+    within_days: float | None = Field(default=None, gt=0)    # events spread over this span; default the scenario's rest
+
+    @field_validator("settle_mrad", "actuator_mm", "creep_mrad_per_day")
+    @classmethod
+    def _ordered_range(cls, value, info):
+        return _range(info.field_name, value)
+
+    @field_validator("kinds")
+    @classmethod
+    def _weights(cls, value):
+        if any(not w >= 0 for w in value.values()) or not sum(value.values()) > 0:
+            raise ValueError("weights must be >= 0 with a positive sum")
+        return value
+
+
 class Optics(_Model):
     sun_sigma_mrad: float = Field(default=2.5, gt=0)        # Gaussian equivalent of the sun shape
     slope_error_mrad: float = Field(default=1.5, ge=0)      # mirror slope error (the beam gets twice this)
@@ -159,10 +206,18 @@ class Scenario(_Model):
     soiling: Soiling = Soiling()
     errors: dict[str, float] | None = None   # std per error-model parameter; None = the model's priors
     unmodelled: Unmodelled = Unmodelled()
+    drift: Drift = Drift()
     optics: Optics = Optics()
     actuators: Actuators = Actuators()
     camera: CameraSpec = CameraSpec()
     faults: Faults = Faults()
+
+    @model_validator(mode="after")
+    def _drift_within_the_scenario(self):
+        if self.drift.share > 0 and self.drift.within_days is None and not self.drift.after_days < self.duration_days:
+            raise ValueError(f"drift.after_days {self.drift.after_days} is not before the end of the scenario "
+                             f"(duration_days {self.duration_days}); set drift.within_days")
+        return self
 
     @field_validator("errors")
     @classmethod

@@ -7,7 +7,10 @@ drawn from the scenario's distributions, plus effects the error model does not c
 * stroke repeatability: a fresh stroke error at every command;
 * gravity sag: the normal droops by ``sag · sin(normal zenith)`` (most when the mirror stands upright);
 * wind jitter: the normal wanders with std ``k · wind`` (redrawn every second of plant time);
-* slow drift: the pedestal tilts (foundation settlement) at a constant hidden rate.
+* slow drift: the pedestal tilts (foundation settlement) at a constant hidden rate;
+* drift events (``scenario.drift``) on a share of the heliostats: a pedestal tilt step
+  (settling), an actuator's zero-offset step (actuator swap) or a tilt creep over some days, at
+  random times, listed in :attr:`TrueField.drift_events`.
 
 Everything is vectorised over heliostats and deterministic from the scenario seed.
 """
@@ -27,6 +30,8 @@ from helicalib.sim.scenario import Scenario
 WEEK_S = 7 * 86400.0
 UP = np.array([0.0, 0.0, 1.0])
 _S_PARAMS, _S_BACKLASH, _S_SAG, _S_DRIFT, _S_JITTER, _S_REPEAT = 31, 32, 33, 34, 35, 36
+_S_EV_WHO, _S_EV_KIND, _S_EV_TIME, _S_EV_SIZE, _S_EV_DIR = 37, 38, 39, 40, 41
+DAY_S = 86400.0
 
 
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -35,6 +40,64 @@ def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     norm = np.linalg.norm(t1, axis=-1, keepdims=True)
     t1 = np.where(norm > 1e-9, t1 / np.where(norm > 1e-9, norm, 1.0), np.array([1.0, 0.0, 0.0]))
     return t1, np.cross(n, t1)
+
+
+@dataclass(frozen=True)
+class DriftEvent:
+    """One injected drift of one heliostat (the simulator's truth, never the controller's).
+
+    ``delta`` holds the change of each error parameter once the event is complete (a step: at
+    ``start_s``; a creep: at ``end_s``, growing linearly from ``start_s``) [parameter units].
+    """
+
+    heliostat_id: str
+    row: int
+    kind: str          # "settle" | "actuator" | "creep"
+    start_s: float     # plant time the event begins [UTC s]
+    end_s: float       # plant time it is complete (= start_s for a step) [UTC s]
+    delta: dict[str, float]
+
+    def to_dict(self) -> dict:
+        return {"heliostat_id": self.heliostat_id, "kind": self.kind, "start_s": self.start_s,
+                "end_s": self.end_s, "delta": dict(self.delta)}
+
+
+def draw_drift_events(cfg, scenario: Scenario, start_s: float) -> tuple[DriftEvent, ...]:
+    """The drift events of ``scenario.drift`` for the heliostats of ``cfg``, deterministic from the
+    scenario seed: who drifts (each heliostat with probability ``share``), which kind, when, how much."""
+    d = scenario.drift
+    n = len(cfg.heliostats)
+    if d.share <= 0 or n == 0:
+        return ()
+    seed = int(scenario.seed)
+    idx = np.arange(n)
+    rows = idx[noise.uniform(seed, _S_EV_WHO, idx) < d.share]
+    kinds = [k for k, w in d.kinds.items() if w > 0]
+    cum = np.cumsum([d.kinds[k] for k in kinds]) / sum(d.kinds[k] for k in kinds)
+    kind_of = np.searchsorted(cum, noise.uniform(seed, _S_EV_KIND, rows), side="right").clip(0, len(kinds) - 1)
+    within = d.within_days if d.within_days is not None else scenario.duration_days - d.after_days
+    t0 = start_s + DAY_S * (d.after_days + within * noise.uniform(seed, _S_EV_TIME, rows))
+    size = noise.uniform(seed, _S_EV_SIZE, rows)
+    angle = 2.0 * np.pi * noise.uniform(seed, _S_EV_DIR, rows)
+    events = []
+    for r, k, t, u, a in zip(rows, kind_of, t0, size, angle):
+        kind = kinds[int(k)]
+        t = float(np.round(t))  # whole plant seconds
+        if kind == "actuator":
+            lo, hi = d.actuator_mm
+            which = 1 if np.cos(a) >= 0 else 2  # one of the two actuators, with a random sign
+            sign = 1.0 if np.sin(a) >= 0 else -1.0
+            delta = {f"stroke_offset_{which}_mm": sign * (lo + (hi - lo) * float(u))}
+            end = t
+        else:
+            lo, hi = d.settle_mrad if kind == "settle" else d.creep_mrad_per_day
+            mag = lo + (hi - lo) * float(u)
+            end = t if kind == "settle" else t + d.creep_days * DAY_S
+            if kind == "creep":
+                mag *= d.creep_days  # the tilt reached at the end of the creep
+            delta = {"pedestal_tilt_e_mrad": mag * float(np.cos(a)), "pedestal_tilt_n_mrad": mag * float(np.sin(a))}
+        events.append(DriftEvent(cfg.heliostats[int(r)].id, int(r), kind, t, float(end), delta))
+    return tuple(events)
 
 
 @dataclass(frozen=True)
@@ -85,20 +148,47 @@ class TrueField:
         self.jitter_mrad_per_ms = scale * u.wind_jitter_mrad_per_ms
         self.repeatability_mm = scale * u.repeatability_mm
         self._cols_drift = [em.index("pedestal_tilt_e_mrad"), em.index("pedestal_tilt_n_mrad")]
-        self._cache: tuple[int, HeliostatModel] | None = None
+        self.drift_events: tuple[DriftEvent, ...] = () if zero else draw_drift_events(cfg, scenario, start_s)
+        ev = self.drift_events
+        self._ev_rows = np.array([e.row for e in ev], dtype=int)
+        self._ev_start = np.array([e.start_s for e in ev], dtype=float)
+        self._ev_end = np.array([e.end_s for e in ev], dtype=float)
+        self._ev_delta = np.zeros((len(ev), em.P))
+        for i, e in enumerate(ev):
+            for name, value in e.delta.items():
+                self._ev_delta[i, em.index(name)] = value
+        self._cache: tuple[tuple[int, int], HeliostatModel] | None = None
 
     # -- hidden parameters -----------------------------------------------------------------
-    def params_at(self, t_s: float) -> np.ndarray:
-        """True error parameters (N, P) at plant time ``t_s`` (drift included)."""
+    def params_at(self, t_s: float, events_t_s: float | None = None) -> np.ndarray:
+        """True error parameters (N, P) at plant time ``t_s`` (drift and drift events included).
+
+        ``events_t_s``: the time at which the drift events are evaluated, if not ``t_s``.
+        """
         p = self.params0.copy()
         p[:, self._cols_drift] += self.drift_mrad_per_s * (float(t_s) - self.start_s)
+        if len(self._ev_rows):
+            te = float(t_s if events_t_s is None else events_t_s)
+            span = self._ev_end - self._ev_start
+            done = np.where(span > 0, np.clip((te - self._ev_start) / np.where(span > 0, span, 1.0), 0.0, 1.0),
+                            (te >= self._ev_start).astype(float))
+            np.add.at(p, self._ev_rows, done[:, None] * self._ev_delta)
         return p
 
     def model_at(self, t_s: float) -> HeliostatModel:
-        """The true :class:`HeliostatModel` at ``t_s`` (drift evaluated per hour of plant time)."""
-        hour = int(np.floor(float(t_s) / 3600.0))
-        if self._cache is None or self._cache[0] != hour:
-            self._cache = (hour, self.nominal.with_params(self.params_at(hour * 3600.0)))
+        """The true :class:`HeliostatModel` at ``t_s``: the slow drift and creeps evaluated per hour
+        of plant time, a step event from its own second on."""
+        t = float(t_s)
+        hour = int(np.floor(t / 3600.0))
+        steps = int(np.count_nonzero((self._ev_end == self._ev_start) & (self._ev_start <= t)))
+        if self._cache is None or self._cache[0] != (hour, steps):
+            # creeps at the hour, every step already passed at t (none of the hour's later ones)
+            t_eval = hour * 3600.0
+            p = self.params_at(t_eval)
+            late = (self._ev_end == self._ev_start) & (self._ev_start > t_eval) & (self._ev_start <= t)
+            if late.any():
+                np.add.at(p, self._ev_rows[late], self._ev_delta[late])
+            self._cache = ((hour, steps), self.nominal.with_params(p))
         return self._cache[1]
 
     def repeat_noise_mm(self, command_count: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
