@@ -188,11 +188,13 @@ FIT_METHODS = ("fast", "reference")
 """Solvers of :func:`fit_error_model`: ``"fast"`` (analytic Jacobian, damped Gauss-Newton,
 :mod:`helicalib.calibration.fit_solver`) and ``"reference"`` (``scipy.optimize.least_squares``,
 TRF, with a central-difference Jacobian). Both minimise the same cost."""
+SIGMA_MRAD = 0.3
+"""Default measurement noise of one beam-angle component [mrad] (``sigma_mrad`` of the fit)."""
 
 
 def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mapping[str, float] | None = None,
                     free: Sequence[str] | None = None, loss: str = "soft_l1", f_scale_mrad: float = 1.0,
-                    sigma_mrad: float = 0.3, residual_kind: str = "beam", candidate_sun_enu: np.ndarray | None = None,
+                    sigma_mrad: float = SIGMA_MRAD, residual_kind: str = "beam", candidate_sun_enu: np.ndarray | None = None,
                     aim_enu: np.ndarray | None = None, n_suggestions: int = 3,
                     approach: np.ndarray | None = None, start: np.ndarray | None = None,
                     method: str = "fast") -> FitResult:
@@ -428,21 +430,13 @@ def beam_spread_mrad(model, covariance: np.ndarray, sun_enu: np.ndarray, aim_enu
     -------
     ndarray (N,), NaN where the aim cannot be reached inside the stroke range.
     """
+    from helicalib.calibration.uncertainty import beam_jacobians_mrad
+
     n, p = len(model), em.P
     cov = np.asarray(covariance, dtype=float).reshape(n, p, p)
-    aim = np.broadcast_to(np.asarray(aim_enu, dtype=float), (n, 3))
-    sol = model.strokes_for_aim(sun_enu, aim)
-    h = 1e-3 * em.PRIOR_SIGMA
-    params = np.repeat(model.params[:, None, :], p + 1, axis=1)
-    params[:, 1:, :] += np.diag(h)[None, :, :]
-    big = model.repeat(p + 1).with_params(params.reshape(-1, p))
-    strokes = np.repeat(np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), p + 1, axis=0)
-    origin, direction = big.beam(strokes, sun_enu)
-    diff = (direction - optics.unit(np.repeat(aim, p + 1, axis=0) - origin)).reshape(n, p + 1, 3)
-    basis = _basis(direction.reshape(n, p + 1, 3)[:, 0, :])               # (N, 2, 3)
-    jac = 1000.0 * np.einsum("nij,npj->nip", basis, (diff[:, 1:] - diff[:, :1]) / h[None, :, None])
-    var = np.einsum("nip,npq,niq->n", jac, cov, jac)
-    return np.where(sol.in_range, np.sqrt(np.maximum(var, 0.0)), np.nan)
+    jac, ok = beam_jacobians_mrad(model, np.asarray(sun_enu, dtype=float).reshape(1, 3), aim_enu)
+    var = np.einsum("nip,npq,niq->n", jac[:, 0], cov, jac[:, 0])
+    return np.where(ok[:, 0], np.sqrt(np.maximum(var, 0.0)), np.nan)
 
 
 def predict_strokes(result: FitResult, sun_enu: np.ndarray, aim_enu: np.ndarray):

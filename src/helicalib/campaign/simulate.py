@@ -175,8 +175,10 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
 
     accepted_rows = [cfg.heliostat_index(hid) for hid in accepted]
 
+    evaluations = {}
+
     def sky_of(backlash: str) -> dict:
-        ev = evaluate_model(sim.truth, params, backlash=backlash)
+        ev = evaluations[backlash] = evaluate_model(sim.truth, params, backlash=backlash)
         with np.errstate(invalid="ignore"):
             errs = ev.errors_mrad[rows]
             flat = errs[np.isfinite(errs)]
@@ -193,6 +195,7 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
                 "formula1_accepted_rms_mrad": float(np.sqrt(np.mean(f1_ok**2))) if f1_ok.size else None}
 
     sky, geometry = sky_of("tracking"), sky_of("none")
+    predicted = predicted_against_truth(cfg, runner, sim, params, evaluations["tracking"])
     day0 = max(start_s, end_s - 86400.0)
     tracking = plant_tracking_truth(cfg, sim.truth, params, rows, day0, day0 + 86400.0, runner.sun_table)
     untracked = plant_tracking_truth(cfg, sim.truth, np.zeros_like(params), rows, day0, day0 + 86400.0,
@@ -216,6 +219,7 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "true_sky_rms_formula1_mrad": round(float(sky["formula1_rms_mrad"]), 3),
         "true_sky_rms_formula1_accepted_mrad": (None if sky["formula1_accepted_rms_mrad"] is None
                                                 else round(sky["formula1_accepted_rms_mrad"], 3)),
+        **predicted,
         "true_tracking_rms_mrad": round(tracking["rms_mrad"], 3),
         "true_tracking_p95_mrad": round(tracking["p95_mrad"], 3),
         "true_tracking_uncorrected_rms_mrad": round(untracked["rms_mrad"], 3),
@@ -227,6 +231,50 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "drifted": sum(1 for e in sim.truth.drift_events if e.start_s < end_s),
         "drift_events": [e.to_dict() for e in sim.truth.drift_events if e.start_s < end_s],
     }
+
+
+PREDICTION_SAMPLE = 500
+"""At most this many fitted heliostats (evenly spaced) enter the summary's year-round prediction figures."""
+
+
+def predicted_against_truth(cfg, runner: CampaignRunner, sim, params: np.ndarray, ev) -> dict:
+    """The fits' year-round predictions (:mod:`helicalib.calibration.uncertainty`) against the
+    simulator's truth ``ev`` (:func:`~helicalib.sim.evaluate.evaluate_model`, the calibrated
+    models over the year): how often the true year-round RMS lies inside the predicted 90 %
+    interval, and the predicted against the true share of heliostats that exceed 1.2 mrad somewhere
+    on the year's path. Over at most :data:`PREDICTION_SAMPLE` fitted heliostats; the sun path
+    every 14 days, every hour, sun above 5°."""
+    from helicalib.calibration.fit import SIGMA_MRAD
+    from helicalib.calibration.uncertainty import LIMIT_MRAD, unexplained_mrad, year_prediction
+    from helicalib.sim.evaluate import year_sun_times
+
+    fitted = [hid for hid in runner.ids if runner.book.h[hid].fit is not None]
+    keys = ("predicted_year_rms_median_mrad", "predicted_interval_coverage", "predicted_exceed_share",
+            "true_exceed_share", "predicted_heliostats")
+    if not fitted:
+        return dict.fromkeys(keys)
+    pick = np.unique(np.linspace(0, len(fitted) - 1, min(len(fitted), PREDICTION_SAMPLE)).round().astype(int))
+    hids = [fitted[i] for i in pick]
+    rows = np.array([cfg.heliostat_index(h) for h in hids])
+    fits = [runner.book.h[h].fit for h in hids]
+    model = sim.truth.nominal.subset(rows).with_params(params[rows])
+    year = int(np.datetime64(int(sim.truth.start_s), "s").astype("datetime64[Y]").astype(int) + 1970)
+    _t, sun = year_sun_times(cfg.site, year, step_days=14.0, step_min=60.0)
+    aims = np.array([cfg.target(cfg.heliostat(h).target).center_enu_m for h in hids])
+    pred = year_prediction(model, np.stack([f.covariance for f in fits]), sun, aims,
+                           np.array([unexplained_mrad(f.rms_mrad, SIGMA_MRAD) for f in fits]), draws=200)
+    with np.errstate(invalid="ignore"):
+        err = ev.errors_mrad[rows]
+        true_rms = np.sqrt(np.nanmean(err**2, axis=1))
+        true_exceed = np.nanmax(err, axis=1) > LIMIT_MRAD
+    ok = np.isfinite(true_rms) & np.all(np.isfinite(pred.interval_mrad), axis=1)
+    inside = (pred.interval_mrad[ok, 0] <= true_rms[ok]) & (true_rms[ok] <= pred.interval_mrad[ok, 1])
+    r = lambda x: None if not np.isfinite(x) else round(float(x), 3)  # noqa: E731
+    return {"predicted_year_rms_median_mrad": r(np.nanmedian(pred.expected_rms_mrad)) if ok.any() else None,
+            "predicted_interval_coverage": r(np.mean(inside)) if ok.any() else None,
+            "predicted_exceed_share": r(np.mean(pred.p_exceed[ok])) if ok.any() else None,
+            "true_exceed_share": r(np.mean(true_exceed[ok])) if ok.any() else None,
+            "predicted_heliostats": int(ok.sum())}
 
 
 def _operating_hours(cfg, start_s: float, end_s: float) -> float:
