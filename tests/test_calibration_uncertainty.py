@@ -106,3 +106,52 @@ def test_the_beam_jacobian_is_the_one_the_planner_uses(field):
 def test_unexplained_error_from_residuals():
     assert unc.unexplained_mrad(0.5, 0.3) == pytest.approx(np.sqrt(0.25 - 0.18))
     assert unc.unexplained_mrad(0.3, 0.3) == 0.0
+
+
+def _checks(cfg, model, aim, true_params, sun, sigma, rng):
+    """Spots of the true heliostat at the strokes the fitted ``model`` commands, with noise σ [mrad]."""
+    from helicalib.calibration.fit import _basis
+
+    k = len(sun)
+    strokes = model.repeat(k).strokes_for_aim(sun, aim).strokes_mm
+    origin, d = model.with_params(true_params[None]).repeat(k).beam(strokes, sun)
+    noisy = optics.unit(d + 1e-3 * sigma * np.einsum("ki,kij->kj", rng.normal(size=(k, 2)), _basis(d)))
+    _uv, hit, _ = optics.intersect_target(origin, noisy, cfg.target(cfg.heliostat(IDS[0]).target))
+    return strokes, hit
+
+
+def test_checks_of_an_unchanged_heliostat_fall_in_the_band_as_often_as_promised(field, demo_field_path):
+    cfg = load_field_config(demo_field_path)
+    model, aims, sun = field
+    one, cov = model.subset([0]), _cov(0.03)[0]
+    rng = np.random.default_rng(4)
+    root = np.sqrt(np.diag(cov))
+    d2, outside = [], []
+    for _ in range(150):  # the truth drawn from the fit's posterior: nothing changed since the fit
+        truth = one.params[0] + root * rng.normal(size=em.P)
+        strokes, spot = _checks(cfg, one, aims[0], truth, sun[::12], 0.3, rng)
+        test = unc.check_against_fit(one, cov, strokes, sun[::12], spot, sigma_mrad=0.3, alpha=0.05)
+        d2.extend(test.distance2)
+        outside.extend(test.outside)
+    d2 = np.asarray(d2)
+    n = len(d2)
+    assert abs(np.mean(d2) - 2.0) < 0.15 * 2.0  # χ² with 2 degrees of freedom has mean 2
+    assert abs(np.mean(outside) - 0.05) < 4 * np.sqrt(0.05 * 0.95 / n) + 0.01
+
+
+def test_a_settled_pedestal_is_outside_the_band(field, demo_field_path):
+    cfg = load_field_config(demo_field_path)
+    model, aims, sun = field
+    one, cov = model.subset([0]), _cov(0.03)[0]
+    rng = np.random.default_rng(6)
+    truth = one.params[0].copy()
+    truth[em.index("pedestal_tilt_e_mrad")] += 2.0  # a 2 mrad settling step
+    strokes, spot = _checks(cfg, one, aims[0], truth, sun[::12], 0.3, rng)
+    test = unc.check_against_fit(one, cov, strokes, sun[::12], spot, sigma_mrad=0.3)
+    assert np.mean(test.outside) > 0.9
+    strokes_same, spot_same = _checks(cfg, one, aims[0], one.params[0], sun[::12], 0.3, rng)
+    same = unc.check_against_fit(one, cov, strokes_same, sun[::12], spot_same, sigma_mrad=0.3)
+    assert np.mean(same.outside) < 0.1
+    # a wider covariance (a fit that knows less) widens the band: the same step stands out less
+    wide = unc.check_against_fit(one, 25.0 * cov, strokes, sun[::12], spot, sigma_mrad=0.3)
+    assert np.all(wide.distance2 < test.distance2) and np.all(wide.band_mrad > test.band_mrad)

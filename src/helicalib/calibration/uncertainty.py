@@ -82,9 +82,7 @@ def beam_jacobians_mrad(model, sun_enu: np.ndarray, aim_enu: np.ndarray) -> tupl
     -------
     (jac (N, M, 2, P), in_range (N, M) bool); jac is 0 where the aim is out of the stroke range.
     """
-    from helicalib.calibration.fit import _basis
-
-    n, p = len(model), em.P
+    n = len(model)
     sun = np.asarray(sun_enu, dtype=float).reshape(-1, 3)
     m = len(sun)
     aim = np.broadcast_to(np.asarray(aim_enu, dtype=float), (n, 3))
@@ -93,17 +91,89 @@ def beam_jacobians_mrad(model, sun_enu: np.ndarray, aim_enu: np.ndarray) -> tupl
     suns = np.tile(sun, (n, 1))
     aims = np.repeat(aim, m, axis=0)
     sol = big.strokes_for_aim(suns, aims)
-    strokes = np.where(sol.in_range[:, None], sol.strokes_mm, 0.0)
-    h = 1e-3 * em.PRIOR_SIGMA
-    params = np.repeat(big.params[:, None, :], p + 1, axis=1)
-    params[:, 1:, :] += np.diag(h)[None, :, :]
-    wide = big.repeat(p + 1).with_params(params.reshape(-1, p))
-    origin, direction = wide.beam(np.repeat(strokes, p + 1, axis=0), np.repeat(suns, p + 1, axis=0))
-    diff = (direction - optics.unit(np.repeat(aims, p + 1, axis=0) - origin)).reshape(n * m, p + 1, 3)
-    basis = _basis(direction.reshape(n * m, p + 1, 3)[:, 0, :])  # (NM, 2, 3)
-    jac = 1000.0 * np.einsum("kij,kpj->kip", basis, (diff[:, 1:] - diff[:, :1]) / h[None, :, None])
+    jac = beam_angle_jacobians_mrad(big, np.where(sol.in_range[:, None], sol.strokes_mm, 0.0), suns, aims)
     jac = np.where(sol.in_range[:, None, None], jac, 0.0)
-    return jac.reshape(n, m, 2, p), sol.in_range.reshape(n, m)
+    return jac.reshape(n, m, 2, em.P), sol.in_range.reshape(n, m)
+
+
+def beam_angle_jacobians_mrad(model, strokes_mm: np.ndarray, sun_enu: np.ndarray, point_enu: np.ndarray,
+                              approach: np.ndarray | None = None) -> np.ndarray:
+    """Jacobians (K, 2, P) [mrad per parameter unit] of the angle between K beams and the directions
+    from their mirror centres to ``point_enu`` (K, 3), at held strokes (K, 2) [mm] and suns (K, 3),
+    in two directions across the beam (horizontal, then up); forward differences of 1e-3 prior σ.
+    ``model`` has K rows (one per beam)."""
+    from helicalib.calibration.fit import _basis
+
+    k, p = len(model), em.P
+    h = 1e-3 * em.PRIOR_SIGMA
+    params = np.repeat(model.params[:, None, :], p + 1, axis=1)
+    params[:, 1:, :] += np.diag(h)[None, :, :]
+    wide = model.repeat(p + 1).with_params(params.reshape(-1, p))
+    rep = lambda a: np.repeat(np.asarray(a, dtype=float).reshape(k, -1), p + 1, axis=0)  # noqa: E731
+    origin, direction = wide.beam(rep(strokes_mm), rep(sun_enu), None if approach is None else rep(approach))
+    diff = (direction - optics.unit(rep(point_enu) - origin)).reshape(k, p + 1, 3)
+    basis = _basis(direction.reshape(k, p + 1, 3)[:, 0, :])  # (K, 2, 3)
+    return 1000.0 * np.einsum("kij,kpj->kip", basis, (diff[:, 1:] - diff[:, :1]) / h[None, :, None])
+
+
+@dataclass(frozen=True)
+class CheckTest:
+    """A check's observations against what the fit predicts for them.
+
+    Attributes
+    ----------
+    residual_mrad : (K, 2) observed minus predicted beam angle, across the beam [mrad]
+    band_mrad : (K,) predicted 1-σ spread of the residual's magnitude, ``sqrt(trace S)`` [mrad]
+    distance2 : (K,) squared Mahalanobis distance ``rᵀ S⁻¹ r`` (χ² with 2 degrees of freedom
+        when nothing changed)
+    p_value : (K,) probability of a distance at least this large when nothing changed, ``exp(−d²/2)``
+    outside : (K,) bool, ``p_value < alpha``: outside the predicted band
+    """
+
+    residual_mrad: np.ndarray
+    band_mrad: np.ndarray
+    distance2: np.ndarray
+    p_value: np.ndarray
+    outside: np.ndarray
+
+
+def check_against_fit(model, covariance: np.ndarray, strokes_mm: np.ndarray, sun_enu: np.ndarray,
+                      spot_enu: np.ndarray, *, approach: np.ndarray | None = None, sigma_mrad: float = 0.3,
+                      unexplained_mrad: float = 0.0, alpha: float = 1e-3) -> CheckTest:
+    """Test K check observations of one heliostat against its fit (drift detection).
+
+    The residual ``r`` (2,) is the angle between the beam the fitted model predicts for the held
+    strokes and the direction from its mirror centre to the observed spot. When nothing changed,
+    ``r ~ N(0, S)`` with ``S = J Σ Jᵀ + (σ² + u²/2) I``: the fit's parameter uncertainty carried to
+    this beam (J the (2, P) Jacobian, Σ the covariance), the measurement noise σ of each component
+    and the unexplained error u shared by the two. A drift moves ``r`` out of that band.
+
+    Parameters
+    ----------
+    model : HeliostatModel of one heliostat, its fitted parameters
+    covariance : (P, P) the fit's parameter covariance
+    strokes_mm : (K, 2) held strokes [mm]; sun_enu (K, 3); spot_enu (K, 3) observed spot centres [m, ENU]
+    approach : (K, 2), optional, each actuator's last motion (±1) for the dead bands
+    sigma_mrad : measurement noise of one beam-angle component [mrad]
+    unexplained_mrad : error no parameter explains [mrad] (:func:`unexplained_mrad`)
+    alpha : p-value below which a check is outside the band
+    """
+    from helicalib.calibration.fit import _basis
+
+    strokes = np.asarray(strokes_mm, dtype=float).reshape(-1, 2)
+    k = len(strokes)
+    sun = np.asarray(sun_enu, dtype=float).reshape(k, 3)
+    spot = np.asarray(spot_enu, dtype=float).reshape(k, 3)
+    app = None if approach is None else np.asarray(approach, dtype=float).reshape(k, 2)
+    rows = model.repeat(k)
+    origin, direction = rows.beam(strokes, sun, app)
+    r = 1000.0 * np.einsum("kij,kj->ki", _basis(direction), direction - optics.unit(spot - origin))
+    jac = beam_angle_jacobians_mrad(rows, strokes, sun, spot, app)
+    cov = np.asarray(covariance, dtype=float).reshape(em.P, em.P)
+    s = np.einsum("kip,pq,kjq->kij", jac, cov, jac) + (sigma_mrad**2 + 0.5 * unexplained_mrad**2) * np.eye(2)
+    d2 = np.einsum("ki,kij,kj->k", r, np.linalg.inv(s), r)
+    p = np.exp(-0.5 * d2)
+    return CheckTest(r, np.sqrt(np.trace(s, axis1=1, axis2=2)), d2, p, p < alpha)
 
 
 def year_prediction(model, covariance: np.ndarray, sun_enu: np.ndarray, aim_enu: np.ndarray,
