@@ -294,12 +294,31 @@ class DotFill:
     cent), which would pull the spot centre away from the dot; the aim point of a dot board is its
     reference dot, so that is the usual case. On the grid the dots lie where the layout says. Each
     cell's albedo relative to the white board is ``a = before / white``, the white level a plane
-    fitted to a ring of board around the dot in the before frame. The difference ``D = a · E``
-    (spot irradiance ``E`` in white-board grey levels) is turned back into ``E`` on and around the
-    dots by a normalised convolution, ``E = G∗(a·D) / G∗(a²)`` (the least-squares estimate of a
-    smooth ``E`` under a Gaussian window ``G`` of σ :data:`FILL_SIGMA_M`): near a dot's edge the
-    white cells carry it, inside it the dot's own cells, with their noise divided by ``a``.
-    Elsewhere ``D`` is left as it is.
+    fitted to a ring of board around the dot in the before frame, taken as a function of the
+    distance from the dot's centre. The difference ``D = a · E`` (spot irradiance ``E`` in
+    white-board grey levels) is turned back into ``E``:
+
+    * on the dot's flat interior the before frame's own noise (which ``D = after - k·before``
+      carries, divided by ``a`` once restored) is replaced by its model ``a₀ · white`` (``a₀`` the
+      mean albedo there), leaving the after frame's noise alone;
+    * on the dark part (``a < 0.5``) a normalised convolution over the dark cells,
+      ``E = G∗(a·D) / G∗(a²)`` (the least-squares estimate of a smooth ``E`` under a Gaussian window
+      ``G``), with σ :data:`FILL_SIGMA_M` for the values and the wider :data:`DETECT_SIGMA_M` for the
+      detection estimate that decides which cells pass the annex A threshold (thresholding the
+      noisier values would keep the noise peaks and drop the troughs, a bias);
+    * on the dot's bright edge ``D / a`` cell by cell (its noise grows by 1/a ≤ 2).
+
+    Elsewhere ``D`` is left as it is. The restored values carry the after frame's noise times
+    ``1/a`` (17 on a 6 % dot), which is what limits a spot on a dot.
+
+    Parameters
+    ----------
+    grid : BoardGrid
+        The board grid (cells of ``1/grid.cells_per_m`` metres, board frame u right, v up).
+    before : ndarray (rows, columns)
+        The before frame sampled on the grid [grey levels].
+    marks : DotMarks
+        The board's dots (centres and diameters [m], board frame).
     """
 
     def __init__(self, grid, before: np.ndarray, marks):
@@ -309,7 +328,8 @@ class DotFill:
         B = np.asarray(before, dtype=np.float32)
         self.parts = []
         sigma = max(1.0, FILL_SIGMA_M * s)
-        pad = int(np.ceil(3 * sigma))
+        sigma_det = max(sigma, DETECT_SIGMA_M * s)
+        pad = int(np.ceil(3 * sigma_det))
         rows, cols = grid.shape
         for (cu, cv), d in zip(marks.dots_m(), marks.diameters_m()):
             r_m = d / 2
@@ -355,22 +375,54 @@ class DotFill:
             # the bright rest of the edge cell by cell (its noise grows by 1/a ≤ 2)
             core = (region & (a < 0.5)).astype(np.float32)
             den = cv2.GaussianBlur(a * a * core, (0, 0), sigma)
+            den_det = cv2.GaussianBlur(a * a * core, (0, 0), sigma_det)
             band = region & (core == 0)
-            self.parts.append((slice(r0, r1), slice(c0, c1), a, core, den, core > 0, band, sigma))
+            # the before frame's noise on the dot's flat interior, replaced by its model
+            deep = region & (dist <= r_m - 3.0 / s - 0.02)
+            bfix = np.zeros_like(a)
+            if np.count_nonzero(deep) >= 12:
+                a0 = float(np.mean(ratio[deep]))
+                bfix[deep] = (b[deep] - a0 * white[deep]).astype(np.float32)
+            self.parts.append((slice(r0, r1), slice(c0, c1), a, core, den, core > 0, band, sigma, bfix, den_det,
+                               sigma_det))
 
-    def correct(self, D: np.ndarray) -> np.ndarray:
-        """``D`` (rows, columns) float32 with the spot's light on the dots restored (a copy)."""
+    def correct(self, D: np.ndarray, k: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Restore the spot's light on the dots.
+
+        Parameters
+        ----------
+        D : ndarray float32 (rows, columns)
+            The difference ``after - k·before`` on the grid [grey levels].
+        k : float
+            The ambient ratio after/before that ``D`` was formed with.
+
+        Returns
+        -------
+        values, detection : ndarray float32 (rows, columns)
+            Copies of ``D`` with the irradiance ``E`` [white-board grey levels] on and around the
+            dots: ``values`` for the centre, ``detection`` (smoother on the dots' dark part) for the
+            threshold test and the peak.
+        """
         import cv2
 
-        out = D.copy()
-        for rs, cs, a, core, den, in_core, band, sigma in self.parts:
-            d = D[rs, cs]
-            num = cv2.GaussianBlur(a * d * core, (0, 0), sigma)
+        out, det = D.copy(), D.copy()
+        for rs, cs, a, core, den, in_core, band, sigma, bfix, den_det, sigma_det in self.parts:
+            d = D[rs, cs] + np.float32(k) * bfix
+            ad = a * d * core
+            num = cv2.GaussianBlur(ad, (0, 0), sigma)
             block = out[rs, cs]
             block[in_core] = num[in_core] / np.maximum(den[in_core], 1e-9)
             block[band] = d[band] / a[band]
-        return out
+            num = cv2.GaussianBlur(ad, (0, 0), sigma_det)
+            block = det[rs, cs]
+            block[in_core] = num[in_core] / np.maximum(den_det[in_core], 1e-9)
+            block[band] = d[band] / a[band]
+        return out, det
 
 
-FILL_SIGMA_M = 0.06
-"""σ [m] of the window over which the spot's light on a dot is estimated (a spot is far wider)."""
+FILL_SIGMA_M = 0.03
+"""σ [m] of the window over which the spot's light on a dot is estimated (a spot is far wider; a
+wider window biases the estimate near the dot's edge and does not lower the centre's noise)."""
+DETECT_SIGMA_M = 0.06
+"""σ [m] of the wider window of the detection estimate, which decides which dot cells lie above the
+annex A threshold (the values there come from the :data:`FILL_SIGMA_M` estimate)."""

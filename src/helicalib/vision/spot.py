@@ -6,7 +6,9 @@ Pipeline for one "before" frame (no beam) and one or more "after" frames (beam o
    (:mod:`helicalib.vision.rectify`); both frames are sampled onto it, so everything below is
    in board metres, free of perspective;
 2. ambient ratio ``k`` = median(after / before) over the board; the difference ``D = after - k·before``
-   removes the board, its marks and uneven light, and compensates a small change of daylight;
+   removes the board, its marks and uneven light, and compensates a small change of daylight; on a
+   dot board the spot's light on the dots is restored (:class:`~helicalib.vision.dots.DotFill`),
+   with a smoother estimate of it for the peak and the threshold test of step 3;
 3. threshold ``T`` by Otsu's method on the histogram of ``D`` (A.1), raised to 4 noise sigmas;
    ``I = D`` where ``D ≥ T`` else 0; spot area ``S`` = count of ``D ≥ T`` (cells);
 4. window side ``l = √S`` (A.2), the window sum ``f`` at every position from one integral image
@@ -271,7 +273,9 @@ def _ambient_ratio(a_s: np.ndarray, b_s: np.ndarray, lit: np.ndarray) -> tuple[f
 def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limits: SpotLimits,
                 fill=None) -> FrameSpot:
     """One after frame; ``B``, ``A`` are the before and after frames sampled on the grid (uint8);
-    ``fill`` (a :class:`~helicalib.vision.dots.DotFill`) restores the spot's light on a dot board's dots."""
+    ``fill`` (a :class:`~helicalib.vision.dots.DotFill`) restores the spot's light on a dot board's dots:
+    its values enter ``I`` and the centre, its smoother detection estimate the peak, the Otsu
+    histogram and the threshold test (which cells form the spot)."""
     import cv2
 
     inside = grid.inside
@@ -287,12 +291,14 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
         raise _Invalid("low_contrast", "the board is too dark or saturated to compare before and after.")
     k, d0 = _ambient_ratio(a_s, b_s, lit)
     D = cv2.addWeighted(A, 1.0, B, -k, 0.0, dtype=cv2.CV_32F)  # after - k·before
+    Ddet = D
     if fill is not None:
-        D = fill.correct(D)
+        D, Ddet = fill.correct(D, k)
     # noise sigma of the difference, from the board cells outside the spot (second pass above)
     noise = max(0.5, 1.4826 * float(np.median(np.abs(d0 - np.median(d0)))))
     Dm = cv2.multiply(D, grid.inside_f32)  # zero off the board's inner part
-    peak = float(cv2.minMaxLoc(cv2.boxFilter(Dm, -1, (3, 3)))[1])
+    Dd = Dm if Ddet is D else cv2.multiply(Ddet, grid.inside_f32)
+    peak = float(cv2.minMaxLoc(cv2.boxFilter(Dd, -1, (3, 3)))[1])
     partial = FrameSpot(np.full(2, np.nan), np.full(2, np.nan), float("nan"), 0, float("nan"), np.full(2, np.nan),
                         k, peak, noise, float("nan"), 0)
     if abs(k - 1.0) > limits.max_ambient_change:
@@ -306,9 +312,9 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
                        f"(need {limits.min_contrast:g}; weak DNI, dirty mirror or cloud).", partial)
     # A.1: threshold from the grey-level histogram of the difference on the board (every 2nd cell)
     half = (slice(None, None, 2), slice(None, None, 2))
-    d8 = np.clip(Dm[half][inside[half]], 0, 255).astype(np.uint8)
+    d8 = np.clip(Dd[half][inside[half]], 0, 255).astype(np.uint8)
     T = max(otsu_threshold(d8), math.ceil(4.0 * noise), 1.0)
-    above = D >= T
+    above = Ddet >= T
     mask = above & inside
     S = int(np.count_nonzero(mask))
     clipped = int(np.count_nonzero(above)) - S
