@@ -7,6 +7,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from hypothesis import HealthCheck, settings
+
+# Property tests judge results, never speed: no per-example deadline and no health check that
+# times data generation (both fail on a loaded 2-core machine while the property holds).
+settings.register_profile("helicalib", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("helicalib")
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO_FIELD = ROOT / "field_config" / "demo_north.yaml"
