@@ -359,6 +359,16 @@ class Store:
         marks = ", ".join("?" for _ in row)
         return self._write(f"INSERT INTO observations ({cols}) VALUES ({marks})", tuple(row.values()))
 
+    def set_frame_paths(self, rows: Sequence[tuple[int, str | None, Sequence[str]]]) -> None:
+        """Replace the frame paths of observations ``(id, before_frame_path, after_frame_paths)``
+        in one transaction (frame retention, :mod:`helicalib.store.retention`)."""
+        with self._lock:
+            self.flush()
+            with self._conn:
+                self._conn.executemany(
+                    "UPDATE observations SET before_frame_path = ?, after_frame_paths_json = ? WHERE id = ?",
+                    [(before, _json(list(after)), int(i)) for i, before, after in rows])
+
     def observations(self, campaign_id: int | None = None, heliostat_id: str | None = None,
                      valid: bool | None = None) -> list[Observation]:
         """Observations in recording order, filtered by campaign, heliostat and validity."""

@@ -1,0 +1,63 @@
+"""``helicalib prune-frames DB --keep-last N``: bounded disk for a long-running database."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a count >= 0, got {value}")
+    return value
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("prune-frames", help="delete old frames, keep every observation",
+                       description="Keep the frames of each heliostat's newest N observations and of every "
+                                   "rejected one; delete the other frame files and clear their paths in the "
+                                   "database (every observation row stays). Takes the database's owner lock: "
+                                   "refused while a campaign runs on it. See docs/campaign.md (Storage).")
+    p.add_argument("db", help="helicalib SQLite database (file path or sqlite:/// URL)")
+    p.add_argument("--keep-last", type=_count, required=True, metavar="N",
+                   help="observations with frames kept per heliostat, newest first")
+    p.add_argument("--drop-rejected", action="store_true",
+                   help="also delete the frames of rejected (not valid) observations beyond the newest N "
+                        "(default: they are all kept)")
+    p.add_argument("--campaign", type=int, default=None, help="only this campaign (default every campaign)")
+    p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
+    p.add_argument("--dry-run", action="store_true", help="count what would be deleted; change nothing")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from helicalib.errors import ConfigError
+    from helicalib.store.retention import retain_frames
+    from helicalib.store.sqlite import Store
+
+    path = args.db[len("sqlite:///"):] if args.db.startswith("sqlite:///") else args.db
+    if not Path(path).is_file():
+        raise ConfigError(f"{args.db}: no such database file")
+    if args.dry_run:
+        store = Store.open(path, args.images, readonly=True)
+    else:
+        store = Store.open(path, args.images, owner="prune-frames")
+    try:
+        result = retain_frames(store, args.keep_last, keep_invalid=not args.drop_rejected,
+                               campaign_id=args.campaign, dry_run=args.dry_run)
+    finally:
+        store.close()
+    if args.json:
+        print(json.dumps({"dry_run": args.dry_run, "keep_last": args.keep_last, **result.as_dict()}))
+    else:
+        verb = "would delete" if args.dry_run else "deleted"
+        print(f"{verb} {result.files} frame files ({result.bytes / 1e6:.1f} MB) of {result.observations} "
+              f"observations; {result.kept_files} frame files kept")
+    return 0
