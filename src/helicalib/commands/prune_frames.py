@@ -5,15 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a count >= 0, got {value}")
-    return value
+from helicalib.commands._args import nonnegative_int
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "database (every observation row stays). Takes the database's owner lock: "
                                    "refused while a campaign runs on it. See docs/campaign.md (Storage).")
     p.add_argument("db", help="helicalib SQLite database (file path or sqlite:/// URL)")
-    p.add_argument("--keep-last", type=_count, required=True, metavar="N",
+    p.add_argument("--keep-last", type=nonnegative_int, required=True, metavar="N",
                    help="observations with frames kept per heliostat, newest first")
     p.add_argument("--drop-rejected", action="store_true",
                    help="also delete the frames of rejected (not valid) observations beyond the newest N "
