@@ -160,15 +160,12 @@ class TrueField:
         self._cache: tuple[tuple[int, int], HeliostatModel] | None = None
 
     # -- hidden parameters -----------------------------------------------------------------
-    def params_at(self, t_s: float, events_t_s: float | None = None) -> np.ndarray:
-        """True error parameters (N, P) at plant time ``t_s`` (drift and drift events included).
-
-        ``events_t_s``: the time at which the drift events are evaluated, if not ``t_s``.
-        """
+    def params_at(self, t_s: float) -> np.ndarray:
+        """True error parameters (N, P) at plant time ``t_s`` (drift and drift events included)."""
         p = self.params0.copy()
         p[:, self._cols_drift] += self.drift_mrad_per_s * (float(t_s) - self.start_s)
         if len(self._ev_rows):
-            te = float(t_s if events_t_s is None else events_t_s)
+            te = float(t_s)
             span = self._ev_end - self._ev_start
             done = np.where(span > 0, np.clip((te - self._ev_start) / np.where(span > 0, span, 1.0), 0.0, 1.0),
                             (te >= self._ev_start).astype(float))
