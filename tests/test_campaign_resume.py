@@ -200,6 +200,24 @@ def test_check_reports_the_present_error(plant):
     assert modes == ["check"]
 
 
+def test_a_recheck_of_a_calibrated_heliostat_is_tested_against_its_fit(plant):
+    field, tmp = plant
+    first = _cli(field, "run", "--arm", "--days", "0.01", "--heliostats", "H0001", "--json")
+    assert first.returncode == 0, first.stderr
+    r = _cli(field, "check", "--heliostat", "H0001", "--arm", "--json", "--hours", "3", timeout=240)
+    assert r.returncode == 0, r.stderr
+    row = json.loads(r.stdout.splitlines()[-1])["rechecks"][0]
+    assert row["calibrated"] and row["present_error_mrad"] is not None
+    d = row["drift"]  # the placement against the band its fit predicts
+    assert d is not None and d["fit_points"] >= 1 and d["band_mrad"] > 0 and 0.0 <= d["p_value"] <= 1.0
+    assert d["drift"] == (d["p_value"] < 1e-3)
+    assert row["verdict"].endswith("it has changed since its calibration") == d["drift"]
+    # printed as a line a crew reads: the band and the p-value beside the error and the limit
+    text = _cli(field, "check", "--heliostat", "H0001", "--arm", "--hours", "3", timeout=240)
+    assert text.returncode == 0, text.stderr
+    assert "the fit predicts" in text.stdout and "p = " in text.stdout
+
+
 def _notes(db: Path, prefix: str) -> list[str]:
     """Notes of the database starting with ``prefix`` (read-only; none while it does not exist yet)."""
     if not db.exists():

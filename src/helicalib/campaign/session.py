@@ -195,26 +195,36 @@ def recheck_rows(cfg, runner) -> list[dict]:
     The present error is the beam's angle between where the camera saw the spot and where the
     heliostat's model (its newest fit, which placed it) puts it: the measure acceptance judges, with
     acceptance's limit ``acceptance.max_rms_mrad``. T/GRLM formula (1) on the board, which the loop
-    uses, is given beside it."""
+    uses, is given beside it. ``drift``: the same placement tested against the band the newest fit
+    predicts for it (:mod:`helicalib.campaign.drift`); outside it, the heliostat changed since."""
+    from helicalib.campaign.drift import drift_evidence, fit_points
     from helicalib.campaign.policy import prediction_error_mrad
 
     limit = float(cfg.acceptance.max_rms_mrad)
     rows = []
     for hid in runner.ids:
         first = next((p for p in runner.book.points(hid) if p.iteration == 0), None)
+        latest = runner.store.latest_fit(hid)
         row = {"heliostat": hid, "visits": runner.book.h[hid].visits, "limit_mrad": limit,
-               "present_error_mrad": None, "formula1_error_mrad": None, "calibrated": runner.store.latest_fit(hid)
-               is not None}
+               "present_error_mrad": None, "formula1_error_mrad": None, "calibrated": latest is not None,
+               "drift": None}
         if first is None:
             visits = runner.store.visits(campaign_id=runner.campaign_id, heliostat_id=hid)
             why = visits[-1].reason if visits else "no visit (gated, night or not armed)"
             row["verdict"] = f"not measured: {why}"
         else:
             err = prediction_error_mrad(runner.models[hid], first, cfg.target(first.target_id))
+            if latest is not None:
+                points = fit_points(runner.store.observations(campaign_id=latest.campaign_id, heliostat_id=hid),
+                                    hid, latest.time_s)
+                row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first)
+            drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),
-                       verdict="in spec" if err <= limit else
-                       ("out of spec: recalibrate (helicalib run --arm)" if row["calibrated"] else
-                        "out of spec: never calibrated in this database (nominal model)"))
+                       verdict=("in spec" if err <= limit else
+                                "out of spec: recalibrate (helicalib run --arm)" if row["calibrated"] else
+                                "out of spec: never calibrated in this database (nominal model)")
+                       + ("; drift: outside the band its fit predicts here, it has changed since its calibration"
+                          if drifted else ""))
         rows.append(row)
     return rows
 
@@ -226,8 +236,11 @@ def _print_summary(s: dict, mode: str) -> None:
                 print(f"{r['heliostat']}: {r['verdict']}")
             else:
                 model = "" if r["calibrated"] else " (no fit in this database: nominal model)"
+                d = r.get("drift")
+                band = (f"; the fit predicts {d['band_mrad']:.2f} mrad here (1 sigma), p = {d['p_value']:.2g}"
+                        if d else "")
                 print(f"{r['heliostat']}: present error {r['present_error_mrad']:.2f} mrad (beam angle; formula (1) "
-                      f"on the board {r['formula1_error_mrad']:.2f}), limit {r['limit_mrad']:g} mrad: "
+                      f"on the board {r['formula1_error_mrad']:.2f}), limit {r['limit_mrad']:g} mrad{band}: "
                       f"{r['verdict']}{model}")
     print(f"campaign {s['campaign']} {s['status']} ({s['ended_because']}): {s['accepted']}/{s['heliostats']} accepted, "
           f"{s['visits_this_run']} visits this run, {s['observations']} observations in {s['database']}")

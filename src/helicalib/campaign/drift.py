@@ -1,0 +1,61 @@
+"""Drift evidence of a re-check: is the measured error outside what the heliostat's fit predicts?
+
+A re-check's first placement is made with the heliostat's newest fitted model. If nothing changed
+since that fit, the angle between the beam the model predicts for the held strokes and the
+direction to the observed spot lies within the fit's predicted band (parameter uncertainty plus
+measurement noise, :func:`helicalib.calibration.uncertainty.check_against_fit`). Far outside it,
+the heliostat has changed: settled, an actuator replaced, knocked by a storm. A present error
+above the acceptance limit but inside the band is a model that was never good enough there
+(refine it); one outside the band is drift (recalibrate it).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from helicalib.calibration.fit import SIGMA_MRAD
+from helicalib.calibration.uncertainty import check_against_fit, unexplained_mrad
+from helicalib.campaign import policy
+
+DRIFT_ALPHA = 1e-3
+"""p-value below which a re-check is evidence of drift (1 check in 1000 of an unchanged heliostat)."""
+
+
+def fit_points(observations, heliostat_id: str, until_s: float) -> list:
+    """The observations a fit of ``heliostat_id`` made at ``until_s`` stood on: valid ones with a
+    finite spot, captured by then (as the campaign's book keeps them)."""
+    return [o for o in observations
+            if o.heliostat_id == heliostat_id and o.valid and o.capture_time_s <= until_s
+            and o.spot_enu_m is not None and all(map(math.isfinite, o.spot_enu_m))]
+
+
+def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = SIGMA_MRAD,
+                   alpha: float = DRIFT_ALPHA) -> dict | None:
+    """Test a re-check's observation ``check`` against the fit over ``points`` (module docstring).
+
+    Parameters
+    ----------
+    nominal : HeliostatModel of the heliostat (one row, nominal geometry)
+    model : HeliostatModel, one row: the model the check placed it with (its newest fit)
+    points : the fit's observations (:func:`fit_points`)
+    check : the check's observation (strokes, sun, spot, approach)
+
+    Returns
+    -------
+    dict with ``residual_mrad`` (magnitude), ``band_mrad`` (1-σ), ``p_value``, ``drift`` (bool), or
+    None when there is no fit to test against.
+    """
+    if not points or check.spot_enu_m is None:
+        return None
+    _model, fit = policy.refit(nominal, points, model)
+    if fit is None:
+        return None
+    strokes, sun, spot = policy._arrays([check])
+    test = check_against_fit(model, fit.covariance, strokes, sun, spot, approach=policy._approaches([check]),
+                             sigma_mrad=sigma_mrad, unexplained_mrad=unexplained_mrad(fit.rms_mrad, sigma_mrad),
+                             alpha=alpha)
+    return {"residual_mrad": round(float(np.linalg.norm(test.residual_mrad[0])), 3),
+            "band_mrad": round(float(test.band_mrad[0]), 3), "p_value": float(f"{test.p_value[0]:.3g}"),
+            "drift": bool(test.outside[0]), "fit_points": len(points)}
