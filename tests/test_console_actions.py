@@ -188,3 +188,27 @@ def test_a_version_2_database_gets_the_actions_table(tmp_path):
     s.finish_action(a, done_s=3.0, outcome="paused")
     assert s.actions(cid, pending=True) == [] and s.actions(cid)[0].outcome == "paused"
     s.close()
+
+
+def test_a_restart_requeues_only_the_rechecks_not_started_and_none_out_of_service(cfg, tmp_path):
+    runner, sim, store, cid = _runner(cfg, tmp_path)
+    runner.run_until(sim.t_s + 2 * 3600)  # everyone visited, in cool-down or accepted
+    asked = ["H0001", "H0002", "H0003"]  # one board (T2): they go one after another
+    _ask(runner, "recheck", asked)
+    started = []
+    for _ in range(600):  # until the first of them is on the board
+        runner.run_until(sim.t_s + 1)
+        started = [e.heliostat_id for e in store.events(campaign_id=cid, kind="operator")
+                   if e.reason.startswith("re-check of") and e.reason.endswith(" now")]
+        if started:
+            break
+    assert len(started) == 1, started
+    waiting = [h for h in asked if h not in started]
+    _ask(runner, "out_of_service", [waiting[1]])
+    runner.run_until(sim.t_s + 10)
+    assert [h for h, _a in runner.operator.queue] == [waiting[0]]
+    store.close()
+    # a restart: the re-check that started is not repeated, the one out of service is not sent
+    runner, sim, store, cid = _runner(cfg, tmp_path, campaign_id=cid)
+    assert [h for h, _a in runner.operator.queue] == [waiting[0]]
+    store.close()

@@ -123,10 +123,14 @@ class OperatorDesk:
                                            runner.models[hid])
             else:
                 b.verdict = None
-        # re-checks applied (queued) whose visit never started: queued again
-        started = {a.id for a in applied if a.kind == "recheck" and a.outcome.startswith("visit started")}
-        self.queue = [(h, a.id) for a in applied if a.kind == "recheck" and a.id not in started
-                      for h in a.heliostat_ids]
+        # re-checks applied (queued) whose visit never started, heliostat by heliostat (the start
+        # event of each names it), and not out of service since: queued again
+        started = {(int(e.data.get("action", -1)), e.heliostat_id)
+                   for e in self.store.events(self.campaign_id, kind="operator")
+                   if e.data.get("kind") == "recheck"
+                   and (e.data.get("started") or ("(action " in e.reason and e.reason.endswith(" now")))}
+        self.queue = [(h, a.id) for a in applied if a.kind == "recheck" for h in a.heliostat_ids
+                      if (a.id, h) not in started and h not in self.standing.out_of_service]
         self._hold(runner)
 
     # ------------------------------------------------------------------ each decision
@@ -197,11 +201,12 @@ class OperatorDesk:
         """The queued re-check that goes on ``target_id`` now (its own board, not in a visit), or None."""
         busy = {h for (_w, h, _g, _c) in runner.active.values()}
         for k, (hid, action_id) in enumerate(self.queue):
-            if runner.cfg.heliostat(hid).target == target_id and hid not in busy:
+            if (runner.cfg.heliostat(hid).target == target_id and hid not in busy
+                    and hid not in self.standing.out_of_service and runner._reaches(hid, target_id, now)):
                 del self.queue[k]
                 text = f"re-check of {hid} (action {action_id}): onto {target_id} now"
                 self.store.finish_action(action_id, done_s=now, outcome=f"visit started: {hid} onto {target_id}")
                 runner.event("operator", text, hid, target_id, time_s=now,
-                             data={"action": action_id, "kind": "recheck", "heliostats": [hid]})
+                             data={"action": action_id, "kind": "recheck", "heliostats": [hid], "started": True})
                 return hid
         return None
