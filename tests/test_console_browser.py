@@ -259,6 +259,24 @@ def test_beyond_loopback_every_request_needs_the_token(campaign, browser):
     assert sorted(p.name for p in db.parent.iterdir()) == before  # the reader left no file behind
 
 
+def test_a_loopback_console_answers_only_to_this_machines_names(campaign):
+    """DNS rebinding: a web page whose domain re-binds to 127.0.0.1 sends its own domain as the Host
+    (and as the Origin, so they match): the loopback console refuses it, reads and actions alike."""
+    port = campaign["url"].rsplit(":", 1)[1].rstrip("/")
+    assert _get(campaign["url"] + "api/view")[0] == 200
+    assert _get(f"http://localhost:{port}/api/view")[0] == 200
+    for path in ("", "api/view", "stream", "static/console.js"):
+        assert _get(campaign["url"] + path, {"Host": f"evil.example:{port}"})[0] == 400, path
+    req = urllib.request.Request(campaign["url"] + "api/action", data=b'{"kind": "pause", "who": "page"}',
+                                 method="POST", headers={"Content-Type": "application/json",
+                                                         "Host": f"evil.example:{port}",
+                                                         "Origin": f"http://evil.example:{port}"})
+    with pytest.raises(urllib.error.HTTPError) as refused:
+        urllib.request.urlopen(req, timeout=10)
+    assert refused.value.code == 400
+    assert not [a for a in campaign["store"].actions(campaign["cid"]) if a.who.startswith("page")]
+
+
 def test_run_serves_the_console_of_its_dry_run(campaign):
     """``helicalib run FIELD --console 127.0.0.1:0 --json`` (no --arm: it only reads the plant, beside the
     armed campaign): the address comes as a JSON line, the page is served, read-only, until the run stops."""

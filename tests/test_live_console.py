@@ -51,6 +51,23 @@ def test_the_terminal_view_shows_boards_gate_counts_and_events(moving):
     assert visit_lines and visit_lines[-1][:40] in text  # the newest events scroll in, with their reasons
 
 
+def test_text_from_outside_is_shown_as_text_not_markup(moving):
+    """An operator's name (free text from the console) reaches event reasons: brackets in it must
+    neither break the view (rich's MarkupError would stop the live refresh) nor restyle it."""
+    import dataclasses
+
+    from rich.console import Console
+
+    cfg, events, snap = moving
+    console = Console(file=io.StringIO(), width=160, record=True, force_terminal=True)
+    view = TerminalView(site_timezone(cfg), "helicalib run · demo", console=console)
+    evil = "pause asked by [/] [blink]crew[/blink] (127.0.0.1)"
+    view.on_event(dataclasses.replace(events[-1], kind="operator", reason=evil))
+    view.on_snapshot(snap)
+    console.print(view._render())
+    assert evil in console.export_text()
+
+
 def test_log_lines_and_json_lines_carry_every_event(moving):
     cfg, events, snap = moving
     tz = site_timezone(cfg)

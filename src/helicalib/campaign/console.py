@@ -200,14 +200,14 @@ class TerminalView:
         head.add_row("progress", f"[bold]{s.accepted}[/]/{s.heliostats} accepted · {s.in_progress} on boards · "
                                  f"{s.waiting} waiting · {s.visits} visits ({s.valid_visits} valid) · {s.next_band}")
         if s.off_tracking:
-            head.add_row("[red]off tracking[/]", "[red]" + ", ".join(s.off_tracking) + "[/] (retrying until the "
-                                                 "plant confirms state 1)")
+            head.add_row("[red]off tracking[/]", Text(", ".join(s.off_tracking), style="red")
+                         + Text(" (retrying until the plant confirms state 1)"))
         boards = Table(box=None, expand=False, header_style="bold")
         for col in ("board", "heliostat", "placement", "last error [mrad]", "on board for"):
             boards.add_column(col)
         for b in s.boards:
             since = "" if b.since_s is None else f"{(s.time_s - b.since_s) / 60.0:.1f} min"
-            boards.add_row(b.target_id, b.heliostat_id or "[dim]free[/]",
+            boards.add_row(Text(b.target_id), Text(b.heliostat_id) if b.heliostat_id else Text("free", style="dim"),
                            "—" if b.iteration is None else str(b.iteration + 1), _fmt(b.last_error_mrad, "", 2), since)
         log = Table(box=None, show_header=False, expand=True)
         log.add_column(no_wrap=True, style="dim", width=9)
@@ -215,7 +215,8 @@ class TerminalView:
         log.add_column(overflow="fold", ratio=1)
         for style_, ev in list(self.events):
             t = dt.datetime.fromtimestamp(ev.time_s, tz=self.tz).strftime("%H:%M:%S")
-            log.add_row(t + ("*" if ev.clock != "plant" else ""), f"[{style_}]{ev.kind}[/]", ev.reason)
+            # reasons carry text from outside (an operator's name, a device's message): never markup
+            log.add_row(t + ("*" if ev.clock != "plant" else ""), Text(ev.kind, style=style_), Text(ev.reason))
         parts = [head, Text(""), boards, Text(""), Panel(log, title="events (site time; * controller clock)")]
         if self.note:
             parts.append(Text(self.note, style="bold yellow"))

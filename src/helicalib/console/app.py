@@ -159,6 +159,10 @@ class Console:
 
 
 # ---------------------------------------------------------------------------------------------- token
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]", "::1")
+"""Host names a console without a token answers to (it listens on 127.0.0.1 only)."""
+
+
 class TokenGate:
     """ASGI middleware: every request needs the token (``X-Helicalib-Token`` header, ``?token=``
     once, then the cookie it sets); without it: 401 and one line saying how to get in."""
@@ -294,6 +298,13 @@ def create_app(console: Console):
         Mount("/sheets", app=StaticFiles(directory=console.cache / "sheets", check_dir=False)),
         Mount("/static", app=StaticFiles(directory=STATIC)),
     ]
-    middleware = [Middleware(TokenGate, token=console.token)] if console.token else []
+    if console.token:
+        middleware = [Middleware(TokenGate, token=console.token)]
+    else:
+        # loopback only: a request must name this machine as its host, or a web page whose domain
+        # re-binds to 127.0.0.1 could read the console and act on an armed controller
+        from starlette.middleware.trustedhost import TrustedHostMiddleware
+
+        middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=list(LOOPBACK_HOSTS))]
     (console.cache / "sheets").mkdir(parents=True, exist_ok=True)
     return Starlette(routes=routes, middleware=middleware)

@@ -94,15 +94,16 @@ def _map(cfg, ids, states, width: int = 640, height: int = 420, pad: int = 24) -
 
 
 def _spacing(pos, ids) -> float:
-    """A typical distance between neighbouring heliostats [m] (the median nearest-neighbour distance)."""
+    """A typical distance between neighbouring heliostats [m] (the median nearest-neighbour distance),
+    from a k-d tree: O(n log n), tens of ms for 10⁴ heliostats (the map is drawn every refresh)."""
     import numpy as np
+    from scipy.spatial import cKDTree
 
     p = np.array([pos[h][:2] for h in ids], dtype=float)
     if len(p) < 2:
         return 10.0
-    d = np.hypot(*(p[:, None, :] - p[None, :, :]).transpose(2, 0, 1))
-    np.fill_diagonal(d, np.inf)
-    return float(np.median(d.min(axis=1)))
+    d, _i = cKDTree(p).query(p, k=2)
+    return float(np.median(d[:, 1]))
 
 
 def _gate(cfg, snapshot, events, last_obs, standing) -> dict:
