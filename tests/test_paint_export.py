@@ -223,3 +223,29 @@ def test_export_holds_every_key_artists_paint_parsers_read(campaign):
             assert rec["target_name"] in tower and len(rec["focal_spot"]["UTIS"]) == 3
             assert all(isinstance(rec[k], float) for k in ("sun_azimuth", "sun_elevation"))
             assert set(rec["motor_position"]) == {"axis_1_motor_position", "axis_2_motor_position"}
+
+
+@pytest.mark.parametrize("hid", ["../escaped", "AB12-N", ".hidden", "a b", "x/y", ""])
+def test_a_heliostat_id_that_cannot_name_a_paint_folder_is_refused(hid):
+    from helicalib.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="PAINT needs an id"):
+        paint_export.heliostat_name(hid)
+
+
+def test_an_export_never_writes_outside_its_folder(campaign, tmp_path, demo_data, write_field):
+    import dataclasses
+
+    from helicalib.errors import ConfigError
+
+    data = dict(demo_data)
+    data["heliostats"] = [dict(h) for h in demo_data["heliostats"]]
+    data["heliostats"][0]["id"] = "../escaped"
+    cfg = load_field_config(write_field(data))
+    row = next(iter(_source_rows(campaign["db"], tmp_path).values()))
+    row = dataclasses.replace(row, heliostat_id="../escaped", target_id=cfg.heliostats[0].target)
+    out = tmp_path / "deep" / "export"
+    with pytest.raises(ConfigError, match="PAINT needs an id"):
+        paint_export.write_export(cfg, [row], out)
+    assert not (tmp_path / "deep" / "escaped").exists() and not list(out.rglob("*"))
+    assert paint_export.heliostat_name("H0003") == "H0003" and paint_export.heliostat_name("AA39") == "AA39"

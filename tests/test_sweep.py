@@ -191,3 +191,15 @@ def test_sweep_file_problems_are_one_line_naming_file_and_key(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "fidelity: 'fast' is not available yet" in err[0]
     assert not (tmp_path / "o").exists()       # nothing started
+
+
+def test_workers_of_another_version_or_with_several_threads_are_refused():
+    from helicalib import __version__
+    from helicalib.errors import ConfigError
+    from helicalib.sweep.engine import check_workers
+
+    check_workers("tcp://127.0.0.1:8786", {"w1": __version__, "w2": __version__}, {"w1": 1, "w2": 1})
+    with pytest.raises(ConfigError, match="runs helicalib 0.0.1"):
+        check_workers("tcp://127.0.0.1:8786", {"w1": __version__, "w2": "0.0.1"}, {"w1": 1, "w2": 1})
+    with pytest.raises(ConfigError, match="w2 has 4 threads; start the workers with --nthreads 1"):
+        check_workers("tcp://127.0.0.1:8786", {"w1": __version__, "w2": __version__}, {"w1": 1, "w2": 4})

@@ -43,11 +43,17 @@ def campaign_rows(store, campaign_id: int, spot_method: str):
         store.export_fit_csv(path, campaign_id=campaign_id, spot_method=spot_method)
         rows = read_observations(path)
     frames = {}
+    images = store.images_dir.resolve()
+
+    def inside(rel: str | None) -> Path | None:
+        # a frame path is the database's word: only a file inside its images folder is copied out
+        if not rel:
+            return None
+        path = (images / rel).resolve()
+        return path if path.is_relative_to(images) and path.is_file() else None
+
     for o in store.observations(campaign_id=campaign_id, valid=True):
-        raw = store.images_dir / o.after_frame_path if o.after_frame_path else None
-        before = store.images_dir / o.before_frame_path if o.before_frame_path else None
-        frames[str(o.id)] = Frames(raw if raw is not None and raw.is_file() else None,
-                                   before if before is not None and before.is_file() else None)
+        frames[str(o.id)] = Frames(inside(o.after_frame_path), inside(o.before_frame_path))
     return rows, frames
 
 

@@ -277,6 +277,9 @@ def create_app(console: Console):
             ids = body.get("heliostats") or []
             if isinstance(ids, str):
                 ids = ids.split(",")
+            if not isinstance(ids, list) or not all(isinstance(h, str) for h in ids):
+                return JSONResponse({"error": "action: heliostats must be a list of ids or one comma-separated "
+                                              "string"}, status_code=400)
             who = str(body.get("who", "")).strip()
             client = request.client.host if request.client else "?"
             action_id = await run_in_threadpool(console.act, kind, ids, f"{who} ({client})" if who else "")

@@ -259,6 +259,17 @@ def record_name(record_id: str) -> str:
     return rid
 
 
+def heliostat_name(heliostat_id: str) -> str:
+    """A heliostat id usable as PAINT's folder and file-name prefix (``<id>/Properties/<id>-heliostat-
+    properties.json``; PAINT's readers take the part before the first ``-``): no '-', no path
+    separator, no space, not starting with a dot (it must stay inside the export)."""
+    hid = str(heliostat_id)
+    if not hid or hid.startswith(".") or any(ch in hid for ch in "-/\\ ") or hid != hid.strip():
+        raise ConfigError(f"heliostat {hid[:40]!r}: PAINT needs an id without '-', '/', '\\', spaces or a "
+                          "leading dot (it names the heliostat's folder and files)")
+    return hid
+
+
 def write_export(cfg, rows: Sequence[Observation], out_dir: str | Path, *,
                  frames: Mapping[str, Frames] | None = None,
                  increment_steps_per_m: float = DEFAULT_INCREMENT_STEPS_PER_M,
@@ -285,7 +296,7 @@ def write_export(cfg, rows: Sequence[Observation], out_dir: str | Path, *,
         if r.target_id not in targets:
             raise ConfigError(f"record {rid}: target_id {r.target_id!r}: not a target of the field config")
         cfg.heliostat(r.heliostat_id)
-        by_heliostat.setdefault(r.heliostat_id, []).append(r)
+        by_heliostat.setdefault(heliostat_name(r.heliostat_id), []).append(r)
 
     tower = tower_measurements(cfg)
     _write_json(out / TOWER_FILE, tower)

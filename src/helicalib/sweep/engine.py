@@ -58,13 +58,29 @@ def connect(address: str, timeout_s: float = 20.0) -> Iterator:
         except TimeoutError:
             raise ConfigError(f"--scheduler {address}: no worker joined within {timeout_s:g} s") from None
         try:
-            client.run(_worker_check)
+            versions = client.run(_worker_check)
         except Exception as err:  # noqa: BLE001 - whatever a worker raised, said in one line
             raise ConfigError(f"--scheduler {address}: a worker cannot run helicalib ({type(err).__name__}: "
                               f"{_one_line(err)}); install helicalib in the workers' environment") from None
+        check_workers(address, versions, client.nthreads())
         yield client
     finally:
         client.close()
+
+
+def check_workers(address: str, versions: dict, nthreads: dict) -> None:
+    """Refuse workers that run another helicalib (their results would be taken for this version's)
+    or more than one thread (a simulation redirects its process's output to its own log)."""
+    from helicalib import __version__
+
+    other = sorted(w for w, v in versions.items() if v != __version__)
+    if other:
+        raise ConfigError(f"--scheduler {address}: worker {other[0]} runs helicalib {versions[other[0]]}, this is "
+                          f"{__version__}; install the same version on every worker")
+    many = sorted(w for w, n in nthreads.items() if n != 1)
+    if many:
+        raise ConfigError(f"--scheduler {address}: worker {many[0]} has {nthreads[many[0]]} threads; start the "
+                          "workers with --nthreads 1 (one simulation per worker process, docs/sweep.md)")
 
 
 def _worker_check() -> str:
