@@ -115,6 +115,32 @@ def dt_utc():
     return dt.timezone.utc
 
 
+def _fresh(driver, act, tries: int = 30):
+    """Do ``act`` (find an element and use it), again if the live page swapped the element in between."""
+    from selenium.common.exceptions import StaleElementReferenceException
+
+    for _ in range(tries):
+        try:
+            return act()
+        except StaleElementReferenceException:
+            time.sleep(0.1)
+    raise AssertionError("the element was swapped out every time")
+
+
+def _type(driver, element_id: str, text: str) -> None:
+    """Type ``text`` into an input of the live page (its panels are swapped in while one types)."""
+    def act():
+        el = driver.find_element("id", element_id)
+        el.clear()
+        el.send_keys(text)
+
+    for _ in range(10):
+        _fresh(driver, act)
+        if driver.execute_script("return document.getElementById(arguments[0]).value", element_id) == text:
+            return
+    raise AssertionError(f"{element_id} did not keep {text!r}")
+
+
 def _board(driver, target: str) -> str:
     return driver.execute_script(f"return document.getElementById('board-{target}').dataset.heliostat")
 
@@ -160,9 +186,9 @@ def test_a_queued_recheck_goes_next_and_is_logged_and_escaped(campaign, browser)
     runner, store, cid = campaign["runner"], campaign["store"], campaign["cid"]
     browser.get(campaign["url"])
     _until(lambda: browser.find_elements("id", "action-form"), 10)
-    browser.find_element("id", "action-who").send_keys("crew lead")
-    browser.find_element("id", "action-heliostats").send_keys(EVIL)
-    browser.find_element("css selector", "button[data-kind='recheck']").click()
+    _type(browser, "action-who", "crew lead")
+    _type(browser, "action-heliostats", EVIL)
+    _fresh(browser, lambda: browser.find_element("css selector", "button[data-kind='recheck']").click())
     _until(lambda: "recorded" in _text(browser, "action-result"), 10)
     actions = store.actions(cid)
     assert [(a.kind, a.heliostat_ids) for a in actions] == [("recheck", (EVIL,))]
@@ -191,7 +217,7 @@ def test_a_queued_recheck_goes_next_and_is_logged_and_escaped(campaign, browser)
     assert EVIL in _text(browser, "panel-actions")
     assert any(t.startswith(EVIL + ":") for t in _texts(browser, "svg.field title"))
     # its sheet opens from the map (the report's own sheet), the id still text
-    browser.find_element("css selector", f"svg.field a[data-id='{EVIL}'] circle").click()
+    _fresh(browser, lambda: browser.find_element("css selector", f"svg.field a[data-id='{EVIL}'] circle").click())
     _until(lambda: "heliostat" in browser.title and EVIL in browser.title, 30)
     assert browser.execute_script("return window.pwned") is None
     assert EVIL in browser.find_element("tag name", "h1").text

@@ -100,7 +100,11 @@ def test_angles_normal_angles_round_trip_presets(kind, f1, f2, g1, g2):
     normal = angles_to_normal(d, angles)
     back, reachable = normal_to_angles(d, normal)
     assert reachable.all()
-    np.testing.assert_allclose(back, angles, atol=1e-9)
+    np.testing.assert_allclose(angles_to_normal(d, back), normal, atol=1e-9)  # the same normal, always
+    if abs(float(normal[0] @ np.asarray(a1, float))) < 1.0 - 1e-9:
+        # the same angles, except where the normal lies along axis 1: there (gimbal lock, e.g. an
+        # azimuth-elevation mirror facing straight down) every first angle gives that normal
+        np.testing.assert_allclose(back, angles, atol=1e-9)
 
 
 @settings(max_examples=200, deadline=None)
