@@ -122,14 +122,27 @@ def test_bad_drift_sections_name_their_key(drift, says):
         parse_scenario({"duration_days": 30, "drift": drift}, "s.yaml")
 
 
-def test_a_simulated_campaign_reports_the_drift_it_met(cfg, tmp_path):
-    from helicalib.campaign.simulate import default_start_s, simulate_campaign
+def test_simulate_drift_share_reports_the_drift_it_met(cfg, demo_field_path, tmp_path, capsys):
+    """``helicalib simulate … --drift-share 1 --json``: every heliostat of the field drifts once within
+    the run (after its first tenth here), and the summary lists the events that began."""
+    import json
 
+    from helicalib.campaign.simulate import default_start_s
+    from helicalib.cli import main
+    from helicalib.commands.simulate import with_drift_share
+    from helicalib.sim.scenario import Scenario
+
+    days = 0.1
     start = default_start_s(cfg) + 7 * 3600
-    sc = parse_scenario({"drift": {"share": 1.0, "after_days": 0.0, "within_days": 0.5}})
-    res = simulate_campaign(cfg, tmp_path, 0.1, seed=3, scenario=sc, start_s=start,
-                            heliostat_ids=["H0001", "H0021"], fidelity="fast")
-    met = [e for e in TrueField(cfg, sc.model_copy(update={"seed": 3}), start).drift_events
-           if e.start_s < start + 0.1 * DAY_S]
-    assert res.summary["drifted"] == len(met) > 0
-    assert [e["heliostat_id"] for e in res.summary["drift_events"]] == [e.heliostat_id for e in met]
+    iso = np.datetime64(int(start), "s").astype(str) + "Z"
+    assert main(["simulate", str(demo_field_path), "--days", str(days), "--seed", "3", "--fidelity", "fast",
+                 "--heliostats", "H0001,H0021", "--start", iso, "--drift-share", "1", "--out", str(tmp_path),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    sc = with_drift_share(Scenario(seed=3), 1.0, days)
+    events = TrueField(cfg, sc, start).drift_events
+    assert len(events) == len(cfg.heliostats)
+    assert all(start + 0.01 * DAY_S <= e.start_s <= start + days * DAY_S for e in events)
+    met = [e for e in events if e.start_s < start + days * DAY_S]
+    assert summary["drifted"] == len(met) > 0
+    assert [e["heliostat_id"] for e in summary["drift_events"]] == [e.heliostat_id for e in met]

@@ -31,6 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="render (default): every frame drawn and measured by the vision; fast: the simulator's "
                         "true spot plus the fitted measurement-error model, no frames (large fields; "
                         "docs/simulator.md)")
+    p.add_argument("--drift-share", type=float_in(0.0, 1.0), default=None, metavar="F",
+                   help="this share of the heliostats drifts once during the run (a pedestal settling, an "
+                        "actuator swapped or a slow creep, at a random time after the first day; the scenario's "
+                        "drift section otherwise; docs/simulator.md)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--report", action="store_true", help="also write the HTML report into OUT/report")
     p.set_defaults(func=run)
@@ -50,6 +54,8 @@ def run(args) -> int:
     if args.days <= 0:
         raise ConfigError(f"--days {args.days}: must be > 0")
     scenario = load_scenario(args.scenario)
+    if args.drift_share is not None:
+        scenario = with_drift_share(scenario, args.drift_share, args.days)
     start_s = float(to_unix_seconds([parse_time(args.start)])[0]) if args.start else None
     ids = [s.strip() for s in args.heliostats.split(",")] if args.heliostats else None
     if ids:
@@ -121,3 +127,13 @@ def campaign_counts(db_path) -> tuple[int, int] | None:
         return None
     finally:
         con.close()
+
+
+def with_drift_share(scenario, share: float, days: float):
+    """``scenario`` with ``drift.share`` set and the events spread over the run (after its first day,
+    or its first tenth when shorter)."""
+    from helicalib.sim.scenario import parse_scenario
+
+    after = min(scenario.drift.after_days, 0.1 * days)
+    drift = dict(scenario.drift.model_dump(), share=share, after_days=after, within_days=days - after)
+    return parse_scenario({**scenario.model_dump(), "drift": drift}, "--drift-share")
