@@ -230,3 +230,21 @@ def test_heliostats_without_a_point_share_one_verdict_and_one_set_of_gaps(demo_f
         seen = {(repr(v := pol._verdict_of(cfg, book, hid, None, t)), repr(acc.gaps(v, cfg.acceptance, days, t)))
                 for hid in ids}
         assert len(seen) == 1
+
+
+def test_next_sun_above_in_one_call_is_the_step_by_step_answer():
+    """The night gate's next opening from one array call of the sun table equals the 144 look-ups."""
+    from helicalib.campaign.policy import _next_sun_above
+    from helicalib.config import Site
+    from helicalib.geometry.sun import SunTable, to_unix_seconds
+
+    table = SunTable(Site(name="t", latitude_deg=40.063, longitude_deg=94.426, altitude_m=1267.0))
+    t0 = float(to_unix_seconds("2026-06-01T12:00:00Z"))  # evening, night and dawn at the site
+    seen = set()
+    for now in t0 + 617.0 * np.arange(0, 140):
+        for level in (5.0, -2.0, 89.0):  # 89°: never within the day, the default answer
+            want = _next_sun_above(table.position, now, level)
+            got = _next_sun_above(table.position, now, level, table.position_elevations_deg)
+            assert got == want
+            seen.add(want - now)
+    assert 86400.0 in seen and len(seen) > 10

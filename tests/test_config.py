@@ -147,3 +147,18 @@ def test_default_pressure_is_the_standard_atmosphere(demo_data, write_field):
     demo_data["site"]["altitude_m"] = 0
     cfg = load_field_config(write_field(demo_data))
     assert cfg.site.pressure_hpa_effective == pytest.approx(1013.25, abs=0.1)
+
+
+def test_target_frame_is_computed_once_per_normal_and_read_only(demo_field_path):
+    cfg = load_field_config(demo_field_path)
+    for t in cfg.targets:
+        f = t.frame_enu
+        assert f is t.frame_enu and not f.flags.writeable
+        w = np.asarray(t.normal_enu, dtype=float)
+        u = np.cross([0.0, 0.0, 1.0], w)
+        u = u / np.linalg.norm(u)
+        np.testing.assert_array_equal(f, np.stack([u, np.cross(w, u), w]))
+        np.testing.assert_allclose(f @ f.T, np.eye(3), atol=1e-12)
+    flat = cfg.targets[0].model_copy(update={"normal_enu": (0.0, 0.0, 1.0)})
+    np.testing.assert_array_equal(flat.frame_enu[0], [1.0, 0.0, 0.0])  # a horizontal board: u east
+    assert cfg.targets[0].frame_enu is not flat.frame_enu

@@ -174,3 +174,26 @@ def test_model_is_immutable_and_subset_keeps_rows():
     np.testing.assert_array_equal(sub.pivots_enu, MODEL.pivots_enu[[3, 1]])
     one = HeliostatModel.from_config(CFG, ["H0002"])
     assert len(one) == 1 and one.ids == ("H0002",)
+
+
+def test_subset_has_the_effective_drives_a_new_model_of_those_rows_computes():
+    """subset() slices the effective drives instead of applying the errors again: the same values."""
+    rng = np.random.default_rng(8)
+    params = rng.normal(0.0, 1.0, (len(MODEL), em.P)) * np.where(em.prior_sigma() > 0, em.prior_sigma(), 1.0)
+    model = MODEL.with_params(params)
+    rows = [7, 0, 7, len(MODEL) - 1]
+    sub = model.subset(rows)
+    fresh = HeliostatModel([model.ids[i] for i in rows], model.pivots_enu[rows], model.drives.take(rows),
+                           params[rows])
+    assert sub.ids == fresh.ids
+    for name in ("pivots_enu", "params", "pivots_eff_enu"):
+        np.testing.assert_array_equal(getattr(sub, name), getattr(fresh, name))
+        assert not getattr(sub, name).flags.writeable
+    for f in ("axis1_enu", "axis2_enu", "normal0_enu", "arm_moving_m", "length_at_zero_m", "stroke_min_mm"):
+        np.testing.assert_array_equal(getattr(sub.drives_eff, f), getattr(fresh.drives_eff, f))
+        np.testing.assert_array_equal(getattr(sub.drives, f), getattr(fresh.drives, f))
+    sun = np.array([0.3, -0.5, 0.8])
+    aim = np.array([0.0, 0.0, 60.0])
+    np.testing.assert_array_equal(sub.strokes_for_aim(sun, aim).strokes_mm,
+                                  model.strokes_for_aim(sun, aim).strokes_mm[rows])
+    np.testing.assert_array_equal(model.subset(slice(2, 5)).params, params[2:5])

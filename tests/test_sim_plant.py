@@ -216,3 +216,52 @@ def test_shipped_scenarios_load_and_run(cfg, name, demo_field_path):
     p.advance_to(start + 86400.0)
     w = p.weather()
     assert w.wind_ms >= 0 and 0 <= w.wind_direction_deg < 360
+
+
+def test_soiling_rows_give_the_field_values_of_those_rows():
+    spec = parse_scenario({"soiling": {"rate_per_day": 0.01, "rate_spread": 0.3, "cleaning_interval_days": 10}}).soiling
+    s = SoilingModel(spec, n=50, seed=3)
+    s.clean(5 * 86400.0, np.arange(50) % 3 == 0)
+    rows = np.array([0, 7, 9, 49])
+    for t in (0.0, 4.5 * 86400.0, 6.25 * 86400.0, 23.0 * 86400.0):
+        assert np.array_equal(s.cleanliness(t, rows=rows), s.cleanliness(t)[rows])
+        assert np.array_equal(s.last_cleaning_s(t, rows=rows), s.last_cleaning_s(t)[rows])
+
+
+def _plant_state(p):
+    return [p.reg_command, p.reg_sequence, p.reg_corrections, p.sequence_done, p.fault, p.corrections_mm,
+            p.mode, p.state, p.arrival_s, p.command_count, p.stroke_noise_mm]
+
+
+def test_track_many_leaves_the_plant_as_one_track_per_heliostat(cfg):
+    one, many = SimulatedPlant(cfg, start_s=START), SimulatedPlant(cfg, start_s=START)
+    rng = np.random.default_rng(4)
+    for p in (one, many):  # some heliostats already commanded, some offline
+        p.move_to(3, p.strokes_mm[3] + 1.0)
+        p.offline[11] = True
+    idx = np.array([5, 3, 11, 0, 39, 17])
+    corr = rng.normal(0.0, 2.0, (idx.size, 2))
+    for _round in range(2):
+        seqs = [one.track(int(i), c) for i, c in zip(idx, corr)]
+        assert many.track_many(idx, corr).tolist() == seqs
+        for a, b in zip(_plant_state(one), _plant_state(many)):
+            np.testing.assert_array_equal(a, b)
+        assert [one.status(i) for i in range(40)] == [many.status(i) for i in range(40)]
+    one.field_command(1), many.field_command(1)  # a stow refuses the command: a fault code, no motion
+    one.track(7, corr[0]), many.track_many([7], corr[:1])
+    for a, b in zip(_plant_state(one), _plant_state(many)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError):
+        many.track_many([1, 1], corr[:2])
+
+
+def test_cleanliness_many_reads_what_status_gives(cfg):
+    p = SimulatedPlant(cfg, start_s=START)
+    p.advance_to(START + 2 * 86400.0)  # soiled since the start
+    idx = np.array([0, 17, 5, 39])
+    want = [p.status(i).cleanliness for i in idx]
+    assert p.cleanliness_many(idx).tolist() == want
+    q = SimulatedPlant(cfg, start_s=START)
+    q.advance_to(START + 2 * 86400.0)  # nothing cached yet: read row by row
+    assert q.cleanliness_many(idx).tolist() == want
+    assert [q.cleanliness_of(i) for i in idx] == want

@@ -97,6 +97,10 @@ def _in_plant(value: tuple[float, ...]) -> tuple[float, ...]:
 PointENU = Annotated[Vec3, AfterValidator(_in_plant)]
 
 
+_FRAMES: dict[tuple[float, ...], np.ndarray] = {}
+"""Target frames by board normal (:attr:`Target.frame_enu`), computed once."""
+
+
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
 
@@ -298,15 +302,24 @@ class Target(_Model):
         """Rows u, v, w of the target frame in ENU, shape (3, 3).
 
         u = unit(z_up × normal) (right as seen from the field), v = normal × u (up the board),
-        w = normal (toward the field).
+        w = normal (toward the field). Computed once per target (read-only; a visit converts
+        points through it several times per measurement).
         """
-        w = np.asarray(self.normal_enu)
-        u = np.cross([0.0, 0.0, 1.0], w)
-        if np.linalg.norm(u) < 1e-9:  # horizontal board (normal up): u = east by convention
-            u = np.array([1.0, 0.0, 0.0])
-        u = u / np.linalg.norm(u)
-        v = np.cross(w, u)
-        return np.stack([u, v, w])
+        key = tuple(float(x) for x in self.normal_enu)
+        frame = _FRAMES.get(key)
+        if frame is None:
+            w = np.asarray(self.normal_enu)
+            u = np.cross([0.0, 0.0, 1.0], w)
+            if np.linalg.norm(u) < 1e-9:  # horizontal board (normal up): u = east by convention
+                u = np.array([1.0, 0.0, 0.0])
+            u = u / np.linalg.norm(u)
+            v = np.cross(w, u)
+            frame = np.stack([u, v, w])
+            frame.setflags(write=False)
+            if len(_FRAMES) > 4096:
+                _FRAMES.clear()
+            _FRAMES[key] = frame
+        return frame
 
     @property
     def standby_uvw_m(self) -> tuple[float, float, float]:

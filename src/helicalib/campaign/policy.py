@@ -194,18 +194,27 @@ class Gate:
     next_open_s: float
 
 
-def field_gate(cfg, weather, elevation_deg: float, now_s: float, sun, stowed: bool = False) -> Gate:
-    """Whether visits may start now: the sun above the low band's lower edge, wind and DNI allow."""
+def field_gate(cfg, weather, elevation_deg: float, now_s: float, sun, stowed: bool = False,
+               elevations=None) -> Gate:
+    """Whether visits may start now: the sun above the low band's lower edge, wind and DNI allow.
+    ``elevations(times)``: the elevations ``sun`` gives at many instants in one call (optional)."""
     lo = cfg.acceptance.low_band_deg[0]
     if elevation_deg < lo:
-        return Gate(False, True, False, f"sun {elevation_deg:.1f}° below {lo:g}°", _next_sun_above(sun, now_s, lo))
+        return Gate(False, True, False, f"sun {elevation_deg:.1f}° below {lo:g}°",
+                    _next_sun_above(sun, now_s, lo, elevations))
     if weather is None:
         return Gate(False, False, False, "no weather reading yet", now_s)
     g = gating_mod.gate_field(weather.wind_ms, weather.dni_wm2, cfg.gating, stowed=stowed)
     return Gate(g.calibrate, False, g.stow, g.reason, now_s)
 
 
-def _next_sun_above(sun, now_s: float, level_deg: float) -> float:
+def _next_sun_above(sun, now_s: float, level_deg: float, elevations=None) -> float:
+    """10 min before the first of the next 144 ten-minute steps with the sun at ``level_deg`` or
+    higher (``now_s`` + 1 day if none); ``elevations``: all steps in one call (the same answer)."""
+    if elevations is not None:  # a night tick every minute: one array call, not 144 look-ups
+        steps = now_s + 600.0 * np.arange(1, 24 * 6 + 1, dtype=float)
+        hit = np.flatnonzero(np.asarray(elevations(steps)) >= level_deg)
+        return float(steps[hit[0]] - 600.0) if hit.size else now_s + 86400.0
     for k in range(1, 24 * 6 + 1):
         t = now_s + 600.0 * k
         if sun(t)[2] >= level_deg:

@@ -138,6 +138,7 @@ class CampaignRunner:
         self.nominal = HeliostatModel.from_config(cfg, self.ids)
         self.models: dict[str, HeliostatModel] = {hid: base.subset([i]) for i, hid in enumerate(self.ids)}
         self._index = {hid: i for i, hid in enumerate(self.ids)}
+        self._plant_index = np.array([cfg.heliostat_index(hid) for hid in self.ids], dtype=np.int64)
         self.book = policy.Book(cfg, self.ids)
         self.book.table.set_guests(self._guests)
         self.stats = RunnerStats()
@@ -415,7 +416,8 @@ class CampaignRunner:
 
     def _gate(self, now: float):
         _vec, _az, el, _rising = self.sun(now)
-        gate = policy.field_gate(self.cfg, self.last_weather, el, now, self.sun, stowed=self.stowed)
+        gate = policy.field_gate(self.cfg, self.last_weather, el, now, self.sun, stowed=self.stowed,
+                                 elevations=self.sun_table.position_elevations_deg)
         if self._gate_reason != (gate.open, gate.night):
             if not gate.night:
                 self.event("ungated" if gate.open else "gated", gate.reason, time_s=now)
@@ -514,7 +516,13 @@ class CampaignRunner:
         """:meth:`_cleanliness` of the heliostats at ``rows`` of :attr:`ids` (NaN where the plant
         gives none), read only for those whose last read is :data:`CLEANLINESS_MAX_AGE_S` old."""
         values, read_at = self._clean_rows
-        for r in rows[now - read_at[rows] >= CLEANLINESS_MAX_AGE_S]:
+        due = rows[now - read_at[rows] >= CLEANLINESS_MAX_AGE_S]
+        bulk = getattr(self.plant, "cleanliness_many", None)  # the in-process simulated plant: one read
+        if bulk is not None and due.size:
+            values[due] = bulk(self._plant_index[due])
+            read_at[due] = now
+            due = due[:0]
+        for r in due:
             try:
                 value = self.plant.status(self.cfg.heliostat_index(self.ids[r])).cleanliness
             except PlantError:
@@ -632,6 +640,13 @@ class CampaignRunner:
         later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
         corr = policy.tracking_corrections(self.cfg, self.nominal.subset(rows), calibrated, vec, later)
         failed = []
+        bulk = getattr(self.plant, "track_many", None)  # the in-process simulated plant: one array write
+        if bulk is not None:
+            ok = np.flatnonzero(np.all(np.isfinite(corr), axis=1))
+            bulk(self._plant_index[np.asarray(rows, dtype=np.int64)[ok]], corr[ok])
+            for k in ok:
+                self.corrections[ids[k]] = corr[k]
+            ids, corr = [], corr[:0]
         for hid, c in zip(ids, corr):
             if not np.all(np.isfinite(c)):
                 continue

@@ -308,13 +308,17 @@ def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s
     calibrated = nominal.with_params(params)
     aim = np.asarray(cfg.tower.receiver_aim_enu_m, dtype=float)
     errs = []
+    held: dict[float, np.ndarray] = {}  # the corrections of one refresh period serve each of its steps
     for t in np.arange(t0_s, t1_s, step_s):
         sun = sun_table.vector_enu(t)
         if np.degrees(np.arcsin(sun[2])) < cfg.acceptance.low_band_deg[0]:
             continue
         t_ref = t0_s + np.floor((t - t0_s) / TRACKING_REFRESH_S) * TRACKING_REFRESH_S + TRACKING_REFRESH_S / 2
-        corr = np.nan_to_num(tracking_corrections(cfg, nominal, calibrated, sun_table.vector_enu(t_ref),
-                                                  sun_table.vector_enu(t_ref + TRACKING_LEAD_S)))
+        corr = held.get(float(t_ref))
+        if corr is None:
+            held.clear()
+            corr = held[float(t_ref)] = np.nan_to_num(tracking_corrections(
+                cfg, nominal, calibrated, sun_table.vector_enu(t_ref), sun_table.vector_enu(t_ref + TRACKING_LEAD_S)))
         nom = nominal.strokes_for_aim(sun, aim)
         if not np.all(nom.in_range[rows]):
             continue

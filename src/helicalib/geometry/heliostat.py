@@ -101,9 +101,20 @@ class HeliostatModel:
         return HeliostatModel(self.ids, self.pivots_enu, self.drives, p)
 
     def subset(self, indices) -> HeliostatModel:
-        """Heliostats ``indices`` (integer array or slice) as a new model."""
+        """Heliostats ``indices`` (integer array or slice) as a new model.
+
+        The effective drives and pivots are this model's rows (the errors act heliostat by
+        heliostat, so they are the values a new model of those rows would compute), not computed
+        again: a model of one heliostat out of 10⁴ costs one row."""
         idx = np.arange(len(self))[indices] if isinstance(indices, slice) else np.asarray(indices, dtype=int).reshape(-1)
-        return HeliostatModel([self.ids[i] for i in idx], self.pivots_enu[idx], self.drives.take(idx), self.params[idx])
+        out = object.__new__(HeliostatModel)
+        for name, value in (("ids", tuple(self.ids[i] for i in idx)), ("pivots_enu", self.pivots_enu[idx]),
+                            ("drives", self.drives.take(idx)), ("params", self.params[idx]),
+                            ("drives_eff", self.drives_eff.take(idx)), ("pivots_eff_enu", self.pivots_eff_enu[idx])):
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            object.__setattr__(out, name, value)
+        return out
 
     def repeat(self, counts) -> HeliostatModel:
         """Each heliostat repeated ``counts`` times (for evaluating many observations in one call)."""

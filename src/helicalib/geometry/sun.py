@@ -243,6 +243,10 @@ class SunTable:
         """Apparent sun elevation(s) [deg] at UTC seconds ``t_s``."""
         return np.degrees(np.arcsin(np.clip(self.vector_enu(t_s)[..., 2], -1.0, 1.0)))
 
+    def position_elevations_deg(self, t_s) -> np.ndarray:
+        """The elevation :meth:`position` gives at each of the instants ``t_s`` (T,) [deg], in one call."""
+        return angles_from_sun_vector(self.vector_enu(np.asarray(t_s, dtype=float)))[1]
+
     def position(self, t_s) -> tuple[np.ndarray, float, float, bool]:
         """(vector_enu (3,), azimuth_deg, elevation_deg, rising) at one instant."""
         v = self.vector_enu(np.array([t_s, t_s + 60.0]))

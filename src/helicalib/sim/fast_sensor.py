@@ -173,7 +173,7 @@ class FastSensor:
         beam = p.true_beam_of(index, t)
         sun, _ = p.sun(t)
         dni = float(p.weather().dni_wm2)
-        clean = np.asarray(p.cleanliness())[[index]]
+        clean = np.array([p.cleanliness_of(index)])
         uv, power, width, sigma, near = spot_geometry(self.target, self.optics, beam.origin_enu, beam.direction_enu,
                                                       sun, beam.normal_enu, p.nominal.drives.mirror_size_m[[index]],
                                                       dni, clean)
@@ -213,7 +213,7 @@ class FastSensor:
         return Reading(True, "ok", "ok", capture_s, offset_m=(float(measured[0]), float(measured[1])))
 
     def cleanliness(self, ctx, before: Before, reading: Reading, held_mm, weather, sun_enu) -> float | None:
-        true = float(np.asarray(self.plant.cleanliness())[ctx.index])
+        true = self.plant.cleanliness_of(ctx.index)
         return float(true * (1.0 + self.model.cleanliness_sigma * self._rng.normal()))
 
 

@@ -94,11 +94,13 @@ class SimulatedPlant:
         self._sun_cache: tuple[float, np.ndarray, float] | None = None
         self._sun_table = SunTable(cfg.site)
         self._track_nodes: dict[int, np.ndarray] = {}
+        self._node_rows: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._cleanliness_cache: tuple[float, int, np.ndarray] | None = None
+        self._weather_cache: tuple[float, Weather] | None = None
+        self._drange = (d.stroke_min_mm, d.stroke_max_mm)
         self.strokes_mm = self._goal(self.t_s)
         self.state[self.offline] = int(S.OFFLINE)
         self.mode[self.offline] = MODE_IDLE
-        self._drange = (d.stroke_min_mm, d.stroke_max_mm)
 
     # -- helpers ---------------------------------------------------------------------------
     def _stow_strokes(self) -> np.ndarray:
@@ -129,41 +131,50 @@ class SimulatedPlant:
             self._track_nodes[k] = node
         return node
 
-    def _nominal_tracking(self, t_s: float, idx: np.ndarray) -> np.ndarray:
-        """Nominal tracking strokes (k, 2) of heliostats ``idx`` at ``t_s``, interpolated on the grid."""
+    def _nominal_tracking(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Nominal tracking strokes (N, 2) of every heliostat at ``t_s``, interpolated on the grid
+        (a new array), and which rows are finite (both grid nodes reachable)."""
         x = t_s / TRACK_GRID_S
         k = int(np.floor(x))
         f = x - k
-        a = self._track_node(k)[idx]
+        a = self._track_node(k)
         if f == 0.0:
-            return a
-        b = self._track_node(k + 1)[idx]
-        return a + (b - a) * f
+            return a.copy(), self._node_finite(k)
+        b = self._track_node(k + 1)
+        return a + (b - a) * f, self._node_finite(k) & self._node_finite(k + 1)
+
+    def _node_finite(self, k: int) -> np.ndarray:
+        """Rows (N,) of grid node ``k`` with finite strokes (cached with the node)."""
+        node = self._track_node(k)
+        hit = self._node_rows.get(k)
+        if hit is None or hit[0] is not node:
+            hit = self._node_rows[k] = (node, np.all(np.isfinite(node), axis=-1))
+            if len(self._node_rows) > _TRACK_NODES_KEPT:
+                self._node_rows.pop(next(iter(self._node_rows)))
+        return hit[1]
 
     def _tracking_strokes(self, t_s: float, sel: np.ndarray) -> np.ndarray:
+        """Tracking strokes (N, 2) at ``t_s`` for the heliostats ``sel`` (bool (N,)); other rows
+        are computed alike but not meant to be used. Row by row the arithmetic of one heliostat."""
         sun, elevation = self.sun(t_s)
         if elevation <= 0.0:
-            return self.stow_strokes_mm[sel]
-        idx = np.flatnonzero(sel)
-        nom = self._nominal_tracking(t_s, idx)
-        bad = ~np.all(np.isfinite(nom), axis=-1)
-        if bad.any():  # a grid node unreachable: solve those heliostats at this instant
-            sub = idx[bad]
-            nom[bad] = self.nominal.subset(sub).strokes_for_aim(sun, self.tracking_aim_enu[sub]).strokes_mm
-        s = nom + self.corrections_mm[sel]
-        d = self.nominal.drives
-        s = np.clip(s, d.stroke_min_mm[sel], d.stroke_max_mm[sel])
-        return np.where(np.isfinite(s), s, self.stow_strokes_mm[sel])
+            return self.stow_strokes_mm
+        nom, finite = self._nominal_tracking(t_s)
+        sub = np.flatnonzero(sel & ~finite)
+        if sub.size:  # a grid node unreachable: solve those heliostats at this instant
+            nom[sub] = self.nominal.subset(sub).strokes_for_aim(sun, self.tracking_aim_enu[sub]).strokes_mm
+        s = nom + self.corrections_mm
+        s = np.clip(s, self._drange[0], self._drange[1])
+        return np.where(np.isfinite(s), s, self.stow_strokes_mm)
 
     def _goal(self, t_s: float) -> np.ndarray:
-        goal = getattr(self, "strokes_mm", self.stow_strokes_mm).copy()
+        strokes = getattr(self, "strokes_mm", self.stow_strokes_mm)
         track = self.mode == MODE_TRACK
-        if track.any():
-            goal[track] = self._tracking_strokes(t_s, track)
         hold = self.mode == MODE_HOLD
-        goal[hold] = self.goal_cmd_mm[hold]
         stow = self.mode == MODE_STOW
-        goal[stow] = self.stow_strokes_mm[stow]
+        goal = np.where(hold[:, None], self.goal_cmd_mm, np.where(stow[:, None], self.stow_strokes_mm, strokes))
+        if track.any():
+            goal = np.where(track[:, None], self._tracking_strokes(t_s, track), goal)
         return goal
 
     # -- time ------------------------------------------------------------------------------
@@ -185,20 +196,31 @@ class SimulatedPlant:
         moving = np.abs(move) > 1e-9
         self.approach = np.where(moving, np.sign(move), self.approach)
         self.strokes_mm = self.strokes_mm + move
-        remaining = np.max(np.abs(goal - self.strokes_mm), axis=-1)
+        # the state machine, on the rows whose state can change: moving, or held or stowed (a
+        # heliostat tracking on course only follows the sun, above)
+        w = np.flatnonzero((self.state == S.MOVING) | (self.mode == MODE_HOLD) | (self.mode == MODE_STOW))
+        if not w.size:
+            self.t_s = t1
+            return
+        state, mode = self.state[w], self.mode[w]
+        remaining = np.max(np.abs(goal[w] - self.strokes_mm[w]), axis=-1)
         arrived = remaining < 1e-6
-        was_moving = self.state == S.MOVING
-        newly = arrived & was_moving & ~np.isfinite(self.arrival_s)
-        self.arrival_s = np.where(newly, t0 + np.max(np.abs(delta), axis=-1) / self.speed_mm_s, self.arrival_s)
-        settled = arrived & (t1 >= self.arrival_s + self.settle_s)
-        active = ~self.offline & (self.state != S.FAULT) & (self.state != S.IDLE)
-        for mode, done_state in ((MODE_HOLD, S.HOLDING), (MODE_STOW, S.STOWED), (MODE_TRACK, S.TRACKING)):
-            sel = active & (self.mode == mode)
-            if mode == MODE_TRACK:  # tracking heliostats follow the sun; TRACKING once first on track
-                self.state[sel & was_moving & arrived] = int(done_state)
+        was_moving = state == S.MOVING
+        arrival = self.arrival_s[w]
+        newly = arrived & was_moving & ~np.isfinite(arrival)
+        arrival = np.where(newly, t0 + np.max(np.abs(delta[w]), axis=-1) / self.speed_mm_s, arrival)
+        self.arrival_s[w] = arrival
+        settled = arrived & (t1 >= arrival + self.settle_s)
+        active = ~self.offline[w] & (state != S.FAULT) & (state != S.IDLE)
+        new = state.copy()
+        for m, done_state in ((MODE_HOLD, S.HOLDING), (MODE_STOW, S.STOWED), (MODE_TRACK, S.TRACKING)):
+            sel = active & (mode == m)
+            if m == MODE_TRACK:  # tracking heliostats follow the sun; TRACKING once first on track
+                new[sel & was_moving & arrived] = int(done_state)
             else:
-                self.state[sel & settled] = int(done_state)
-                self.state[sel & ~arrived] = int(S.MOVING)
+                new[sel & settled] = int(done_state)
+                new[sel & ~arrived] = int(S.MOVING)
+        self.state[w] = new
         self.t_s = t1
 
     def _check_wind(self, t_s: float) -> None:
@@ -223,12 +245,12 @@ class SimulatedPlant:
         self._start(sel, MODE_TRACK)
 
     def _start(self, sel: np.ndarray, mode: int) -> None:
-        """Begin a new motion of the heliostats ``sel`` (bool mask) in ``mode``."""
-        self.mode[sel] = mode
-        self.state[sel] = int(S.MOVING)
-        self.arrival_s[sel] = np.nan  # not arrived yet
-        self.command_count[sel] += 1
-        idx = np.flatnonzero(sel)
+        """Begin a new motion of the heliostats ``sel`` (bool mask, or distinct indices) in ``mode``."""
+        idx = np.flatnonzero(sel) if np.asarray(sel).dtype == bool else np.asarray(sel, dtype=np.int64)
+        self.mode[idx] = mode
+        self.state[idx] = int(S.MOVING)
+        self.arrival_s[idx] = np.nan  # not arrived yet
+        self.command_count[idx] += 1
         self.stroke_noise_mm[idx] = self.truth.repeat_noise_mm(self.command_count[idx], idx)
 
     @property
@@ -271,8 +293,7 @@ class SimulatedPlant:
 
     def _process(self, i: int) -> None:
         cmd, seq = int(self.reg_command[i]), int(self.reg_sequence[i])
-        sel = np.zeros(self.n, dtype=bool)
-        sel[i] = True
+        sel = np.array([i])  # one row: a command costs the same on a field of 10⁴
         self.sequence_done[i] = seq
         if cmd == HeliostatCommand.NONE:
             return
@@ -312,15 +333,19 @@ class SimulatedPlant:
         return self.t_s, self.rate
 
     def weather(self) -> Weather:
-        _, elevation = self.sun(self.t_s)
-        return self.weather_model.at(self.t_s, elevation)
+        """The weather block now (a frozen reading, kept for the instant: a visit reads it several times)."""
+        hit = self._weather_cache
+        if hit is None or hit[0] != self.t_s:
+            _, elevation = self.sun(self.t_s)
+            hit = self._weather_cache = (self.t_s, self.weather_model.at(self.t_s, elevation))
+        return hit[1]
 
     def status(self, index: int) -> HeliostatStatus:
         return HeliostatStatus(
             index=int(index), state=HeliostatState(int(self.state[index])),
             sequence_done=int(self.sequence_done[index]), fault=int(self.fault[index]),
             strokes_mm=(float(self.strokes_mm[index, 0]), float(self.strokes_mm[index, 1])),
-            cleanliness=float(self.cleanliness()[index]),
+            cleanliness=self.cleanliness_of(index),
         )
 
     def cleanliness(self) -> np.ndarray:
@@ -332,6 +357,22 @@ class SimulatedPlant:
             self._cleanliness_cache = c
         return c[2]
 
+    def cleanliness_of(self, index: int) -> float:
+        """Cleanliness of one mirror now: ``cleanliness()[index]``, at the cost of one heliostat."""
+        c = self._cleanliness_cache
+        if c is not None and c[:2] == (self.t_s, len(self.soiling._extra_cleanings)):
+            return float(c[2][index])
+        return float(self.soiling.cleanliness(self.t_s, rows=np.array([int(index)]))[0])
+
+    def cleanliness_many(self, indices) -> np.ndarray:
+        """The cleanliness registers of heliostats ``indices`` (k,) now, in one read: what
+        :meth:`status` gives for each (the planner reads a board's candidates at once)."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        c = self._cleanliness_cache
+        if c is not None and c[:2] == (self.t_s, len(self.soiling._extra_cleanings)):
+            return c[2][idx].astype(float)
+        return self.soiling.cleanliness(self.t_s, rows=idx)
+
     def move_to(self, index: int, strokes_mm: np.ndarray) -> int:
         seq = self._next_sequence(index)
         self.write_command(index, HeliostatCommand.MOVE, seq, strokes_mm=strokes_mm)
@@ -340,6 +381,28 @@ class SimulatedPlant:
     def track(self, index: int, corrections_mm: np.ndarray) -> int:
         seq = self._next_sequence(index)
         self.write_command(index, HeliostatCommand.TRACK, seq, corrections_mm=corrections_mm)
+        return seq
+
+    def track_many(self, indices, corrections_mm: np.ndarray) -> np.ndarray:
+        """:meth:`track` for many heliostats at once (distinct ``indices`` (k,), ``corrections_mm``
+        (k, 2)): the same registers and state as one call per heliostat in any order, at the cost
+        of array operations (the runner rewrites the corrections of a whole field every 15 min).
+        Returns the sequence numbers (k,)."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        if np.unique(idx).size != idx.size:
+            raise ValueError("track_many: indices must be distinct")
+        seq = (self.reg_sequence[idx] + 1) & 0xFFFF
+        self.reg_command[idx] = int(HeliostatCommand.TRACK)
+        self.reg_corrections[idx] = np.asarray(corrections_mm, dtype=float).reshape(-1, 2)
+        self.reg_sequence[idx] = seq  # always a new number: each acted on (offline ones never answer)
+        on = idx[~self.offline[idx]]
+        self.sequence_done[on] = self.reg_sequence[on]
+        if self.stow_active:
+            self.fault[on] = FaultCode.REFUSED_DURING_STOW
+            return seq
+        self.corrections_mm[on] = self.reg_corrections[on]
+        self.fault[on] = FaultCode.NONE
+        self._start(on, MODE_TRACK)
         return seq
 
     def stow(self, index: int) -> int:

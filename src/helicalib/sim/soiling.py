@@ -38,13 +38,15 @@ class SoilingModel:
         self.phase_s = (idx / max(int(n), 1)) * spec.cleaning_interval_days * DAY_S
         self._extra_cleanings: list[tuple[float, np.ndarray]] = []
 
-    def last_cleaning_s(self, t_s: float) -> np.ndarray:
-        """Time of each heliostat's last cleaning at or before ``t_s`` [UTC s], shape (N,)."""
+    def last_cleaning_s(self, t_s: float, rows: np.ndarray | None = None) -> np.ndarray:
+        """Time of each heliostat's last cleaning at or before ``t_s`` [UTC s], shape (N,) (or of
+        the heliostats ``rows`` (k,): the same values for the cost of k)."""
         interval = self.spec.cleaning_interval_days * DAY_S
-        last = self.phase_s + np.floor((float(t_s) - self.phase_s) / interval) * interval
+        phase = self.phase_s if rows is None else self.phase_s[rows]
+        last = phase + np.floor((float(t_s) - phase) / interval) * interval
         for when, which in self._extra_cleanings:
             if when <= t_s:
-                last = np.where(which, np.maximum(last, when), last)
+                last = np.where(which if rows is None else which[rows], np.maximum(last, when), last)
         return last
 
     def clean(self, t_s: float, which: np.ndarray | None = None) -> None:
@@ -52,7 +54,9 @@ class SoilingModel:
         mask = np.ones_like(self.phase_s, dtype=bool) if which is None else np.asarray(which, dtype=bool)
         self._extra_cleanings.append((float(t_s), mask))
 
-    def cleanliness(self, t_s: float) -> np.ndarray:
-        """Cleanliness in [floor, clean_value] of every heliostat at ``t_s``, shape (N,)."""
-        days = (float(t_s) - self.last_cleaning_s(t_s)) / DAY_S
-        return np.maximum(self.spec.floor, self.spec.clean_value - self.rate_per_day * days)
+    def cleanliness(self, t_s: float, rows: np.ndarray | None = None) -> np.ndarray:
+        """Cleanliness in [floor, clean_value] of every heliostat at ``t_s``, shape (N,) (or of
+        the heliostats ``rows`` (k,))."""
+        days = (float(t_s) - self.last_cleaning_s(t_s, rows)) / DAY_S
+        rate = self.rate_per_day if rows is None else self.rate_per_day[rows]
+        return np.maximum(self.spec.floor, self.spec.clean_value - rate * days)
