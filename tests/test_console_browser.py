@@ -327,6 +327,7 @@ def test_run_serves_the_console_of_its_dry_run(campaign):
         assert code == 200 and "Read-only: actions need the controller running with" in page
         view = json.loads(_get(line["url"] + "api/view")[1])
         assert view["campaign"]["mode"] == "dry-run" and view["armed_actions"] is False
+        next(x for x in map(json.loads, lines) if x.get("event") == "status")  # the run's loop is going
     finally:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)

@@ -149,7 +149,6 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                       **common)
     scheduler.add_job(_tick_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, TICK_PLANT_S / rate),
                       args=[runner, lock], id="helicalib-tick", **common)
-    _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
     previous = {}
     signals = {"n": 0}
 
@@ -159,9 +158,10 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
         if signals["n"] > 1:
             raise KeyboardInterrupt
 
-    if threading.current_thread() is threading.main_thread():
+    if threading.current_thread() is threading.main_thread():  # before anything slow: a Ctrl-C now stops cleanly
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, on_signal)
+    _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
     scheduler.start()
     result = LiveResult("stopped")
 
