@@ -42,6 +42,7 @@ def _campaign(db, visits=5, heliostats=("H0001", "H0002"), invalid_every=3):
                     oid = s.record_observation(obs, before_frame=frame if before is None else None, after_frames=[frame])
                     before = before or s.observations(heliostat_id=h)[-1].before_frame_path
                     ids[h].append(oid)
+                s.end_visit(vid, ended_s=float(v) + 0.5, outcome="converged", iterations=2)
     return ids
 
 
@@ -138,3 +139,33 @@ def test_prune_frames_command(tmp_path):
     assert again["files"] == 0  # nothing more to delete
     bad = subprocess.run(cmd[:-3] + ["--keep-last", "-2"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--keep-last" in bad.stderr
+
+
+def test_never_a_file_outside_the_images_folder_nor_of_a_visit_under_way(tmp_path):
+    db = tmp_path / "r.db"
+    ids = _campaign(db, visits=3, heliostats=("H0001",), invalid_every=10**6)
+    precious = tmp_path / "precious.txt"
+    precious.write_text("not a frame")
+    with Store.open(db, owner="test") as s:
+        oldest = ids["H0001"][0]
+        s.set_frame_paths([(oldest, None, ["../precious.txt"])])  # a path the database should never hold
+        running_visit = s.begin_visit(s.campaigns()[-1].id, "H0001", "T1", 99.0)  # a visit under way
+        frame = FRAME.copy()
+        oid = s.record_observation(_obs(s.campaigns()[-1].id, running_visit, 0, t=1_800_000_000.0),
+                                   before_frame=frame, after_frames=[frame])
+        before_of_running = s.observations()[-1].before_frame_path
+        retain_frames(s, 0)
+        assert precious.read_text() == "not a frame"
+        rows = {o.id: o for o in s.observations()}
+        assert rows[oldest].after_frame_paths == ("../precious.txt",)  # not ours: left as it was
+        assert rows[oid].before_frame_path == before_of_running and (s.images_dir / before_of_running).is_file()
+
+
+def test_a_wrong_images_folder_is_refused_and_changes_nothing(tmp_path):
+    db = tmp_path / "r.db"
+    _campaign(db, visits=3)
+    with Store.open(db, tmp_path / "elsewhere", owner="test") as s:
+        rows = s.observations()
+        with pytest.raises(ConfigError, match="none of the .* frame files to delete is there"):
+            retain_frames(s, 1)
+        assert s.observations() == rows

@@ -217,14 +217,15 @@ def recheck_rows(cfg, runner) -> list[dict]:
             if latest is not None:
                 points = fit_points(runner.store.observations(campaign_id=latest.campaign_id, heliostat_id=hid),
                                     hid, latest.time_s)
-                row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first)
+                if len(points) == latest.n_points:  # the points the stored fit stood on, or no evidence
+                    row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first)
             drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),
                        verdict=("in spec" if err <= limit else
                                 "out of spec: recalibrate (helicalib run --arm)" if row["calibrated"] else
                                 "out of spec: never calibrated in this database (nominal model)")
-                       + ("; drift: outside the band its fit predicts here, it has changed since its calibration"
-                          if drifted else ""))
+                       + ("; suspected drift: outside the band its fit predicts here (check again: outside twice, "
+                          "it has changed since its calibration)" if drifted else ""))
         rows.append(row)
     return rows
 

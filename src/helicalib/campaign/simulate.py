@@ -227,9 +227,9 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "stowed_hours": round(stats.stowed_s / 3600.0, 2),
         "days": round((end_s - start_s) / 86400.0, 3),
         "outcomes": dict(stats.outcomes),
-        # the scenario's injected drift events that began during the run (simulator truth)
-        "drifted": sum(1 for e in sim.truth.drift_events if e.start_s < end_s),
-        "drift_events": [e.to_dict() for e in sim.truth.drift_events if e.start_s < end_s],
+        # the scenario's injected drift events of the campaign's heliostats that began during the run
+        "drifted": len(drifted := [e for e in sim.truth.drift_events if e.start_s < end_s and e.heliostat_id in ids]),
+        "drift_events": [e.to_dict() for e in drifted],
     }
 
 
@@ -263,14 +263,17 @@ def predicted_against_truth(cfg, runner: CampaignRunner, sim, params: np.ndarray
     aims = np.array([cfg.target(cfg.heliostat(h).target).center_enu_m for h in hids])
     pred = year_prediction(model, np.stack([f.covariance for f in fits]), sun, aims,
                            np.array([unexplained_mrad(f.rms_mrad, SIGMA_MRAD) for f in fits]), draws=200)
+    err = ev.errors_mrad[rows]
+    seen = np.isfinite(err).any(axis=1)
     with np.errstate(invalid="ignore"):
-        err = ev.errors_mrad[rows]
-        true_rms = np.sqrt(np.nanmean(err**2, axis=1))
-        true_exceed = np.nanmax(err, axis=1) > LIMIT_MRAD
+        true_rms = np.full(len(rows), np.nan)
+        true_rms[seen] = np.sqrt(np.nanmean(err[seen] ** 2, axis=1))
+        true_exceed = np.zeros(len(rows), dtype=bool)
+        true_exceed[seen] = np.nanmax(err[seen], axis=1) > LIMIT_MRAD
     ok = np.isfinite(true_rms) & np.all(np.isfinite(pred.interval_mrad), axis=1)
     inside = (pred.interval_mrad[ok, 0] <= true_rms[ok]) & (true_rms[ok] <= pred.interval_mrad[ok, 1])
     r = lambda x: None if not np.isfinite(x) else round(float(x), 3)  # noqa: E731
-    return {"predicted_year_rms_median_mrad": r(np.nanmedian(pred.expected_rms_mrad)) if ok.any() else None,
+    return {"predicted_year_rms_median_mrad": r(np.median(pred.expected_rms_mrad[ok])) if ok.any() else None,
             "predicted_interval_coverage": r(np.mean(inside)) if ok.any() else None,
             "predicted_exceed_share": r(np.mean(pred.p_exceed[ok])) if ok.any() else None,
             "true_exceed_share": r(np.mean(true_exceed[ok])) if ok.any() else None,

@@ -8,8 +8,10 @@ when no kept observation points to it (a visit's "before" frame serves all its p
 observations whose frames went have their frame paths cleared in the same transaction, so no row
 ever points to a missing file, and the count of such observations is returned.
 
-Only the database's owner prunes (the process that holds its lock: a campaign, ``operate``, or
-``helicalib frames`` when nothing runs); readers never delete anything.
+Only the database's owner prunes (the process that holds its lock: ``helicalib prune-frames``
+when no campaign runs); readers never delete anything. The frames of a visit still under way are
+kept, and so is any file a path leads to outside the images folder (not the store's to delete); a
+folder that holds none of the files to delete (a wrong ``--images``) is refused.
 """
 
 from __future__ import annotations
@@ -64,9 +66,20 @@ def retain_frames(store, keep_last: int, *, keep_invalid: bool = True, campaign_
         raise ConfigError(f"keep_last: expected a count >= 0, got {keep_last}")
     if not dry_run and store._lock_file is None:
         raise ConfigError(f"{store.path}: only the database's owner deletes frames (open it with owner=...)")
+    with store._lock:  # one consistent pass, even beside a writer thread of the same process
+        return _retain(store, keep_last, keep_invalid, campaign_id, dry_run)
+
+
+def _retain(store, keep_last: int, keep_invalid: bool, campaign_id: int | None, dry_run: bool) -> Retention:
+    images = store.images_dir.resolve()
+
+    def inside(rel: str) -> bool:  # a frame path is the database's word: never touch a file outside the folder
+        return (images / rel).resolve().is_relative_to(images)
+
     where, params = ("WHERE campaign_id = ?", (int(campaign_id),)) if campaign_id is not None else ("", ())
-    rows = store._read("SELECT id, heliostat_id, valid, before_frame_path, after_frame_paths_json FROM observations "
-                       f"{where} ORDER BY id DESC", params)
+    rows = store._read("SELECT id, heliostat_id, visit_id, valid, before_frame_path, after_frame_paths_json "
+                       f"FROM observations {where} ORDER BY id DESC", params)
+    running = {int(r[0]) for r in store._read("SELECT id FROM visits WHERE outcome = 'running'")}
     seen: dict[str, int] = defaultdict(int)
     kept_paths: set[str] = set()
     dropped: list[tuple[int, str | None, list[str]]] = []
@@ -76,22 +89,29 @@ def retain_frames(store, keep_last: int, *, keep_invalid: bool = True, campaign_
         if not paths:
             continue
         hid = r["heliostat_id"]
-        if seen[hid] < keep_last or (keep_invalid and not r["valid"]):
+        # kept: the newest, the rejected, a visit still under way (its next placement reuses its before
+        # frame), and any path that does not lie inside the images folder (not ours to delete)
+        if (seen[hid] < keep_last or (keep_invalid and not r["valid"]) or r["visit_id"] in running
+                or not all(inside(p) for p in paths)):
             kept_paths.update(paths)
         else:
             dropped.append((int(r["id"]), before, after))
         seen[hid] += 1
     gone = {p for _i, before, after in dropped for p in ([before] if before else []) + after} - kept_paths
-    size = sum((store.images_dir / p).stat().st_size for p in gone if (store.images_dir / p).is_file())
+    present = {p for p in gone if (images / p).is_file()}
+    if gone and not present:
+        raise ConfigError(f"{store.images_dir}: none of the {len(gone)} frame files to delete is there; is it the "
+                          "database's images folder (--images)? Nothing changed")
+    size = sum((images / p).stat().st_size for p in present)
     changed = [(i, before, after) for i, before, after in dropped
                if (before in gone) or any(p in gone for p in after)]
-    result = Retention(len(changed), len(gone), int(size), len(kept_paths))
+    result = Retention(len(changed), len(present), int(size), len(kept_paths))
     if dry_run or not gone:
         return result
     # rows first, in one transaction, then the files: a kill in between leaves files that no row
     # points to, never a row that points to a missing file
     store.set_frame_paths([(i, None if before in gone else before, [p for p in after if p not in gone])
                            for i, before, after in changed])
-    for p in gone:
-        (store.images_dir / p).unlink(missing_ok=True)
+    for p in present:
+        (images / p).unlink(missing_ok=True)
     return result
