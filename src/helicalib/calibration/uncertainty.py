@@ -57,13 +57,6 @@ class YearPrediction:
     level: float
     reachable: np.ndarray
 
-    def row(self, i: int) -> dict:
-        """Heliostat ``i``'s figures as plain data (NaN as None)."""
-        f = lambda x: None if not np.isfinite(x) else round(float(x), 4)  # noqa: E731
-        return {"expected_rms_mrad": f(self.expected_rms_mrad[i]),
-                "interval_mrad": [f(self.interval_mrad[i, 0]), f(self.interval_mrad[i, 1])],
-                "interval_level": self.level, "p_exceed": f(self.p_exceed[i]), "limit_mrad": self.limit_mrad}
-
 
 def beam_jacobians_mrad(model, sun_enu: np.ndarray, aim_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Jacobians (N, M, 2, P) [mrad per parameter unit] of N models' beam angles at M sun positions.

@@ -241,11 +241,11 @@ def predicted_against_truth(cfg, runner: CampaignRunner, sim, params: np.ndarray
     """The fits' year-round predictions (:mod:`helicalib.calibration.uncertainty`) against the
     simulator's truth ``ev`` (:func:`~helicalib.sim.evaluate.evaluate_model`, the calibrated
     models over the year): how often the true year-round RMS lies inside the predicted 90 %
-    interval, and the predicted against the true share of heliostats that exceed 1.2 mrad somewhere
-    on the year's path. Over at most :data:`PREDICTION_SAMPLE` fitted heliostats; the sun path
+    interval, and the predicted against the true share of heliostats that exceed the acceptance
+    limit (``acceptance.max_rms_mrad``, 1.2 mrad) somewhere on the year's path. Over at most :data:`PREDICTION_SAMPLE` fitted heliostats; the sun path
     every 14 days, every hour, sun above 5°."""
     from helicalib.calibration.fit import SIGMA_MRAD
-    from helicalib.calibration.uncertainty import LIMIT_MRAD, unexplained_mrad, year_prediction
+    from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
     from helicalib.sim.evaluate import year_sun_times
 
     fitted = [hid for hid in runner.ids if runner.book.h[hid].fit is not None]
@@ -261,15 +261,17 @@ def predicted_against_truth(cfg, runner: CampaignRunner, sim, params: np.ndarray
     year = int(np.datetime64(int(sim.truth.start_s), "s").astype("datetime64[Y]").astype(int) + 1970)
     _t, sun = year_sun_times(cfg.site, year, step_days=14.0, step_min=60.0)
     aims = np.array([cfg.target(cfg.heliostat(h).target).center_enu_m for h in hids])
+    limit = float(cfg.acceptance.max_rms_mrad)  # the field's acceptance limit, 1.2 mrad by default
     pred = year_prediction(model, np.stack([f.covariance for f in fits]), sun, aims,
-                           np.array([unexplained_mrad(f.rms_mrad, SIGMA_MRAD) for f in fits]), draws=200)
+                           np.array([unexplained_mrad(f.rms_mrad, SIGMA_MRAD) for f in fits]), draws=200,
+                           limit_mrad=limit)
     err = ev.errors_mrad[rows]
     seen = np.isfinite(err).any(axis=1)
     with np.errstate(invalid="ignore"):
         true_rms = np.full(len(rows), np.nan)
         true_rms[seen] = np.sqrt(np.nanmean(err[seen] ** 2, axis=1))
         true_exceed = np.zeros(len(rows), dtype=bool)
-        true_exceed[seen] = np.nanmax(err[seen], axis=1) > LIMIT_MRAD
+        true_exceed[seen] = np.nanmax(err[seen], axis=1) > limit
     ok = np.isfinite(true_rms) & np.all(np.isfinite(pred.interval_mrad), axis=1)
     inside = (pred.interval_mrad[ok, 0] <= true_rms[ok]) & (true_rms[ok] <= pred.interval_mrad[ok, 1])
     r = lambda x: None if not np.isfinite(x) else round(float(x), 3)  # noqa: E731

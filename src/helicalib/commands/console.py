@@ -29,7 +29,6 @@ def run(args) -> int:
     import json
     import secrets
     import sys
-    from pathlib import Path
 
     from helicalib.console.app import Console, create_app
     from helicalib.console.server import ConsoleServer, parse_address, url
@@ -37,12 +36,10 @@ def run(args) -> int:
     from helicalib.errors import ConfigError
     from helicalib.geometry.sitetime import site_time
     from helicalib.report.data import find_config
-    from helicalib.store.sqlite import Store
+    from helicalib.store.sqlite import Store, existing_database
 
     host, port = parse_address(args.listen, args.console_public, "--listen")
-    path = Path(args.db[len("sqlite:///"):] if args.db.startswith("sqlite:///") else args.db)
-    if not path.is_file():
-        raise ConfigError(f"{args.db}: no such database file")
+    path = existing_database(args.db)
 
     def reopen():
         return Store.open(path, args.images, readonly=True)  # a reader: never writes, never takes the lock

@@ -62,11 +62,9 @@ def run(args) -> int:
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError
     from helicalib.realdata.paint_export import DEFAULT_INCREMENT_STEPS_PER_M, write_export
-    from helicalib.store.sqlite import Store
+    from helicalib.store.sqlite import Store, existing_database
 
-    if not Path(args.database).is_file():
-        raise ConfigError(f"{args.database}: no such database file")
-    store = Store.open(args.database, args.images, readonly=True)
+    store = Store.open(existing_database(args.database), args.images, readonly=True)
     try:
         campaigns = store.campaigns()
         if not campaigns:

@@ -28,15 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
 
-    from helicalib.errors import ConfigError
     from helicalib.store.retention import retain_frames
-    from helicalib.store.sqlite import Store
+    from helicalib.store.sqlite import Store, existing_database
 
-    path = args.db[len("sqlite:///"):] if args.db.startswith("sqlite:///") else args.db
-    if not Path(path).is_file():
-        raise ConfigError(f"{args.db}: no such database file")
+    path = existing_database(args.db)
     if args.dry_run:
         store = Store.open(path, args.images, readonly=True)
     else:

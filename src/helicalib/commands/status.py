@@ -17,19 +17,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
 
     from rich.console import Console
     from rich.table import Table
 
-    from helicalib.errors import ConfigError
     from helicalib.store.records import off_tracking
-    from helicalib.store.sqlite import Store
+    from helicalib.store.sqlite import Store, existing_database
 
-    path = args.db[len("sqlite:///"):] if args.db.startswith("sqlite:///") else args.db
-    if not Path(path).is_file():
-        raise ConfigError(f"{args.db}: no such database file")
-    store = Store.open(path, readonly=True)  # a reader: never creates, migrates, writes or deletes anything
+    store = Store.open(existing_database(args.db), readonly=True)  # a reader: never creates, migrates, writes or deletes anything
     try:
         campaigns = store.campaigns()
         if not campaigns:

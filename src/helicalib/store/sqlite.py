@@ -111,10 +111,7 @@ class Store:
         ConfigError
             The file is not a helicalib database, is of a newer schema, or cannot be opened.
         """
-        text = str(path)
-        if text.startswith("sqlite:///"):
-            text = text[len("sqlite:///"):]
-        db = Path(text)
+        db = database_path(path)
         images = Path(images_dir) if images_dir is not None else Path("images")
         if not images.is_absolute():
             images = db.parent / images
@@ -538,6 +535,21 @@ class Store:
 
 
 # ---------------------------------------------------------------------- helpers
+def database_path(path: str | Path) -> Path:
+    """The database file of a path or a ``sqlite:///`` URL."""
+    text = str(path)
+    return Path(text[len("sqlite:///"):] if text.startswith("sqlite:///") else text)
+
+
+def existing_database(path: str | Path) -> Path:
+    """:func:`database_path`, refused with one line when the file is not there (a command that must
+    not create a database: ``status``, ``console``, ``export-paint``, ``prune-frames``)."""
+    db = database_path(path)
+    if not db.is_file():
+        raise ConfigError(f"{path}: no such database file")
+    return db
+
+
 def _connect_readonly(db: Path) -> sqlite3.Connection:
     """A read-only connection that never creates, migrates, writes or deletes a file.
 
