@@ -30,7 +30,7 @@ import numpy as np
 
 from helicalib.vision.marks import board_to_image, find_marks
 from helicalib.config import load_field_config
-from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Spot, demo_dot_target, demo_target, look_at_pose,
+from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_dot_target, demo_target, look_at_pose,
                                      project_board_points, render_frame)
 from helicalib.vision.spot import METHODS, measure_spot
 
@@ -57,6 +57,10 @@ def boards() -> dict:
             "dots, side of the cylinder": (side, side_cam)}
 
 
+DOT_ALBEDOS = (0.06, 0.15, 0.25, 0.35, 0.5)
+"""Albedos of the dots swept (the first is the black of the L marks; the 2019 article names no colour)."""
+
+
 def _touches_a_dot(target, spot: Spot) -> bool:
     """The spot's 2σ ellipse (or flat edge) reaches one of the board's dots."""
     if target.marks.kind != "dots":
@@ -66,11 +70,12 @@ def _touches_a_dot(target, spot: Spot) -> bool:
     return bool(np.any(gap < reach))
 
 
-def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAMERA_ENU_M) -> dict:
+def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAMERA_ENU_M,
+             lighting: Lighting = Lighting(), after_frames: int = 1) -> dict:
     target = target or demo_target()
     pose = look_at_pose(camera_enu_m, target, 5200, (1280, 1024))
     rng = np.random.default_rng(seed)
-    before = render_frame(target, pose, rng=int(rng.integers(1 << 30)))
+    before = render_frame(target, pose, (), lighting, rng=int(rng.integers(1 << 30)))
     marks = find_marks(before, target)
     if target.marks.kind == "dots":
         truth_v = project_board_points(pose, target, target.marks.dots_m()[[0, 2, 8, 6]])
@@ -84,10 +89,11 @@ def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAM
         size = tuple(rng.uniform(0.5, 1.6, 2))
         centre = tuple(rng.uniform(-3.0, 3.0, 2))
         spot = Spot(centre, size, peak=float(rng.uniform(35, 75)), shape=shape, angle_deg=float(rng.uniform(0, 180)))
-        after = render_frame(target, pose, [spot], rng=int(rng.integers(1 << 30)))
+        seed_after = int(rng.integers(1 << 30))
+        afters = [render_frame(target, pose, [spot], lighting, rng=seed_after + 7919 * k) for k in range(after_frames)]
         true_px = project_board_points(pose, target, np.array([centre]))[0]
         for m in METHODS:
-            r = measure_spot(before, [after], target, method=m, marks=marks)
+            r = measure_spot(before, afters, target, method=m, marks=marks)
             if not r.valid:
                 invalid[m] += 1
                 continue
@@ -156,12 +162,27 @@ def main() -> int:
     for name, (target, cam) in boards().items():
         print(f"rendering {n} frames: {name} ...", flush=True)
         cases[name] = accuracy(n, target=target, camera_enu_m=cam)
+    # dot boards: how the spot on a dot depends on the dots' albedo (black 6 % … mid-grey 50 %) and on
+    # averaging after frames (grlm-centroid only)
+    dot_sweep = []
+    for name, (target, cam) in boards().items():
+        if target.marks.kind != "dots":
+            continue
+        for albedo, n_after in [(a, 1) for a in DOT_ALBEDOS] + [(DOT_ALBEDOS[0], 4)]:
+            print(f"rendering {n} frames: {name}, dot albedo {albedo:g}, {n_after} after frame(s) ...", flush=True)
+            c = accuracy(n, target=target, camera_enu_m=cam, lighting=Lighting(mark_albedo=albedo),
+                         after_frames=n_after)
+            r = c["methods"]["grlm-centroid"]
+            dot_sweep.append({"board": name, "dot_albedo": albedo, "after_frames": n_after, "rms_mm": r["rms_mm"],
+                              "on_dot_rms_mm": r["on_dot_rms_mm"], "off_dots_rms_mm": r["off_dots_rms_mm"],
+                              "on_dot_frames": r["on_dot_frames"], "invalid": r["invalid"],
+                              "marks_reprojection_px": c["marks_reprojection_px"]})
     thr = {"1280x1024": throughput((1280, 1024), 5200, reps), "2448x2048": throughput((2448, 2048), 9950, reps)}
     import os
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     out = {"threads": 1, "load_average_1min": load, "cpus": os.cpu_count(), "accuracy": acc, "boards": cases,
-           "throughput": thr, "goal_pairs_per_s": 15}
+           "dot_albedo_sweep": dot_sweep, "throughput": thr, "goal_pairs_per_s": 15}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=2))
     print(f"accuracy over {n} rendered frames ({acc['board_px_per_m']} px/m on the board):")
@@ -180,6 +201,11 @@ def main() -> int:
                      f"off the dots {fmt(r['off_dots_rms_mm'])} mm RMS ({r['off_dots_frames']})")
         print(f"  {name:<28} {c['board_px_per_m']:5.1f} px/m  centre {c['marks_centre_error_px']:.3f} px  "
               f"{r['rms_mm']:6.2f} mm RMS (max {r['max_mm']:.1f})  invalid {r['invalid']}{split}")
+    print("dot boards by the dots' albedo and after frames (grlm-centroid; mark boards above for comparison):")
+    for r in dot_sweep:
+        print(f"  {r['board']:<28} albedo {r['dot_albedo']:4.2f}  {r['after_frames']} after  {r['rms_mm']:5.2f} mm RMS  "
+              f"reaching a dot {r['on_dot_rms_mm']:5.2f} mm ({r['on_dot_frames']})  off the dots "
+              f"{r['off_dots_rms_mm']:5.2f} mm  invalid {r['invalid']}")
     print("throughput, one core (frame pairs per second, marks reused):")
     for key, t in thr.items():
         line = "  ".join(f"{m} {r['pairs_per_s']:.0f}/s ({r['ms_per_pair']:.1f} ms, ×{t['ratio_to_floor'][m]:.1f})"

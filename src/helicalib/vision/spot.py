@@ -423,9 +423,10 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
         return SpotResult(False, "reprojection", f"the marks fit only to {marks.reprojection_px:.2f} px RMS "
                           f"(limit {limits.max_reprojection_px:.2f} px).", method, marks)
     grid = _grid_for(marks, target, before.shape, cells_per_m)
-    B = grid.sample(before, dtype=None)
+    dots = target.marks is not None and target.marks.kind == "dots"
+    B = _sample(grid, before, dots)
     fill = None
-    if target.marks is not None and target.marks.kind == "dots":
+    if dots:
         from helicalib.vision.dots import DotFill
 
         fill = DotFill(grid, B, target.marks)
@@ -433,7 +434,7 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
     frames: list[FrameSpot] = []
     for i, a in enumerate(afters):
         try:
-            frames.append(_frame_spot(B, grid.sample(a, dtype=None), grid, method, limits, fill))
+            frames.append(_frame_spot(B, _sample(grid, a, dots), grid, method, limits, fill))
         except _Invalid as bad:
             extra = dict(threshold=None, spot_area_px=None)
             if bad.partial is not None and bad.partial.area_cells:
@@ -464,3 +465,8 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
     msg = (f"spot centre at u = {mean[0]:+.3f} m, v = {mean[1]:+.3f} m from the board centre ({method}"
            + (f", {len(frames)} frames, jitter {jitter * 1000:.0f} mm RMS" if jitter is not None else "") + ").")
     return SpotResult(True, "ok", msg, **result, **base)
+
+
+def _sample(grid: BoardGrid, frame: np.ndarray, exact: bool) -> np.ndarray:
+    """The frame on the grid: uint8 (the interpolated values rounded) or, ``exact``, float32."""
+    return grid.sample(frame.astype(np.float32) if exact else frame, dtype=None)
