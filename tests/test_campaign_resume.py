@@ -93,25 +93,35 @@ def plant(tmp_path, demo_field_path):
             proc.kill()
 
 
-def _run(field: Path, *extra: str):
-    """``helicalib run`` in the background; its output goes to files (a full pipe would block it)."""
-    log = field.parent / f"run{len(list(field.parent.glob('run*.log')))}.log"
+def _background(command: str, field: Path, *extra: str):
+    """``helicalib COMMAND FIELD --heliostats IDS ...`` in the background; its output goes to a file
+    (a full pipe would block it)."""
+    log = field.parent / f"{command}{len(list(field.parent.glob(f'{command}*.log')))}.log"
     out = log.open("w")
-    proc = subprocess.Popen([sys.executable, "-m", "helicalib", "run", str(field), "--heliostats", IDS, "--days", "1",
-                             *extra], stdout=out, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "helicalib", command, str(field), "--heliostats", IDS, *extra],
+                            stdout=out, stderr=subprocess.STDOUT, text=True)
     proc.log = log
     return proc
+
+
+def _run(field: Path, *extra: str):
+    """``helicalib run`` for a plant day in the background."""
+    return _background("run", field, "--days", "1", *extra)
+
+
+def _kill_9_after(proc, db: Path, n: int) -> None:
+    """Kill ``proc`` with SIGKILL once the database holds ``n`` observations."""
+    try:
+        _wait_rows(db, n, proc)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
 
 
 def test_kill_9_and_resume_loses_nothing(plant):
     field, tmp = plant
     db = tmp / "campaign.db"
-    first = _run(field, "--arm")
-    try:
-        before = _wait_rows(db, 4, first)
-    finally:
-        first.send_signal(signal.SIGKILL)
-        first.wait(10)
+    _kill_9_after(_run(field, "--arm"), db, 4)
     before = _rows(db)  # everything committed up to the kill
     assert before
     con = sqlite3.connect(db)
@@ -344,3 +354,32 @@ def test_run_on_a_terminal_shows_the_campaign_moving(plant):
     for part in ("plant time", "ARMED", "accepted", "board", "events", "onto", "visit_end"):
         assert part in text, part
     assert "stopping:" in text and proc.returncode == 0
+
+
+def _operate(field: Path, *extra: str):
+    """``helicalib operate`` in the background (no end: it runs until stopped)."""
+    return _background("operate", field, "--keep-frames", "2", *extra)
+
+
+def test_operate_is_a_service_that_resumes_after_kill_9_and_stops_on_sigterm(plant):
+    field, tmp = plant
+    db = tmp / "campaign.db"
+    _kill_9_after(_operate(field, "--arm"), db, 3)
+    before = _rows(db)
+    second = _operate(field, "--arm")
+    try:
+        _wait_rows(db, len(before) + 2, second)
+        assert second.poll() is None, "operate ended by itself; it runs until stopped"
+    finally:
+        second.send_signal(signal.SIGTERM)  # systemd's stop: a clean one
+        code = second.wait(60)
+    assert code == 0, second.log.read_text()
+    after = _rows(db)
+    assert after[: len(before)] == before  # nothing recorded before the kill was lost
+    # one campaign, resumed by the second process, left 'stopped' (not running) by the clean stop
+    assert _campaigns(db) == [(1, "live", "stopped")]
+    log = second.log.read_text().splitlines()
+    # a service's log: one line per event, the opening line says it resumed, the end says why it stopped
+    assert any("campaign 1 (armed, resumed" in line for line in log), log[:5]
+    assert any(" visit " in f" {line} " or "onto" in line for line in log)
+    assert any("Ctrl-C or SIGTERM" in line for line in log), log[-5:]

@@ -116,10 +116,12 @@ class OperatorDesk:
             b = runner.book.h[hid]
             b.points[:] = [p for p in b.points if p.capture_time_s > t]
             b.fit, b.last_first_error_mrad = None, None
+            if any(d["heliostat_id"] == hid and d["since_s"] < t for d in runner.drifts):
+                runner._prior.pop(hid, None)  # repaired after its drift: the nominal again
             runner.models[hid] = runner.nominal_of(hid)
             if b.points:
-                runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid])
-                b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
+                runner.models[hid], b.fit = policy.refit(runner.fit_prior(hid), b.points, runner.models[hid])
+                b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.fit_prior(hid), now,
                                            runner.models[hid])
             else:
                 b.verdict = None
@@ -186,6 +188,8 @@ class OperatorDesk:
         b.points.clear()
         b.fit = b.verdict = b.last_first_error_mrad = None
         b.cooldown_until_s = 0.0
+        runner._prior.pop(hid, None)  # a repaired heliostat starts from the nominal again, drift or not
+        runner._suspects.pop(hid, None)
         runner.models[hid] = runner.nominal_of(hid)
         runner.store.record_verdict(campaign_id=runner.campaign_id, heliostat_id=hid, time_s=now, accepted=False,
                                     n_points=0, rms_mrad=None, reasons=[f"repaired: model reset by {who}"],

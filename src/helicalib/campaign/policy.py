@@ -48,6 +48,7 @@ class HeliostatBook:
     measured_cleanliness: float | None = None      # newest cleanliness measured from a spot
     measured_at_s: float = -math.inf
     fit: object | None = None                       # newest FitResult over ``points``; None before one
+    last_visit_s: float = -math.inf                 # start of its newest visit (operation: time since a check)
 
     def __setattr__(self, name: str, value) -> None:
         object.__setattr__(self, name, value)
@@ -83,6 +84,7 @@ class Book:
 
     def visiting(self, hid: str, now_s: float) -> None:
         self.h[hid].visits += 1
+        self.h[hid].last_visit_s = now_s
         self.cursor[self.cfg.heliostat(hid).target] = hid
         self.cursor[FIELD_CURSOR] = hid
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from helicalib.campaign import gating as gating_mod
+from helicalib.campaign import operation as op_rules
 from helicalib.campaign import policy
 from helicalib.campaign.controller import (
     APPROACH_LEAD_S,
@@ -55,6 +56,10 @@ RETURN_RETRY_S = 30.0
 """Plant seconds before the first new attempt to bring back to tracking a heliostat the plant has
 not confirmed; the wait doubles with each attempt, up to :data:`RETURN_RETRY_MAX_S`."""
 RETURN_RETRY_MAX_S = 600.0
+STEADY_TICK_S = 300.0
+"""Plant seconds between planner ticks in operation while every heliostat is accepted (checks only)."""
+SPREAD_KEEP_S = 600.0
+"""Operation: a model's predicted error at the present sun is reused for this long [plant s]."""
 
 
 @dataclass
@@ -114,10 +119,16 @@ class CampaignRunner:
         model is most uncertain at the present sun, accepted ones included (asked for; default off).
     armed : bool
         False: read the plant and plan, but write nothing (each decision is recorded as an event).
+    operation : str or None
+        Year-round operation (:mod:`.operation`): board time no acceptance gap needs goes to checks
+        of accepted heliostats, ``"ranked"`` by the expected reduction of the year-round error or on
+        a fixed ``"rota"`` (every ``rota_days``); a check outside its fit's band is drift, confirmed
+        drift reopens the calibration. None (default): a campaign, no checks.
     """
 
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
-                 recheck=False, model=None, armed=True, refine=False, listeners=()):
+                 recheck=False, model=None, armed=True, refine=False, listeners=(), operation=None,
+                 rota_days=14.0):
         self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
         # the measurement seam: each board's spot sensor (a camera is wrapped in the camera + vision sensor)
         wrapped = camera_sensors(cfg, {t: c for t, c in cameras.items() if not isinstance(c, SpotSensor)})
@@ -164,6 +175,22 @@ class CampaignRunner:
         self._last_gate = None
         self._clock_ok = True
         self.operator = None  # operator actions: a campaign.operator.OperatorDesk (armed live runs: console.server)
+        if operation is not None and operation not in op_rules.OPERATION_MODES:
+            raise ValueError(f"operation {operation!r}: choose one of {', '.join(op_rules.OPERATION_MODES)}")
+        self.operation = operation if planner == "gaps" else None
+        self.rota_days = float(rota_days)
+        self._suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
+        self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
+        self._prior: dict[str, HeliostatModel] = {}  # after a confirmed drift: the fit's prior centre
+        self._visit_model: dict[str, HeliostatModel] = {}  # the model each visit under way started with
+        self.drifts: list[dict] = []  # confirmed drifts (this process and, from the store, earlier ones)
+        self.checks = 0  # operation checks started
+        self.retention: tuple[int, bool] | None = None
+        """(keep_last, keep_invalid): every night the frames of all but each heliostat's newest
+        ``keep_last`` observations (and, with keep_invalid, the rejected ones) are deleted
+        (:func:`helicalib.store.retention.retain_frames`); None keeps every frame."""
+        self._retained_day: int | None = None
+        self._spread_cache: dict[str, tuple] = {}  # hid -> (plant time, fit, spread) for operation checks
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
@@ -176,19 +203,23 @@ class CampaignRunner:
         the plant reports stowed stays stowed until the wind allows a resume.
         """
         now = self.clock.now_s()
+        epochs = self._drifts_from_store()
         for hid in self.ids:
             for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid):
-                self.book.add(obs)
+                if obs.capture_time_s >= epochs.get(hid, -math.inf):
+                    self.book.add(obs)
             visits = self.store.visits(campaign_id=self.campaign_id, heliostat_id=hid)
             self.book.h[hid].visits = len(visits)
+            if visits:
+                self.book.h[hid].last_visit_s = max(v.started_s for v in visits)
             fit = self.store.latest_fit(hid, campaign_id=self.campaign_id) or self.store.latest_fit(hid)
             if fit is not None:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
             if self.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
-                _model, self.book.h[hid].fit = policy.refit(self.nominal_of(hid), self.book.points(hid),
+                _model, self.book.h[hid].fit = policy.refit(self.fit_prior(hid), self.book.points(hid),
                                                             self.models[hid])
             if visits:
-                self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
+                self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.fit_prior(hid), now,
                                                           self.models[hid]))
         # stowed by THIS campaign for wind (its newest stow/resume event is a stow): stay stowed until
         # the wind allows; a plant stowed by its own logic (night, its own wind protection) is left alone
@@ -207,6 +238,27 @@ class CampaignRunner:
                     self.returning[hid] = Returning(since_s=now, next_check_s=now, failed=True)
                 else:
                     self._send_back(hid, None, now, why="left off tracking by the previous run")
+
+    def _drifts_from_store(self) -> dict[str, float]:
+        """Confirmed drifts of this campaign (its ``drift`` events): each heliostat's points before its
+        newest one are left out, and its fit is centred on the model from before it. Returns the
+        epochs (plant time from which points count) by heliostat."""
+        epochs: dict[str, float] = {}
+        for e in self.store.events(campaign_id=self.campaign_id, kind="drift"):
+            hid = e.heliostat_id
+            if hid not in self._index or "since_s" not in e.data:
+                continue
+            epochs[hid] = float(e.data["since_s"])
+            prior = e.data.get("prior_params")
+            if prior is not None:
+                self._prior[hid] = self.nominal_of(hid).with_params(np.asarray(prior, dtype=float)[None, :])
+            self.drifts.append(dict(e.data, heliostat_id=hid, confirmed_s=e.time_s))
+        return epochs
+
+    def fit_prior(self, hid: str) -> HeliostatModel:
+        """The centre of the priors of ``hid``'s fits: the nominal heliostat, or after a confirmed
+        drift the model from before it (:mod:`.operation`)."""
+        return self._prior.get(hid) or self.nominal_of(hid)
 
     # ------------------------------------------------------------------ events
     def safe_now(self) -> tuple[float, str]:
@@ -336,6 +388,8 @@ class CampaignRunner:
             self._poll_weather(now)
         if now - self.last_refresh_s >= policy.TRACKING_REFRESH_S:
             self._refresh_tracking(now)
+        if self.retention is not None:
+            self._nightly_retention(now)
         if self.returning and self.armed:
             self._check_returns(now)
         due = [tid for tid, (wake, *_rest) in self.active.items() if wake <= now]
@@ -356,11 +410,42 @@ class CampaignRunner:
         if [t for t in self.cfg.targets if t.id not in self.active] and not self.stowed:
             if gate is not None and not gate.open and gate.night:
                 wakes.append(max(now + PLANNER_TICK_S, gate.next_open_s))
+            elif self._steady():  # operation with every heliostat accepted: the next check can wait minutes
+                wakes.append(now + STEADY_TICK_S)
             else:
                 wakes.append(now + PLANNER_TICK_S)
         nxt = min(wakes)
         self._account(now, nxt, gate)
         return max(nxt, now + 1e-3)
+
+    def _nightly_retention(self, now: float) -> None:
+        """Once a solar day, at night (sun below the low band) with no visit under way, prune the frames."""
+        day = int((now + self.cfg.site.longitude_deg / 15.0 * 3600.0) // 86400.0)
+        if self._retained_day is None:
+            self._retained_day = day - 1  # a service started at night prunes that night
+        if day == self._retained_day or self.active or self.sun(now)[2] >= self.cfg.acceptance.low_band_deg[0]:
+            return
+        from helicalib.store.retention import retain_frames
+
+        self._retained_day = day
+        keep, keep_invalid = self.retention
+        try:
+            r = retain_frames(self.store, keep, keep_invalid=keep_invalid)
+        except HelicalibError as err:
+            self.event("fault", f"frame retention: {err}", time_s=now)
+            return
+        if r.files:
+            self.event("note", f"frame retention: {r.files} frame file(s) of {r.observations} observation(s) deleted "
+                               f"({r.bytes / 1e6:.1f} MB; frames of the newest {keep} per heliostat"
+                               + (" and of every rejected one" if keep_invalid else "") + f" kept, {r.kept_files} files)",
+                       time_s=now, data=r.as_dict())
+
+    def _steady(self) -> bool:
+        """Operation with nothing but checks to plan: every heliostat accepted, none suspected of drift,
+        no crew request waiting."""
+        if self.operation is None or self._suspects or (self.operator is not None and self.operator.queue):
+            return False
+        return bool(np.all(self.book.table.accepted))
 
     def _account(self, now: float, nxt: float, gate) -> None:
         dt = max(0.0, nxt - now)
@@ -436,12 +521,19 @@ class CampaignRunner:
         usable = lambda hid: self._reaches(hid, target_id, now)  # noqa: E731
         # operator actions (campaign/operator.py): a queued re-check goes before the planner's choice
         choice = self.operator.next_for(self, target_id, now) if self.operator is not None else None
+        check = False
+        if choice is None and self.operation is not None:  # a suspected drift is checked again first
+            choice = self._suspect_for(target_id, now, busy)
+            check = choice is not None
         if choice is None and self.planner_kind == "gaps":
             # a board is lent only to heliostats whose own board is busy (a free own board takes them)
             choice = policy.choose_next_vectorised(
                 self.cfg, self.book, target_id, now, lambda rows: self._cleanliness_of_rows(rows, now),
                 recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
                 active_targets=list(self.active), usable=usable)
+            if choice is None and self.operation is not None:
+                choice = self._check_for(target_id, now, busy)
+                check = choice is not None
         elif choice is None:
             guests = {h: r for h, r in self._guests.get(target_id, {}).items()
                       if self.cfg.heliostat(h).target in self.active}
@@ -469,14 +561,80 @@ class CampaignRunner:
             time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
         self.book.visiting(hid, now)
+        self._visit_model[hid] = self.models[hid]
+        self.checks += int(check)
         self.returning.pop(hid, None)  # the visit commands it now; it ends with its own return
         self._boards[target_id] = BoardState(target_id, hid, None, None, now)
         gen = run_visit(ctx)
         self.active[target_id] = (now, hid, gen, ctx)
         self.stats.visits += 1
-        self.event("visit", f"{hid} onto {target_id}" + ("" if self.cfg.heliostat(hid).target == target_id
-                                                         else f" (lent; its own board {self.cfg.heliostat(hid).target} is busy)"),
-                   hid, target_id, time_s=now)
+        why = "" if self.cfg.heliostat(hid).target == target_id else \
+            f" (lent; its own board {self.cfg.heliostat(hid).target} is busy)"
+        if check:
+            why += " (check: suspected drift)" if hid in self._suspects else " (check)"
+        self.event("visit", f"{hid} onto {target_id}{why}", hid, target_id, time_s=now,
+                   data={"check": True} if check else None)
+
+    def _eligible(self, hids, now: float, busy) -> list[str]:
+        """Of ``hids``: accepted, not in a visit, off cool-down, mirror clean enough, stroke range reaching
+        the board (the heliostats an operation check may take)."""
+        out = []
+        for hid in hids:
+            b = self.book.h[hid]
+            if hid in busy or b.cooldown_until_s > now or not self.book.accepted(hid):
+                continue
+            c = self._cleanliness(hid, now)
+            if c is None or not math.isfinite(float(c)):
+                c = b.measured_cleanliness
+            if c is not None and math.isfinite(float(c)) and c <= self.cfg.gating.cleanliness_min:
+                continue
+            out.append(hid)
+        return out
+
+    def _suspect_for(self, target_id: str, now: float, busy) -> str | None:
+        """A heliostat of this board suspected of drift, off cool-down: checked again before anything else."""
+        for hid in self._home[target_id]:
+            if hid in self._suspects and hid not in busy and self.book.h[hid].cooldown_until_s <= now \
+                    and self._reaches(hid, target_id, now):
+                return hid
+        return None
+
+    def _spreads(self, hids: list[str], now: float) -> dict[str, float]:
+        """Each model's predicted beam error at the present sun [mrad], kept for
+        :data:`SPREAD_KEEP_S` of plant time (the sun moves about 2.5° in 10 min) or until a refit."""
+        out, todo = {}, []
+        for h in hids:
+            kept = self._spread_cache.get(h)
+            if kept is not None and now - kept[0] < SPREAD_KEEP_S and kept[1] is self.book.h[h].fit:
+                out[h] = kept[2]
+            else:
+                todo.append(h)
+        if todo:
+            fresh = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows, todo,
+                                         self.sun(now)[0], now)
+            for h in todo:
+                out[h] = fresh.get(h, math.nan)
+                self._spread_cache[h] = (now, self.book.h[h].fit, out[h])
+        return out
+
+    def _check_for(self, target_id: str, now: float, busy) -> str | None:
+        """The accepted heliostat of this board most worth a check now (:func:`.operation.choose_check`)."""
+        # only heliostats a check may take at all (unchecked long enough) are weighed: cheap tests first
+        wait = self.rota_days * 86400.0 if self.operation == "rota" else op_rules.MIN_CHECK_INTERVAL_S
+        cands = [h for h in self._home[target_id] if now - self.book.h[h].last_visit_s >= wait]
+        cands = self._eligible(cands, now, busy)
+        if not cands:
+            return None
+        last = [self.book.h[h].last_visit_s for h in cands]
+        spreads = self._spreads(cands, now) if self.operation == "ranked" else {}
+        for _try in range(3):  # a heliostat whose strokes do not reach the board now is passed over
+            hid = op_rules.choose_check(cands, [spreads.get(h, np.nan) for h in cands], last, now,
+                                        mode=self.operation, rota_days=self.rota_days)
+            if hid is None or self._reaches(hid, target_id, now):
+                return hid
+            k = cands.index(hid)
+            del cands[k], last[k]
+        return None
 
     def _reaches(self, hid: str, target_id: str, now: float) -> bool:
         """Whether ``hid``'s model puts both the standby point and the centre of ``target_id``
@@ -562,7 +720,11 @@ class CampaignRunner:
                              final_error_mrad=out.final_error_mrad)
         self.book.visited(hid, now, out)
         was = self.book.accepted(hid)
-        verdict = policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now, self.models[hid])
+        started_with = self._visit_model.pop(hid, None)
+        if self.operation is not None and (was or hid in self._suspects) and first is not None \
+                and started_with is not None:
+            self._drift_test(hid, ctx, first, started_with, now)
+        verdict = policy.verdict(self.cfg, self.book, hid, self.fit_prior(hid), now, self.models[hid])
         self.store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
                                   accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
                                   reasons=list(verdict.reasons),
@@ -575,11 +737,68 @@ class CampaignRunner:
         self.event("visit_end", f"{hid} off {target_id}: {out.status} ({out.reason}){errs}", hid, target_id,
                    time_s=now, data={"outcome": out.status, "iterations": out.iterations,
                                      "first_error_mrad": out.first_error_mrad, "final_error_mrad": out.final_error_mrad})
+        if verdict.accepted and not was:
+            for d in self.drifts:
+                if d["heliostat_id"] == hid and d.get("fixed_s") is None:
+                    d["fixed_s"] = now
         if verdict.accepted != was:
             rms = "" if verdict.rms_mrad is None else f", acceptance error {verdict.rms_mrad:.2f} mrad"
             text = "accepted" if verdict.accepted else f"no longer accepted: {(verdict.reasons or ('',))[0]}"
             self.event("verdict", f"{hid} {text} ({verdict.n_points} points{rms})", hid, time_s=now,
                        data={"accepted": verdict.accepted, "n_points": verdict.n_points, "rms_mrad": verdict.rms_mrad})
+
+    def _drift_test(self, hid: str, ctx, first, started_with: HeliostatModel, now: float) -> None:
+        """A check of an accepted heliostat: its first placement against the fit the visit started
+        with (:func:`.drift.drift_evidence`); :data:`.operation.CONFIRM_CHECKS` in a row outside the
+        band confirm a drift and reopen the calibration (:mod:`.operation`)."""
+        from helicalib.campaign.drift import drift_evidence
+
+        suspect = self._suspects.get(hid)
+        if suspect:  # tested against the fit from before the first suspicious check, not one it entered
+            started_with, since = self._suspect_ref[hid]
+            before = [p for p in self.book.points(hid) if p.capture_time_s < since]
+            evidence = drift_evidence(self.fit_prior(hid), started_with, before, first,
+                                      alpha=op_rules.CONFIRM_ALPHA)
+        else:
+            before = [p for p in self.book.points(hid) if p.visit_id != ctx.visit_id]
+            evidence = drift_evidence(self.fit_prior(hid), started_with, before, first)
+        if evidence is None:
+            return
+        if not evidence["drift"]:
+            if self._suspects.pop(hid, None):
+                self._suspect_ref.pop(hid, None)
+                self.event("note", f"{hid}: check inside its band again ({evidence['residual_mrad']:.2f} mrad, "
+                                   f"band {evidence['band_mrad']:.2f}, p {evidence['p_value']:.2g}); "
+                                   "drift not confirmed", hid, data={"drift": evidence}, time_s=now)
+            return
+        flagged = self._suspects.setdefault(hid, [])
+        if not flagged:
+            self._suspect_ref[hid] = (started_with, first.capture_time_s)
+        flagged.append(first.capture_time_s)
+        text = (f"{hid}: check {evidence['residual_mrad']:.2f} mrad off its model, band {evidence['band_mrad']:.2f} "
+                f"mrad, p {evidence['p_value']:.2g}")
+        if len(flagged) < op_rules.CONFIRM_CHECKS:
+            self.event("note", text + "; suspected drift, checking again", hid, data={"drift": evidence}, time_s=now)
+            return
+        # confirmed: the points from the first suspicious check on count; the fit centres on the model before
+        since = flagged[0]
+        del self._suspects[hid]
+        started_with = self._suspect_ref.pop(hid)[0]
+        earlier = [p for p in self.book.points(hid) if p.capture_time_s < since]
+        prior_model, _fit = policy.refit(self.fit_prior(hid), earlier, started_with) if earlier else (started_with, None)
+        b = self.book.h[hid]
+        b.points = [p for p in b.points if p.capture_time_s >= since]
+        self._prior[hid] = prior_model
+        self.models[hid], fit = policy.refit(prior_model, b.points, prior_model)
+        b.fit = fit
+        record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
+                  "points_dropped": len(earlier), "points_kept": len(b.points),
+                  "prior_params": [float(x) for x in np.asarray(prior_model.params)[0]]}
+        self.drifts.append(dict(record, heliostat_id=hid))
+        self.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
+                   f"({len(earlier)} earlier points left out, {len(b.points)} kept)", hid, data=record, time_s=now)
+        if fit is not None:
+            self.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now, **policy.fit_record(fit))
 
     def _after_leaving(self, hid: str, left: Left | None, now: float) -> None:
         """What a heliostat's leaving the board did, recorded after the fact: the corrections the
@@ -664,7 +883,7 @@ class CampaignRunner:
         self.book.add(obs)
         if self.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
             return self.models[hid]
-        model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid])
+        model, fit = policy.refit(self.fit_prior(hid), self.book.points(hid), self.models[hid])
         self.models[hid] = model
         if fit is not None:
             self.book.h[hid].fit = fit

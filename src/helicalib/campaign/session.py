@@ -117,15 +117,17 @@ def live_session(args, mode: str) -> int:
     ids = [s.strip() for s in args.heliostats.split(",") if s.strip()] if args.heliostats else None
     for hid in ids or ():
         cfg.heliostat(hid)
-    days = args.days if args.days is not None else 7.0
-    if not (math.isfinite(days) and days > 0):
+    operation = getattr(args, "operation", None)  # helicalib operate: the long-running service
+    days = args.days if args.days is not None else (math.inf if operation else 7.0)
+    if not (days > 0 and (math.isfinite(days) or (operation and args.days is None))):
         raise ConfigError(f"--days {args.days}: must be a finite number > 0")
+    command = "operate" if operation else ("run" if mode == "live" else "check")
     tz = site_timezone(cfg)
     as_json = bool(getattr(args, "json", False))
     console = Console(stderr=True)
     output = make_output("json" if as_json else ("terminal" if console.is_terminal else "lines"), tz,
-                         f"helicalib {'run' if mode == 'live' else 'check'} · {cfg.site.name}")
-    store = Store.open(cfg.database_path, cfg.images_path, owner=f"{'run' if mode == 'live' else 'check'} {cfg.source}")
+                         f"helicalib {command} · {cfg.site.name}")
+    store = Store.open(cfg.database_path, cfg.images_path, owner=f"{command} {cfg.source}")
     plant = None
     try:
         plant = ModbusPlant.from_config(cfg, armed=args.arm)
@@ -151,7 +153,10 @@ def live_session(args, mode: str) -> int:
         runner = CampaignRunner(cfg, plant, cameras, clock, store, opened.campaign_id,
                                 heliostat_ids=opened.heliostat_ids, planner=args.planner, recheck=args.recheck,
                                 armed=args.arm, refine=getattr(args, "refine", False),
-                                listeners=[output.on_event])  # a restart's own events are shown too
+                                listeners=[output.on_event],  # a restart's own events are shown too
+                                operation=operation, rota_days=getattr(args, "rota_days", 14.0))
+        if operation and getattr(args, "keep_frames", None) is not None:
+            runner.retention = (int(args.keep_frames), True)  # every night: frames of the newest N and the rejected
         output = attach_console(args, runner, output)  # operator actions; the crew console with --console
         orphans = store.remove_orphan_frames(opened.campaign_id)
         if orphans:
@@ -183,6 +188,10 @@ def _summary(store, cfg, runner, opened: Opened, result, mode: str) -> dict:
            "observations": store.count_observations(opened.campaign_id),
            "valid_observations": store.count_observations(opened.campaign_id, valid=True),
            "off_tracking": list(result.off_tracking), "database": str(cfg.database_path)}
+    if runner.operation is not None:
+        out.update(operation=runner.operation, checks_this_run=runner.checks,
+                   drifts=[{k: d.get(k) for k in ("heliostat_id", "since_s", "confirmed_s", "fixed_s", "evidence")}
+                           for d in runner.drifts])
     if mode == "check":
         out["rechecks"] = recheck_rows(cfg, runner)
     return out
@@ -245,6 +254,10 @@ def _print_summary(s: dict, mode: str) -> None:
                       f"{r['verdict']}{model}")
     print(f"campaign {s['campaign']} {s['status']} ({s['ended_because']}): {s['accepted']}/{s['heliostats']} accepted, "
           f"{s['visits_this_run']} visits this run, {s['observations']} observations in {s['database']}")
+    if "operation" in s:
+        drifts = s["drifts"]
+        print(f"operation ({s['operation']}): {s['checks_this_run']} checks this run; "
+              + (f"drift confirmed on {', '.join(d['heliostat_id'] for d in drifts)}" if drifts else "no drift confirmed"))
     if s["off_tracking"]:
         print(f"WARNING: not confirmed back to tracking: {', '.join(s['off_tracking'])} (the next run retries them "
               "first)", file=sys.stderr)

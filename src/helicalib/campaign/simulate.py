@@ -8,6 +8,7 @@ the simulator's truth.
 
 from __future__ import annotations
 
+import math
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -43,9 +44,16 @@ simulator's true spot plus the fitted measurement-error model, no frames (:mod:`
 
 def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=None, start_s: float | None = None,
                       over_network: bool = False, planner: str = "gaps", heliostat_ids=None, progress=None,
-                      rate: float = 3000.0, refine: bool = False, fidelity: str = "render") -> SimulationResult:
-    """Run a simulated campaign; returns its summary (see :func:`summarise`). ``refine``: see
-    :class:`~helicalib.campaign.runner.CampaignRunner`; ``fidelity``: :data:`FIDELITIES`."""
+                      rate: float = 3000.0, refine: bool = False, fidelity: str = "render", operation: str | None = None,
+                      rota_days: float = 14.0, monthly_tracking: bool | None = None,
+                      keep_frames: int | None = None) -> SimulationResult:
+    """Run a simulated campaign; returns its summary (see :func:`summarise`). ``refine``, ``operation``
+    (``"ranked"`` or ``"rota"``: the campaign then year-round operation) and ``rota_days``: see
+    :class:`~helicalib.campaign.runner.CampaignRunner`; ``fidelity``: :data:`FIDELITIES`;
+    ``monthly_tracking`` (default: with ``operation`` or 30 days and more): the plant's true tracking
+    sampled every plant day, reported per 30 days (``monthly_plant_tracking_rms_mrad``); ``keep_frames``:
+    every night delete the frames of all but each heliostat's newest N observations and the rejected
+    ones (as ``helicalib operate``; default keep all)."""
     from helicalib.errors import ConfigError
     from helicalib.sim.scenario import Scenario
 
@@ -64,12 +72,16 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
     # writes batched (a killed simulation loses at most its last batch; it resumes from what was committed)
     store = Store.open(db_path, "images", durable=False, owner=f"simulate {cfg.source or ''}", batched=True)
     with store:  # closed (its last batch committed) however the run ends
+        if monthly_tracking is None:
+            monthly_tracking = operation is not None or days >= MONTH_DAYS
         return _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_network, planner,
-                         heliostat_ids, progress, rate, refine, fidelity)
+                         heliostat_ids, progress, rate, refine, fidelity, operation, rota_days, monthly_tracking,
+                         keep_frames)
 
 
 def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_network, planner, heliostat_ids,
-              progress, rate, refine, fidelity) -> SimulationResult:
+              progress, rate, refine, fidelity, operation=None, rota_days=14.0,
+              monthly_tracking=False, keep_frames=None) -> SimulationResult:
     from helicalib.sim.clock import VirtualClock
     from helicalib.sim.plant import SimulatedPlant
 
@@ -103,22 +115,134 @@ def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_
                 heliostats=[(hid, cfg.heliostat_index(hid), cfg.heliostat(hid).target) for hid in ids],
                 config_path=str(cfg.source or ""),
                 settings={"days": days, "seed": seed, "planner": planner, "refine": refine,
-                          "over_network": over_network, "scenario": scenario.name, "fidelity": fidelity})
+                          "over_network": over_network, "scenario": scenario.name, "fidelity": fidelity,
+                          "operation": operation, "rota_days": rota_days if operation == "rota" else None})
         elif clock.now_s() < store_resume_time(store, campaign_id, start_s):
             clock.sleep(store_resume_time(store, campaign_id, start_s) - clock.now_s())
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=heliostat_ids,
-                                planner=planner, refine=refine)
+                                planner=planner, refine=refine, operation=operation, rota_days=rota_days)
+        if keep_frames is not None:
+            runner.retention = (int(keep_frames), True)
         store.remove_orphan_frames(campaign_id)  # after the runner closed the interrupted visits
         wall0 = time.perf_counter()
-        runner.run_until(end_s, progress=progress)
+        monthly = MonthlyTracking(cfg, sim, runner, start_s) if monthly_tracking else None
+        if monthly is None:
+            runner.run_until(end_s, progress=progress)
+        else:  # a plant day at a time, the plant's true tracking sampled after each with the models of the day
+            while clock.now_s() < end_s:
+                day0 = clock.now_s()
+                runner.run_until(min(end_s, day0 + 86400.0), progress=progress)
+                monthly.sample(day0, clock.now_s())
         wall = time.perf_counter() - wall0
         store.finish_campaign(campaign_id, clock.now_s())
         summary = summarise(cfg, runner, sim, start_s, end_s)
+        if monthly is not None:
+            summary["monthly_plant_tracking_rms_mrad"] = monthly.rms_by_month()
+        if operation is not None:
+            summary.update(operation_summary(cfg, runner, sim, store, campaign_id, start_s, end_s))
         summary["wall_s"] = round(wall, 1)
         summary["fidelity"] = fidelity
         summary["database"] = str(db_path)
         store.export_observations_csv(out_dir / "observations.csv", campaign_id=campaign_id)
     return SimulationResult(summary=summary, database=db_path, runner=runner)
+
+
+MONTH_DAYS = 30.0
+"""A month of the monthly figures [plant days]."""
+MONTHLY_STEP_S = 1800.0
+"""Sampling step of the plant's true tracking for the monthly figures [s] (sun above the low band)."""
+
+
+class MonthlyTracking:
+    """The plant's true tracking of the receiver (:func:`plant_tracking_errors`), sampled each plant
+    day with the runner's models at the day's end, and its RMS per :data:`MONTH_DAYS` from the start."""
+
+    def __init__(self, cfg, sim, runner: CampaignRunner, start_s: float):
+        self.cfg, self.sim, self.runner, self.start_s = cfg, sim, runner, start_s
+        self.rows = [cfg.heliostat_index(h) for h in runner.ids]
+        self.sq: dict[int, list[float]] = {}  # month -> [sum of squares, count]
+
+    def sample(self, t0_s: float, t1_s: float) -> None:
+        if t1_s <= t0_s:
+            return
+        params = np.zeros((len(self.cfg.heliostats), self.runner.nominal.params.shape[1]))
+        params[self.rows] = self.runner.calibrated_model().params
+        errs = plant_tracking_errors(self.cfg, self.sim.truth, params, self.rows, t0_s, t1_s, self.runner.sun_table,
+                                     step_s=MONTHLY_STEP_S)
+        errs = errs[np.isfinite(errs)]
+        month = int((t0_s - self.start_s) // (MONTH_DAYS * 86400.0))
+        acc = self.sq.setdefault(month, [0.0, 0])
+        acc[0] += float(np.sum(errs**2))
+        acc[1] += int(errs.size)
+
+    def rms_by_month(self) -> list[float | None]:
+        if not self.sq:
+            return []
+        return [round(float(np.sqrt(self.sq[m][0] / self.sq[m][1])), 3) if m in self.sq and self.sq[m][1] else None
+                for m in range(max(self.sq) + 1)]
+
+
+def operation_summary(cfg, runner: CampaignRunner, sim, store: Store, campaign_id: int, start_s: float,
+                      end_s: float) -> dict:
+    """Year-round operation's figures against the simulator's truth.
+
+    * ``drift_detected``: heliostats of the campaign with an injected drift (truth) whose drift was
+      confirmed after it began; ``drift_false_alarms``: confirmations without one (or before it);
+    * ``drift_median_days_to_fix``: median over the drifted heliostats of the days from the drift's
+      start to their acceptance after the confirmation (the verdict of record, whose limit is 1.2 mrad);
+      one not yet accepted again counts as never (None when half of them are not);
+    * ``board_time_share_after_commissioning``: the boards' time in visits after commissioning (the
+      first time 95 % of the heliostats were accepted), over the boards' time with the sun above the
+      low band since then (None when never commissioned);
+    * ``checks``: operation checks started.
+    """
+    from helicalib.campaign import operation as op_rules
+
+    ids = set(runner.ids)
+    truth = {e.heliostat_id: e for e in sim.truth.drift_events if e.start_s < end_s and e.heliostat_id in ids}
+    detected, false_alarms, days = set(), 0, []
+    for d in runner.drifts:
+        e = truth.get(d["heliostat_id"])
+        if e is not None and d["confirmed_s"] >= e.start_s:
+            detected.add(d["heliostat_id"])
+        else:
+            false_alarms += 1
+    for hid, e in truth.items():
+        fixed = [d.get("fixed_s") for d in runner.drifts
+                 if d["heliostat_id"] == hid and d["confirmed_s"] >= e.start_s and d.get("fixed_s") is not None]
+        days.append(op_rules.days_to_fix(e.start_s, min(fixed) if fixed else None))
+    median = float(np.median(days)) if days else None
+    commissioned = commissioning_time(store, campaign_id, len(runner.ids))
+    share = None
+    if commissioned is not None and commissioned < end_s:
+        busy = sum(min(v.ended_s if v.ended_s is not None else end_s, end_s) - max(v.started_s, commissioned)
+                   for v in store.visits(campaign_id=campaign_id)
+                   if (v.ended_s if v.ended_s is not None else end_s) > commissioned)
+        open_s = _operating_hours(cfg, commissioned, end_s) * 3600.0 * len(cfg.targets)
+        share = round(busy / open_s, 4) if open_s > 0 else None
+    return {"drift_detected": len(detected), "drift_false_alarms": false_alarms,
+            "drift_median_days_to_fix": None if median is None or not math.isfinite(median) else round(median, 2),
+            "drift_days_to_fix": [None if not math.isfinite(x) else round(x, 2) for x in days],
+            "commissioned_day": None if commissioned is None else round((commissioned - start_s) / 86400.0, 3),
+            "board_time_share_after_commissioning": share, "checks": runner.checks}
+
+
+COMMISSIONED_SHARE = 0.95
+"""Share of the heliostats accepted at which commissioning counts as done (the operation figures)."""
+
+
+def commissioning_time(store: Store, campaign_id: int, n_heliostats: int) -> float | None:
+    """Plant time at which :data:`COMMISSIONED_SHARE` of the heliostats were first accepted at once."""
+    need = math.ceil(COMMISSIONED_SHARE * n_heliostats)
+    state: dict[str, bool] = {}
+    count = 0
+    for v in sorted(store.verdicts(campaign_id=campaign_id), key=lambda v: (v.time_s, v.id)):
+        was = state.get(v.heliostat_id, False)
+        state[v.heliostat_id] = bool(v.accepted)
+        count += int(bool(v.accepted)) - int(was)
+        if count >= need:
+            return float(v.time_s)
+    return None
 
 
 def store_resume_time(store: Store, campaign_id: int, start_s: float) -> float:
@@ -295,6 +419,14 @@ def _operating_hours(cfg, start_s: float, end_s: float) -> float:
 
 def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s: float, sun_table,
                          step_s: float = 300.0) -> dict:
+    """RMS and 95th percentile of :func:`plant_tracking_errors` [mrad]."""
+    flat = plant_tracking_errors(cfg, truth, params, rows, t0_s, t1_s, sun_table, step_s)
+    return {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
+            "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan")}
+
+
+def plant_tracking_errors(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s: float, sun_table,
+                          step_s: float = 300.0) -> np.ndarray:
     """True error of the PLANT's own tracking of the receiver over ``[t0_s, t1_s)`` (simulator truth).
 
     The plant tracks with its nominal model plus the corrections helicalib writes: for each
@@ -334,6 +466,4 @@ def plant_tracking_truth(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_s
                           jitter=False)
         want = optics.unit(aim - beam.origin_enu)
         errs.append(1000.0 * optics.angle_between_rad(beam.direction_enu, want)[rows])
-    flat = np.concatenate(errs) if errs else np.array([])
-    return {"rms_mrad": float(np.sqrt(np.mean(flat**2))) if flat.size else float("nan"),
-            "p95_mrad": float(np.percentile(flat, 95)) if flat.size else float("nan")}
+    return np.concatenate(errs) if errs else np.array([])

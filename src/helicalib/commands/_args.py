@@ -122,6 +122,26 @@ def iso_time(text: str) -> str:
     return text
 
 
+def add_live_target(p: argparse.ArgumentParser, days_help: str) -> None:
+    """The arguments every live command against the plant shares: the field, ``--arm``,
+    ``--heliostats`` and when to stop (``--until`` or ``--days``)."""
+    p.add_argument("field", help="field config YAML")
+    p.add_argument("--arm", action="store_true", help="allow writes to the plant (commands, strokes, corrections)")
+    p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--until", type=iso_time, default=None, help="stop at this plant time (ISO 8601 with offset)")
+    g.add_argument("--days", type=positive_float, default=None, help=days_help)
+
+
+def add_live_session(p: argparse.ArgumentParser) -> None:
+    """``--new-campaign``, ``--json`` and the console's arguments of the live commands (``run``, ``operate``)."""
+    p.add_argument("--new-campaign", action="store_true",
+                   help="start a new campaign instead of resuming the field's (its points stay in the database)")
+    p.add_argument("--json", action="store_true",
+                   help="JSON lines on stdout: one per event, a status line every 5 s, a final summary")
+    add_console(p)
+
+
 def add_console(p: argparse.ArgumentParser) -> None:
     """``--console [HOST:]PORT`` and ``--console-public`` (the crew console, docs/console.md)."""
     p.add_argument("--console", metavar="[HOST:]PORT", default=None,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import add_console, iso_time, positive_float
+from helicalib.commands._args import add_live_session, add_live_target
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -15,21 +15,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "Without --arm it reads and plans but writes nothing to the plant (a dry run, kept "
                                    "as a campaign of its own). It resumes the field's campaign (finished or not) "
                                    "unless --new-campaign. See docs/running.md.")
-    p.add_argument("field", help="field config YAML")
-    p.add_argument("--arm", action="store_true", help="allow writes to the plant (commands, strokes, corrections)")
-    p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--until", type=iso_time, default=None, help="stop at this plant time (ISO 8601 with offset)")
-    g.add_argument("--days", type=positive_float, default=None, help="stop after this many plant days (default 7)")
+    add_live_target(p, "stop after this many plant days (default 7)")
     p.add_argument("--planner", choices=("gaps", "round-robin"), default="gaps", help="who goes next (default gaps)")
     p.add_argument("--refine", action="store_true",
                    help="gaps planner: spend target time no acceptance gap needs on the heliostats whose model is "
                         "most uncertain at the present sun, accepted ones included (better year-round accuracy)")
-    p.add_argument("--new-campaign", action="store_true",
-                   help="start a new campaign instead of resuming the field's (its points stay in the database)")
-    p.add_argument("--json", action="store_true",
-                   help="JSON lines on stdout: one per event, a status line every 5 s, a final summary")
-    add_console(p)
+    add_live_session(p)
     p.set_defaults(func=run, recheck=False)
 
 

@@ -35,6 +35,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="this share of the heliostats drifts once during the run (a pedestal settling, an "
                         "actuator swapped or a slow creep, at a random time after the first day; the scenario's "
                         "drift section otherwise; docs/simulator.md)")
+    p.add_argument("--operate", nargs="?", const="ranked", choices=("ranked", "rota"), default=None,
+                   help="after (or during) the campaign, year-round operation for the rest of --days: checks of "
+                        "accepted heliostats ranked by the expected reduction of the year-round error (default), or "
+                        "'rota' (every heliostat every --rota-days, the baseline); drift confirmed by checks reopens "
+                        "the calibration (docs/operation.md)")
+    p.add_argument("--rota-days", type=positive_float, default=14.0,
+                   help="--operate rota: days between checks of each heliostat (default 14)")
+    p.add_argument("--keep-frames", type=nonnegative_int, default=None, metavar="N",
+                   help="every night delete the frames of all but each heliostat's newest N observations and of the "
+                        "rejected ones, as helicalib operate does (default: keep every frame)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--report", action="store_true", help="also write the HTML report into OUT/report")
     p.set_defaults(func=run)
@@ -73,7 +83,8 @@ def run(args) -> int:
 
         result = simulate_campaign(cfg, out, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
                                    over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
-                                   progress=progress, rate=args.rate, refine=args.refine, fidelity=args.fidelity)
+                                   progress=progress, rate=args.rate, refine=args.refine, fidelity=args.fidelity,
+                                   operation=args.operate, rota_days=args.rota_days, keep_frames=args.keep_frames)
     (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
     if args.report:
         from helicalib.report.build import build_report
@@ -91,6 +102,13 @@ def run(args) -> int:
               f"{s['true_sky_rms_mrad']} mrad RMS over a year of sun, the plant's tracking {s['true_tracking_rms_mrad']} "
               f"mrad (uncorrected {s['true_tracking_uncorrected_rms_mrad']}); gated {s['gated_hours']} h, "
               f"stowed {s['stowed_hours']} h")
+        if s.get("monthly_plant_tracking_rms_mrad"):
+            print("the plant's true tracking per 30 days [mrad RMS]: "
+                  + ", ".join("-" if m is None else f"{m:.2f}" for m in s["monthly_plant_tracking_rms_mrad"]))
+        if args.operate:
+            print(f"operation: {s['checks']} checks; drift in {s['drifted']} heliostat(s), {s['drift_detected']} "
+                  f"detected ({s['drift_false_alarms']} false alarms), median {s['drift_median_days_to_fix']} days "
+                  f"to fix; board time after commissioning {s['board_time_share_after_commissioning']}")
         print(f"written {out / 'summary.json'} and {result.database}")
     return 0
 

@@ -464,6 +464,11 @@ class Store:
              _json(list(reasons)), _json(details or {})),
         )
 
+    def verdicts(self, campaign_id: int, heliostat_id: str | None = None) -> list[Verdict]:
+        """Every verdict of a campaign (or of one heliostat in it), oldest first."""
+        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
+        return [_verdict(r) for r in self._read(f"SELECT * FROM verdicts{where} ORDER BY time_s, id", params)]
+
     def latest_verdicts(self, campaign_id: int) -> dict[str, Verdict]:
         """The newest verdict of each heliostat of a campaign, by heliostat id."""
         rows = self._read(

@@ -1,0 +1,138 @@
+"""Year-round operation (``simulate --operate``, ``helicalib operate``): the check ranking rule, and
+drift injected in the simulator found by checks, the calibration reopened and kept across a restart.
+
+The simulation runs in-process on the virtual clock with the fast sensor (the simulator's true spot
+and the fitted measurement-error model), a real SQLite file and the real runner."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from helicalib.campaign import operation as op
+from helicalib.campaign.simulate import simulate_campaign
+from helicalib.config import load_field_config
+from helicalib.sim.scenario import parse_scenario
+
+DAY = 86400.0
+
+
+# ------------------------------------------------------------------ the rule
+def test_gain_is_the_model_variance_plus_the_expected_drift_since_the_last_check():
+    lam = op.DRIFT_RATE_PER_YEAR / 365.0
+    gains = op.check_gains(np.array([0.3, np.nan, 0.0]), np.array([2.0, 10.0, 0.0]))
+    assert gains == pytest.approx([0.09 + op.DRIFT_MRAD**2 * lam * 2.0, op.DRIFT_MRAD**2 * lam * 10.0, 0.0])
+    # the threshold is the drift term of the longest a sure model goes unchecked
+    assert op.min_gain_mrad2() == pytest.approx(op.DRIFT_MRAD**2 * lam * op.MAX_DAYS_UNCHECKED)
+
+
+def test_the_largest_gain_goes_first_and_nothing_below_the_threshold():
+    now = 100 * DAY
+    ids = ["A", "B", "C"]
+    last = [now - 2 * DAY, now - 2 * DAY, now - 2 * DAY]
+    # B's model is the least sure where the sun is now
+    assert op.choose_check(ids, [0.05, 0.4, 0.2], last, now) == "B"
+    # sure models checked two days ago: not yet worth a check
+    assert op.choose_check(ids, [0.01, 0.01, 0.01], last, now) is None
+    # ... but after MAX_DAYS_UNCHECKED the drift term alone reaches the threshold: the longest unchecked first
+    last = [now - 1 * DAY, now - (op.MAX_DAYS_UNCHECKED + 1) * DAY, now - (op.MAX_DAYS_UNCHECKED + 2) * DAY]
+    assert op.choose_check(ids, [0.0, 0.0, 0.0], last, now) == "C"
+    # never checked at all: due
+    assert op.choose_check(["A"], [math.nan], [-math.inf], now) == "A"
+
+
+def test_at_most_one_check_a_solar_day_and_the_rota_baseline():
+    now = 100 * DAY
+    recent = now - op.MIN_CHECK_INTERVAL_S / 2
+    assert op.choose_check(["A"], [5.0], [recent], now) is None  # very unsure, but checked this morning
+    ids = ["A", "B", "C"]
+    last = [now - 3 * DAY, now - 20 * DAY, now - 15 * DAY]
+    assert op.choose_check(ids, [9.0, 0.0, 0.0], last, now, mode="rota", rota_days=14) == "B"
+    assert op.choose_check(ids, [9.0, 0.0, 0.0], last, now, mode="rota", rota_days=30) is None
+    with pytest.raises(ValueError, match="rota"):
+        op.choose_check(ids, [0, 0, 0], last, now, mode="sometimes")
+
+
+def test_days_to_fix():
+    assert op.days_to_fix(0.0, 1.5 * DAY) == pytest.approx(1.5)
+    assert op.days_to_fix(0.0, None) == math.inf
+
+
+# ------------------------------------------------------------------ drift in a simulated field
+IDS = ["H0001", "H0011", "H0021", "H0031"]
+
+
+@pytest.fixture(scope="module")
+def drifted_run(tmp_path_factory, demo_field_path):
+    """Four heliostats calibrated from the default start, every one settling by 4-5 mrad in the
+    middle of day 3, then operation until the end of day 6."""
+    cfg = load_field_config(demo_field_path)
+    out = tmp_path_factory.mktemp("operate")
+    scenario = parse_scenario({"seed": 4, "drift": {"share": 1.0, "kinds": {"settle": 1.0},
+                                                    "settle_mrad": [4.0, 5.0], "after_days": 2.4,
+                                                    "within_days": 0.2}})
+    result = simulate_campaign(cfg, out, 6.0, seed=4, scenario=scenario, heliostat_ids=IDS, fidelity="fast",
+                               operation="ranked")
+    return cfg, result
+
+
+def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drifted_run):
+    cfg, result = drifted_run
+    s = result.summary
+    assert s["drifted"] == len(IDS)
+    # every drift is seen, none invented
+    assert s["drift_detected"] == len(IDS), s["drift_days_to_fix"]
+    assert s["drift_false_alarms"] == 0
+    runner = result.runner
+    truth = {e["heliostat_id"]: e["start_s"] for e in s["drift_events"]}
+    for d in runner.drifts:
+        hid = d["heliostat_id"]
+        # suspected on a check after the drift began, confirmed by the next, far outside the band
+        assert truth[hid] <= d["since_s"] < d["confirmed_s"]
+        assert d["evidence"]["p_value"] < op.CONFIRM_ALPHA
+        assert d["points_dropped"] > 0
+        # the fits after it stand on points since the first suspicious check only
+        assert all(p.capture_time_s >= d["since_s"] for p in runner.book.points(hid))
+    assert s["checks"] > 0
+    assert 0.0 < s["board_time_share_after_commissioning"] < 0.5
+    assert s["monthly_plant_tracking_rms_mrad"] and all(m > 0 for m in s["monthly_plant_tracking_rms_mrad"])
+
+
+def test_a_drifted_heliostat_is_accepted_again_on_points_after_the_drift(drifted_run):
+    _cfg, result = drifted_run
+    s = result.summary
+    fixed = [x for x in s["drift_days_to_fix"] if x is not None]
+    assert fixed, s["drift_days_to_fix"]
+    assert s["drift_median_days_to_fix"] is None or s["drift_median_days_to_fix"] <= 3.6
+    for d in result.runner.drifts:
+        if d.get("fixed_s") is not None:
+            assert result.runner.book.accepted(d["heliostat_id"])
+
+
+def test_a_restarted_runner_keeps_the_reopened_calibration(drifted_run):
+    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.sim.clock import VirtualClock
+    from helicalib.sim.plant import SimulatedPlant
+    from helicalib.store.sqlite import Store
+
+    cfg, result = drifted_run
+    first = result.runner
+    store = Store.open(result.database, "images")
+    try:
+        cid = store.campaigns()[-1].id
+        t = first.clock.now_s()
+        sim = SimulatedPlant(cfg, parse_scenario({"seed": 4}), start_s=t)
+        again = CampaignRunner(cfg, sim, {}, VirtualClock(t), store, cid, heliostat_ids=IDS, operation="ranked")
+        for d in first.drifts:
+            hid = d["heliostat_id"]
+            kept = again.book.points(hid)
+            assert kept and all(p.capture_time_s >= d["since_s"] for p in kept)
+            assert len(kept) == len(first.book.points(hid))
+            # the fit's prior is the model from before the drift, as stored with the drift event
+            np.testing.assert_allclose(again.fit_prior(hid).params[0], d["prior_params"])
+            np.testing.assert_allclose(again.models[hid].params, first.models[hid].params, atol=1e-9)
+            assert again.book.accepted(hid) == first.book.accepted(hid)
+    finally:
+        store.close()
