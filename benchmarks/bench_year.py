@@ -78,24 +78,26 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--drift-share", type=float, default=0.05)
     ap.add_argument("--rota-days", type=float, default=14.0)
-    ap.add_argument("--policies", default="ranked,none,rota")
+    ap.add_argument("--policies", default="ranked,none,rota", help="comma-separated, run in this order")
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     args = ap.parse_args()
     policies = [p.strip() for p in args.policies.split(",") if p.strip()]
     print(f"bench_year: {args.field}, {args.days:g} days from {args.start}, drift on {100 * args.drift_share:g} %, "
           f"policies {', '.join(policies)} ({args.workers} worker processes)", flush=True)
     results = {}
+    out = {"field": args.field, "days": args.days, "start": args.start, "seed": args.seed,
+           "drift_share": args.drift_share, "heliostats": args.heliostats, "rota_days": args.rota_days,
+           "policies": results}
+    OUT.parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = {pool.submit(one, p, args.field, args.days, args.start, args.seed, args.drift_share, args.heliostats,
                             args.rota_days): p for p in policies}
         for job in as_completed(jobs):
             results[jobs[job]] = job.result()
-            print(f"  {jobs[job]} done in {results[jobs[job]]['cpu_wall_s']} s", flush=True)
-    out = {"field": args.field, "days": args.days, "start": args.start, "seed": args.seed,
-           "drift_share": args.drift_share, "heliostats": args.heliostats, "rota_days": args.rota_days,
-           "load_average_1min": os.getloadavg()[0], "policies": results}
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(out, indent=2))
+            print(f"  {jobs[job]} done in {results[jobs[job]]['cpu_wall_s']} s: {json.dumps(results[jobs[job]])}",
+                  flush=True)
+            out["load_average_1min"] = os.getloadavg()[0]
+            OUT.write_text(json.dumps(out, indent=2))  # each policy as it ends
     months = max(len(r["monthly_plant_tracking_rms_mrad"] or []) for r in results.values())
     print("the plant's true tracking, RMS per 30 days [mrad] (goal <= 0.8 every month):")
     print("  policy  " + " ".join(f"{f'm{m + 1}':>6}" for m in range(months)))

@@ -136,3 +136,65 @@ def test_a_restarted_runner_keeps_the_reopened_calibration(drifted_run):
             assert again.book.accepted(hid) == first.book.accepted(hid)
     finally:
         store.close()
+
+
+# ------------------------------------------------------------------ bounded memory
+def _point(visit, t, az_deg, el_deg):
+    from types import SimpleNamespace
+
+    a, e = np.radians(az_deg), np.radians(el_deg)
+    return SimpleNamespace(visit_id=visit, capture_time_s=t,
+                           sun_enu=(np.sin(a) * np.cos(e), np.cos(a) * np.cos(e), np.sin(e)))
+
+
+def test_thinning_drops_the_visits_nearest_in_sun_position_and_keeps_the_newest():
+    from helicalib.campaign.policy import thin_visits
+
+    distinct = [(90, 10), (120, 40), (180, 70), (240, 40), (270, 10)]
+    points = [_point(i, 100.0 * i, az, el) for i, (az, el) in enumerate(distinct)]
+    # three more visits, each 0.1° from one already held; two placements in one of them
+    points += [_point(5, 600.0, 120.1, 40.0), _point(6, 700.0, 180.0, 70.1), _point(6, 701.0, 180.0, 70.1),
+               _point(7, 800.0, 270.0, 10.1)]
+    kept = thin_visits(points, 6)
+    visits = sorted({p.visit_id for p in kept})
+    assert len(visits) == 6
+    assert 7 in visits  # the newest stays though it duplicates visit 4
+    # of each near pair the older one went first: visit 1 (with 5) and then 2 (with 6)
+    assert visits == [0, 3, 4, 5, 6, 7]
+    assert len([p for p in kept if p.visit_id == 6]) == 2  # a visit goes whole or not at all
+    assert thin_visits(points, 10) == points
+
+
+def test_nightly_frame_retention_keeps_the_disk_bounded(tmp_path, demo_field_path):
+    """Rendered frames over three plant days, pruned every night to the newest observation's frames
+    per heliostat and every rejected one's: the files on disk are exactly those still referenced, and
+    no more than that rule allows, while the database keeps every observation."""
+    import sqlite3
+
+    cfg = load_field_config(demo_field_path)
+    ids = ["H0001", "H0040"]
+    result = simulate_campaign(cfg, tmp_path, 3.0, seed=2, heliostat_ids=ids, fidelity="render", operation="ranked",
+                               keep_frames=1, monthly_tracking=False)
+    con = sqlite3.connect(result.database)
+    rows = con.execute("SELECT heliostat_id, valid, capture_time_s, before_frame_path, after_frame_paths_json "
+                       "FROM observations ORDER BY capture_time_s").fetchall()
+    notes = [r[0] for r in con.execute("SELECT reason FROM events WHERE kind = 'note'")]
+    con.close()
+    assert any(n.startswith("frame retention:") for n in notes), notes
+    import json
+
+    referenced = set()
+    with_frames = {h: [] for h in ids}
+    for hid, valid, t, before, afters in rows:
+        paths = [p for p in [before, *json.loads(afters or "[]")] if p]
+        referenced.update(paths)
+        if paths and valid:
+            with_frames[hid].append(t)
+    on_disk = {str(p.relative_to(tmp_path / "images")) for p in (tmp_path / "images").rglob("*.png")}
+    assert on_disk == referenced  # nothing left behind, nothing missing
+    last_night = max(rows, key=lambda r: r[2])[2] - 86400.0
+    for hid in ids:
+        # valid observations with frames: the newest one at the last pruning, and those recorded since
+        assert len([t for t in with_frames[hid] if t < last_night]) <= 1, hid
+    cleared = [r for r in rows if not r[3] and not json.loads(r[4] or "[]")]
+    assert cleared  # the database kept the observations whose frames went, their paths cleared

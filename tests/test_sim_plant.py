@@ -265,3 +265,18 @@ def test_cleanliness_many_reads_what_status_gives(cfg):
     q.advance_to(START + 2 * 86400.0)  # nothing cached yet: read row by row
     assert q.cleanliness_many(idx).tolist() == want
     assert [q.cleanliness_of(i) for i in idx] == want
+
+
+def test_the_weather_of_one_instant_equals_the_vectorised_weather():
+    """The knots a scalar weather reading remembers give the very values the vectorised process gives."""
+    import numpy as np
+
+    from helicalib.sim import noise
+
+    t = np.linspace(1.78e9, 1.78e9 + 3 * 86400.0, 400)
+    vec = noise.smooth_normal(3, 11, t, 7200.0)
+    one = np.array([noise.smooth_normal(3, 11, float(x), 7200.0) for x in t])
+    assert np.array_equal(vec, one)
+    assert np.array_equal(noise.smooth_normal(4, 11, t, 7200.0),
+                          [noise.smooth_normal(4, 11, float(x), 7200.0) for x in t])
+    assert not np.allclose(vec, noise.smooth_normal(4, 11, t, 7200.0))

@@ -35,6 +35,12 @@ COOLDOWN_INVALID_S = 1800.0
 COOLDOWN_VALID_S = 1200.0
 """After a valid visit the heliostat waits this long (the next point should see another sun)."""
 FIT_LOSS = "soft_l1"
+MAX_VISIT_POINTS = 60
+"""A heliostat's fits and verdicts stand on at most this many visits' points (the database keeps
+every observation): a year of operation adds a check every few days, and memory and fit time must
+not grow without end. Past it, the visit whose sun position lies nearest another's goes (the oldest
+of a tie; never the newest): the spread of sun positions, which matters more to a fit than the
+count or the age of its points, is kept."""
 _BACKLASH = [em.index(n) for n in em.BACKLASH]
 
 
@@ -74,6 +80,8 @@ class Book:
         b = self.h[obs.heliostat_id]
         if obs.valid and obs.spot_enu_m is not None and all(map(math.isfinite, obs.spot_enu_m)):
             b.points.append(obs)
+            if len({p.visit_id for p in b.points}) > MAX_VISIT_POINTS:
+                b.points = thin_visits(b.points, MAX_VISIT_POINTS)
             self.table.update(self.table.row[obs.heliostat_id], b)
         measured = getattr(obs, "cleanliness_measured", None)
         if measured is not None and obs.capture_time_s >= b.measured_at_s:
@@ -115,6 +123,32 @@ class Book:
     def first_time(self, default: float) -> float:
         times = [p.capture_time_s for b in self.h.values() for p in b.points]
         return min(times + [default])
+
+
+def thin_visits(points: list, keep: int) -> list:
+    """``points`` without the visits that are most redundant in sun position, down to ``keep``
+    visits (:data:`MAX_VISIT_POINTS`); the newest visit always stays."""
+    by_visit: dict = {}
+    for p in points:
+        by_visit.setdefault(p.visit_id, []).append(p)
+    visits = list(by_visit)
+    if len(visits) <= keep:
+        return list(points)
+    last = [max(by_visit[v], key=lambda p: p.capture_time_s) for v in visits]
+    sun = np.array([p.sun_enu for p in last], dtype=float)
+    times = np.array([p.capture_time_s for p in last])
+    alive = np.ones(len(visits), dtype=bool)
+    cos = np.clip(sun @ sun.T, -1.0, 1.0)
+    np.fill_diagonal(cos, -2.0)
+    newest = int(np.argmax(times))
+    while alive.sum() > keep:
+        live = np.flatnonzero(alive)
+        nearest = cos[np.ix_(live, live)].max(axis=1)  # the closest other visit's sun, as a cosine
+        cand = [i for i in range(live.size) if live[i] != newest]
+        j = max(cand, key=lambda i: (nearest[i], -times[live[i]]))
+        alive[live[j]] = False
+    kept = {visits[i] for i in np.flatnonzero(alive)}
+    return [p for p in points if p.visit_id in kept]
 
 
 class PlanTable:

@@ -15,6 +15,7 @@ wake-up time comes. Every observation goes to the store as soon as it is made.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -80,6 +81,10 @@ class Returning:
         return now + min(RETURN_RETRY_S * 2.0 ** max(self.attempts - 1, 0), RETURN_RETRY_MAX_S)
 
 
+STATS_KEPT = 200_000
+"""Visits whose iterations and first placements the runner's statistics keep in memory."""
+
+
 @dataclass
 class RunnerStats:
     visits: int = 0
@@ -87,8 +92,9 @@ class RunnerStats:
     gated_s: float = 0.0
     stowed_s: float = 0.0
     night_s: float = 0.0
-    iterations: list[int] = field(default_factory=list)
-    first_errors: list[tuple[float, float, bool]] = field(default_factory=list)  # (time, mrad, had a model)
+    # the newest STATS_KEPT of each (a service runs for years; the summaries read the last day)
+    iterations: deque = field(default_factory=lambda: deque(maxlen=STATS_KEPT))
+    first_errors: deque = field(default_factory=lambda: deque(maxlen=STATS_KEPT))  # (time, mrad, had a model)
     outcomes: dict[str, int] = field(default_factory=dict)
 
 

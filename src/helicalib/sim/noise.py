@@ -60,6 +60,24 @@ def smooth_normal(seed: int, stream: int, t_s, correlation_s: float, *keys) -> n
     k0 = np.floor(x)
     f = x - k0
     w = 0.5 - 0.5 * np.cos(np.pi * f)
-    a = normal(seed, stream, k0.astype(np.int64), *keys)
-    b = normal(seed, stream, (k0 + 1).astype(np.int64), *keys)
+    if not keys and k0.ndim == 0:  # one process at one time (the weather): its knots are remembered
+        a, b = _knot(seed, stream, int(k0)), _knot(seed, stream, int(k0) + 1)
+    else:
+        a = normal(seed, stream, k0.astype(np.int64), *keys)
+        b = normal(seed, stream, (k0 + 1).astype(np.int64), *keys)
     return ((1.0 - w) * a + w * b) / np.sqrt((1.0 - w) ** 2 + w**2)
+
+
+_KNOTS: dict[tuple[int, int, int], float] = {}
+_KNOTS_MAX = 4096
+
+
+def _knot(seed: int, stream: int, k: int) -> float:
+    """``normal(seed, stream, k)`` for one knot, remembered (the same value; a pure function of its key)."""
+    key = (seed, stream, k)
+    v = _KNOTS.get(key)
+    if v is None:
+        if len(_KNOTS) >= _KNOTS_MAX:
+            _KNOTS.clear()
+        v = _KNOTS[key] = float(normal(seed, stream, np.int64(k)))
+    return v
