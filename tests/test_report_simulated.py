@@ -124,3 +124,21 @@ def test_present_error_tracking_test_and_status(sim):
     h2 = next(h for h in rep["heliostats"] if h["id"] == "H0002")
     n_invalid = q(db, "SELECT COUNT(*) FROM observations WHERE heliostat_id = 'H0002' AND valid = 0")[0][0]
     assert h2["valid_observations"] == 0 and h2["observations"] == n_invalid
+
+
+def test_each_fitted_heliostat_has_its_year_round_prediction_beside_the_verdict(sim):
+    db, index, rep, summary = sim
+    yp = rep["year_prediction"]
+    assert yp["limit_mrad"] == 1.2 and yp["level"] == 0.9
+    # exactly the heliostats with a valid, located point (by SQL) have a fit to predict from
+    with_points = {h for (h,) in q(db, "SELECT DISTINCT heliostat_id FROM observations WHERE valid = 1 "
+                                       "AND spot_e_m IS NOT NULL")}
+    assert set(yp["heliostats"]) == with_points and "H0002" not in with_points
+    for p in yp["heliostats"].values():
+        lo, hi = p["interval_mrad"]
+        assert 0 < lo <= hi and p["expected_rms_mrad"] > 0 and 0.0 <= p["p_exceed"] <= 1.0
+    # the same prediction as the simulation's summary made from the runner's own fits
+    expected = float(np.median([p["expected_rms_mrad"] for p in yp["heliostats"].values()]))
+    assert expected == pytest.approx(summary["predicted_year_rms_median_mrad"], abs=0.01)
+    page = index.read_text()
+    assert "predicted year RMS [mrad] (90 % interval)" in page and "on the year's path" in page

@@ -24,6 +24,7 @@ from helicalib.report import html, plots
 from helicalib.report.data import CampaignData, load_campaign
 from helicalib.report.grlm import spec_of, tracking_test
 from helicalib.report.measures import glossary
+from helicalib.report.prediction import year_predictions
 from helicalib.report.sheets import acceptance_spans, heliostat_sheet
 from helicalib.geometry.sitetime import SiteTime, site_time
 
@@ -82,6 +83,7 @@ def compute(data: CampaignData, site: SiteTime | None = None) -> dict:
         "tracking_test": tracking_test(data.observations, data.cfg),
         "acceptance": acceptance_spans(data),
         "washing": F.washing(data),
+        "year_prediction": year_predictions(data),
         "events": F.events_log(data),
         "glossary": glossary(limits(data)),
         "limits": limits(data),

@@ -1,0 +1,98 @@
+"""Acceptance with uncertainty in the report: each heliostat's predicted year-round error.
+
+Beside the paper's verdict (the verdict of record), the report gives for every heliostat with a fit
+what its model predicts over the year's sun path (:func:`helicalib.calibration.uncertainty.year_prediction`):
+the expected RMS of the beam error, its central 90 % interval, and the probability that the error
+exceeds the acceptance limit (1.2 mrad) somewhere on the path. The fit is made again from the
+campaign's valid observations, as the campaign fits them (after a confirmed drift, only the points
+since it, centred on the model from before it: :mod:`helicalib.campaign.operation`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+LEVEL = 0.9
+"""Probability of the reported interval."""
+SUN_STEP_DAYS, SUN_STEP_MIN = 14.0, 60.0
+"""The year's sun path: every 14 days, every hour with the sun above the low band's 5°."""
+DRAWS = 200
+"""Posterior draws per heliostat for the interval and the exceedance probability."""
+
+
+def year_predictions(data) -> dict | None:
+    """``{"limit_mrad", "level", "heliostats": {id: {expected_rms_mrad, interval_mrad, p_exceed}}}`` for
+    the fitted heliostats of ``data`` (a :class:`~helicalib.report.data.CampaignData`); None without a
+    field config (the nominal geometry is needed)."""
+    from helicalib.calibration.fit import SIGMA_MRAD
+    from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
+    from helicalib.campaign import policy
+    from helicalib.geometry.heliostat import HeliostatModel
+    from helicalib.sim.evaluate import year_sun_times
+    from helicalib.store import Store
+
+    cfg = data.cfg
+    if cfg is None or data.campaign is None:
+        return None
+    ids = [h for h in data.heliostat_ids if _known(cfg, h)]
+    limit = float(cfg.acceptance.max_rms_mrad)
+    out = {"limit_mrad": limit, "level": LEVEL, "heliostats": {}}
+    if not ids:
+        return out
+    nominal = HeliostatModel.from_config(cfg, ids)
+    fitted, params, covs, unexplained = [], [], [], []
+    store = Store.open(data.db_path, data.images_dir, readonly=True)
+    try:
+        drifts = {}
+        for e in store.events(campaign_id=data.campaign.id, kind="drift"):
+            drifts[e.heliostat_id] = e.data
+        for i, hid in enumerate(ids):
+            since = float(drifts.get(hid, {}).get("since_s", -math.inf))
+            points = [o for o in store.observations(campaign_id=data.campaign.id, heliostat_id=hid)
+                      if o.valid and o.spot_enu_m is not None and all(map(math.isfinite, o.spot_enu_m))
+                      and o.capture_time_s >= since]
+            if not points:
+                continue
+            prior = nominal.subset([i])
+            if drifts.get(hid, {}).get("prior_params") is not None:
+                prior = prior.with_params(np.asarray(drifts[hid]["prior_params"], dtype=float)[None, :])
+            model, fit = policy.refit(prior, points, prior)
+            if fit is None:
+                continue
+            fitted.append(i)
+            params.append(model.params[0])
+            covs.append(fit.covariance)
+            unexplained.append(unexplained_mrad(fit.rms_mrad, SIGMA_MRAD))
+    finally:
+        store.close()
+    if not fitted:
+        return out
+    year = int(np.datetime64(int(data.campaign.started_s), "s").astype("datetime64[Y]").astype(int) + 1970)
+    _t, sun = year_sun_times(cfg.site, year, step_days=SUN_STEP_DAYS, step_min=SUN_STEP_MIN)
+    model = nominal.subset(fitted).with_params(np.vstack(params))
+    aims = np.array([cfg.target(cfg.heliostat(ids[i]).target).center_enu_m for i in fitted], dtype=float)
+    pred = year_prediction(model, np.stack(covs), sun, aims, np.array(unexplained), draws=DRAWS, level=LEVEL,
+                           limit_mrad=limit)
+    for k, i in enumerate(fitted):
+        lo, hi = pred.interval_mrad[k]
+        out["heliostats"][ids[i]] = {
+            "expected_rms_mrad": _r(pred.expected_rms_mrad[k]), "interval_mrad": [_r(lo), _r(hi)],
+            "p_exceed": _r(pred.p_exceed[k]), "reachable_share": _r(pred.reachable[k])}
+    return out
+
+
+def _known(cfg, hid: str) -> bool:
+    """Whether the field config holds ``hid`` (a heliostat it no longer holds has no geometry to predict)."""
+    from helicalib.errors import ConfigError
+
+    try:
+        cfg.heliostat(hid)
+    except ConfigError:
+        return False
+    return True
+
+
+def _r(x) -> float | None:
+    return None if x is None or not math.isfinite(float(x)) else round(float(x), 3)
