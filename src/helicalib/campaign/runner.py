@@ -582,16 +582,16 @@ class CampaignRunner:
                    data={"check": True} if check else None)
 
     def _eligible(self, hids, now: float, busy) -> list[str]:
-        """Of ``hids``: accepted, not in a visit, off cool-down, mirror clean enough, stroke range reaching
-        the board (the heliostats an operation check may take)."""
+        """Of ``hids``: accepted, not in a visit, off cool-down, mirror clean enough (the heliostats an
+        operation check may take; whether the strokes reach the board is asked of the one chosen)."""
+        free = [h for h in hids if h not in busy and self.book.h[h].cooldown_until_s <= now and self.book.accepted(h)]
+        if not free:
+            return []
+        plant = self._cleanliness_of_rows(np.array([self._index[h] for h in free], dtype=np.int64), now)
         out = []
-        for hid in hids:
-            b = self.book.h[hid]
-            if hid in busy or b.cooldown_until_s > now or not self.book.accepted(hid):
-                continue
-            c = self._cleanliness(hid, now)
-            if c is None or not math.isfinite(float(c)):
-                c = b.measured_cleanliness
+        for hid, c in zip(free, plant):
+            if not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
+                c = self.book.h[hid].measured_cleanliness
             if c is not None and math.isfinite(float(c)) and c <= self.cfg.gating.cleanliness_min:
                 continue
             out.append(hid)
