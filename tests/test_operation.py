@@ -55,6 +55,16 @@ def test_at_most_one_check_a_solar_day_and_the_rota_baseline():
         op.choose_check(ids, [0, 0, 0], last, now, mode="sometimes")
 
 
+def test_checks_leaning_the_same_way_add_up():
+    from helicalib.campaign.drift import trend_p_value
+
+    # three checks, each 2 sigma off the same way: alone p = exp(-2) = 0.14 each, together exp(-6)
+    assert trend_p_value([[2.0, 0.0]] * 3) == pytest.approx(math.exp(-0.5 * 3 * 4.0))
+    assert trend_p_value([[2.0, 0.0]] * 3) < op.TREND_ALPHA * 3
+    # the same sizes in turns cancel: no trend
+    assert trend_p_value([[2.0, 0.0], [-2.0, 0.0], [0.0, 0.0]]) == pytest.approx(1.0)
+
+
 def test_days_to_fix():
     assert op.days_to_fix(0.0, 1.5 * DAY) == pytest.approx(1.5)
     assert op.days_to_fix(0.0, None) == math.inf

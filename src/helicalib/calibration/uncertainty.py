@@ -121,6 +121,8 @@ class CheckTest:
         when nothing changed)
     p_value : (K,) probability of a distance at least this large when nothing changed, ``exp(−d²/2)``
     outside : (K,) bool, ``p_value < alpha``: outside the predicted band
+    whitened : (K, 2) ``L⁻¹ r`` with ``S = L Lᵀ``: standard normal in each component when nothing
+        changed (several checks leaning the same way add up: :mod:`helicalib.campaign.operation`)
     """
 
     residual_mrad: np.ndarray
@@ -128,6 +130,7 @@ class CheckTest:
     distance2: np.ndarray
     p_value: np.ndarray
     outside: np.ndarray
+    whitened: np.ndarray
 
 
 def check_against_fit(model, covariance: np.ndarray, strokes_mm: np.ndarray, sun_enu: np.ndarray,
@@ -166,7 +169,8 @@ def check_against_fit(model, covariance: np.ndarray, strokes_mm: np.ndarray, sun
     s = np.einsum("kip,pq,kjq->kij", jac, cov, jac) + (sigma_mrad**2 + 0.5 * unexplained_mrad**2) * np.eye(2)
     d2 = np.einsum("ki,kij,kj->k", r, np.linalg.inv(s), r)
     p = np.exp(-0.5 * d2)
-    return CheckTest(r, np.sqrt(np.trace(s, axis1=1, axis2=2)), d2, p, p < alpha)
+    whitened = np.linalg.solve(np.linalg.cholesky(s), r[..., None])[..., 0]
+    return CheckTest(r, np.sqrt(np.trace(s, axis1=1, axis2=2)), d2, p, p < alpha, whitened)
 
 
 def year_prediction(model, covariance: np.ndarray, sun_enu: np.ndarray, aim_enu: np.ndarray,

@@ -58,4 +58,13 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
                              alpha=alpha)
     return {"residual_mrad": round(float(np.linalg.norm(test.residual_mrad[0])), 3),
             "band_mrad": round(float(test.band_mrad[0]), 3), "p_value": float(f"{test.p_value[0]:.3g}"),
-            "drift": bool(test.outside[0]), "fit_points": len(points)}
+            "drift": bool(test.outside[0]), "fit_points": len(points),
+            "whitened": [round(float(x), 4) for x in test.whitened[0]]}
+
+
+def trend_p_value(whitened) -> float:
+    """p-value of K checks' whitened residuals (each standard normal in 2-D when nothing changed)
+    leaning the same way: their mean ``m`` gives ``K·|m|²`` ~ χ²(2), ``p = exp(−K·|m|²/2)``."""
+    w = np.asarray(whitened, dtype=float).reshape(-1, 2)
+    m = w.mean(axis=0)
+    return float(np.exp(-0.5 * len(w) * float(m @ m)))

@@ -35,7 +35,11 @@ it is checked again first, and that check, tested against the fit from before th
 check (a suspicious point must not widen the band it is judged by), confirms the drift when its p is
 below :data:`CONFIRM_ALPHA` (one check alone could be a bad frame or a gust the vision did not
 catch; the Gaussian band also flags an unchanged heliostat somewhat more often than its p says); a
-check inside that band clears the suspicion. A confirmed drift
+check inside that band clears the suspicion. A slow creep moves each check only a little, and
+the refits after each check follow it part of the way, so each check may stay inside its band: the
+last :data:`TREND_CHECKS` checks whose whitened residuals lean the same way (their mean, p below
+:data:`TREND_ALPHA`) make the heliostat suspected as well, and the confirming check is then tested
+against the fit from before the first of them. A confirmed drift
 **reopens** the heliostat's calibration: its points before the first suspicious check are left out
 of every later fit and verdict (they stay in the database), because a step change makes them
 wrong, not merely old: down-weighting them would leave a bias in proportion to their weight. The
@@ -66,6 +70,11 @@ CONFIRM_ALPHA = 0.01
 """p-value below which a suspect's next check confirms the drift; it is tested against the fit from
 before the first suspicious check (the suspicious point must not widen the band it is judged by),
 and after a first check below p 0.001 a second below 0.01 is strong evidence together."""
+TREND_CHECKS = 3
+"""A slow creep: the last this many checks, each inside its band, whose whitened residuals lean the
+same way (:func:`helicalib.campaign.drift.trend_p_value`) ..."""
+TREND_ALPHA = 1e-3
+"""... below this p-value make the heliostat suspected, as one check outside its band does."""
 OPERATION_MODES = ("ranked", "rota")
 """``ranked``: the gain rule above; ``rota``: every heliostat every ``rota_days`` (the baseline)."""
 

@@ -190,6 +190,7 @@ class OperatorDesk:
         b.cooldown_until_s = 0.0
         runner._prior.pop(hid, None)  # a repaired heliostat starts from the nominal again, drift or not
         runner._suspects.pop(hid, None)
+        runner._recent.pop(hid, None)
         runner.models[hid] = runner.nominal_of(hid)
         runner.store.record_verdict(campaign_id=runner.campaign_id, heliostat_id=hid, time_s=now, accepted=False,
                                     n_points=0, rms_mrad=None, reasons=[f"repaired: model reset by {who}"],

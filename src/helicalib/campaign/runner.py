@@ -187,6 +187,7 @@ class CampaignRunner:
         self.rota_days = float(rota_days)
         self._suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
         self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
+        self._recent: dict[str, deque] = {}  # (time, model, whitened residual) of each heliostat's last checks
         self._prior: dict[str, HeliostatModel] = {}  # after a confirmed drift: the fit's prior centre
         self._visit_model: dict[str, HeliostatModel] = {}  # the model each visit under way started with
         self.drifts: list[dict] = []  # confirmed drifts (this process and, from the store, earlier ones)
@@ -757,7 +758,7 @@ class CampaignRunner:
         """A check of an accepted heliostat: its first placement against the fit the visit started
         with (:func:`.drift.drift_evidence`); :data:`.operation.CONFIRM_CHECKS` in a row outside the
         band confirm a drift and reopen the calibration (:mod:`.operation`)."""
-        from helicalib.campaign.drift import drift_evidence
+        from helicalib.campaign.drift import drift_evidence, trend_p_value
 
         suspect = self._suspects.get(hid)
         if suspect:  # tested against the fit from before the first suspicious check, not one it entered
@@ -770,7 +771,15 @@ class CampaignRunner:
             evidence = drift_evidence(self.fit_prior(hid), started_with, before, first)
         if evidence is None:
             return
-        if not evidence["drift"]:
+        lean = None
+        if not suspect:  # a slow creep: checks each inside the band but leaning the same way
+            recent = self._recent.setdefault(hid, deque(maxlen=op_rules.TREND_CHECKS))
+            recent.append((first.capture_time_s, started_with, evidence["whitened"]))
+            if not evidence["drift"] and len(recent) == recent.maxlen:
+                p_trend = trend_p_value([w for _t, _m, w in recent])
+                if p_trend < op_rules.TREND_ALPHA:
+                    lean = (recent[0], p_trend)
+        if not evidence["drift"] and lean is None:
             if self._suspects.pop(hid, None):
                 self._suspect_ref.pop(hid, None)
                 self.event("note", f"{hid}: check inside its band again ({evidence['residual_mrad']:.2f} mrad, "
@@ -778,17 +787,22 @@ class CampaignRunner:
                                    "drift not confirmed", hid, data={"drift": evidence}, time_s=now)
             return
         flagged = self._suspects.setdefault(hid, [])
-        if not flagged:
-            self._suspect_ref[hid] = (started_with, first.capture_time_s)
-        flagged.append(first.capture_time_s)
+        if not flagged:  # the reference of the confirming check: the fit from before the first sign
+            since, model0 = (lean[0][0], lean[0][1]) if lean is not None else (first.capture_time_s, started_with)
+            self._suspect_ref[hid] = (model0, since)
+            flagged.append(since)
+        else:
+            flagged.append(first.capture_time_s)
         text = (f"{hid}: check {evidence['residual_mrad']:.2f} mrad off its model, band {evidence['band_mrad']:.2f} "
-                f"mrad, p {evidence['p_value']:.2g}")
+                f"mrad, p {evidence['p_value']:.2g}"
+                + (f"; its last {op_rules.TREND_CHECKS} checks lean the same way (p {lean[1]:.2g})" if lean else ""))
         if len(flagged) < op_rules.CONFIRM_CHECKS:
             self.event("note", text + "; suspected drift, checking again", hid, data={"drift": evidence}, time_s=now)
             return
         # confirmed: the points from the first suspicious check on count; the fit centres on the model before
         since = flagged[0]
         del self._suspects[hid]
+        self._recent.pop(hid, None)
         started_with = self._suspect_ref.pop(hid)[0]
         earlier = [p for p in self.book.points(hid) if p.capture_time_s < since]
         prior_model, _fit = policy.refit(self.fit_prior(hid), earlier, started_with) if earlier else (started_with, None)
