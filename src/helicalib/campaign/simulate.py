@@ -138,6 +138,7 @@ def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_
         summary = summarise(cfg, runner, sim, start_s, end_s)
         if monthly is not None:
             summary["monthly_plant_tracking_rms_mrad"] = monthly.rms_by_month()
+            summary["monthly_plant_tracking_undrifted_rms_mrad"] = monthly.rms_by_month(steady_only=True)
         if operation is not None:
             summary.update(operation_summary(cfg, runner, sim, store, campaign_id, start_s, end_s))
         summary["wall_s"] = round(wall, 1)
@@ -160,7 +161,10 @@ class MonthlyTracking:
     def __init__(self, cfg, sim, runner: CampaignRunner, start_s: float):
         self.cfg, self.sim, self.runner, self.start_s = cfg, sim, runner, start_s
         self.rows = [cfg.heliostat_index(h) for h in runner.ids]
+        drifting = {e.heliostat_id for e in sim.truth.drift_events}
+        self.steady = np.array([h not in drifting for h in runner.ids])  # of rows: no injected drift
         self.sq: dict[int, list[float]] = {}  # month -> [sum of squares, count]
+        self.sq_steady: dict[int, list[float]] = {}
 
     def sample(self, t0_s: float, t1_s: float) -> None:
         if t1_s <= t0_s:
@@ -169,17 +173,21 @@ class MonthlyTracking:
         params[self.rows] = self.runner.calibrated_model().params
         errs = plant_tracking_errors(self.cfg, self.sim.truth, params, self.rows, t0_s, t1_s, self.runner.sun_table,
                                      step_s=MONTHLY_STEP_S)
-        errs = errs[np.isfinite(errs)]
         month = int((t0_s - self.start_s) // (MONTH_DAYS * 86400.0))
-        acc = self.sq.setdefault(month, [0.0, 0])
-        acc[0] += float(np.sum(errs**2))
-        acc[1] += int(errs.size)
+        steady = np.tile(self.steady, errs.size // max(len(self.rows), 1))
+        for sq, e in ((self.sq, errs), (self.sq_steady, errs[steady] if steady.size == errs.size else errs[:0])):
+            e = e[np.isfinite(e)]
+            acc = sq.setdefault(month, [0.0, 0])
+            acc[0] += float(np.sum(e**2))
+            acc[1] += int(e.size)
 
-    def rms_by_month(self) -> list[float | None]:
-        if not self.sq:
+    def rms_by_month(self, steady_only: bool = False) -> list[float | None]:
+        """RMS per month over the campaign's heliostats (``steady_only``: those without an injected drift)."""
+        sq = self.sq_steady if steady_only else self.sq
+        if not sq:
             return []
-        return [round(float(np.sqrt(self.sq[m][0] / self.sq[m][1])), 3) if m in self.sq and self.sq[m][1] else None
-                for m in range(max(self.sq) + 1)]
+        return [round(float(np.sqrt(sq[m][0] / sq[m][1])), 3) if m in sq and sq[m][1] else None
+                for m in range(max(sq) + 1)]
 
 
 def operation_summary(cfg, runner: CampaignRunner, sim, store: Store, campaign_id: int, start_s: float,
