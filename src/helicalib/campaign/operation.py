@@ -23,9 +23,13 @@ error it brings, per check (a check takes about the same board time for every he
 
 A heliostat is checked only when its gain reaches :func:`min_gain_mrad2`, the drift term of a
 heliostat left :data:`MAX_DAYS_UNCHECKED` days (so a sure model is still checked that often, and
-drift is seen within days), at most once per :data:`MIN_CHECK_INTERVAL_S` (a solar day), except a
-heliostat suspected of drift, which goes first, before the planner's own choice. Highest gain
-first; ties by the longest unchecked. The crew's requests (console) go before everything.
+drift is seen within days), at most once per :data:`MIN_CHECK_INTERVAL_S` (a solar day), and not
+before its *preferred time* of the day: the time the day's sun is where its model is least sure
+(evaluated every :data:`PREFERRED_STEP_S` once a day), so the checks cover the sky the points do
+not, instead of crowding at sunrise; a heliostat a day overdue goes whatever the time. Each board's
+checks are paced to :data:`CHECK_BOARD_SHARE` of the day's sunlit time so far. Highest gain first;
+ties by the longest unchecked. A heliostat suspected of drift goes first, before the planner's own
+choice; the crew's requests (console) go before everything.
 
 Drift
 -----
@@ -75,6 +79,16 @@ TREND_CHECKS = 3
 same way (:func:`helicalib.campaign.drift.trend_p_value`) ..."""
 TREND_ALPHA = 1e-3
 """... below this p-value make the heliostat suspected, as one check outside its band does."""
+PREFERRED_STEP_S = 1800.0
+"""Each solar day the runner evaluates every fitted model's predicted error on the day's sun every
+this many seconds; a heliostat's check waits for the time its model is least sure (its preferred
+time), unless it is a day overdue."""
+CHECK_BOARD_SHARE = 0.10
+"""A board's checks take at most this share of the day's sunlit time so far (plus
+:data:`CHECK_ALLOWANCE_S`): paced through the day, half the 20 % a plant grants calibration after
+commissioning. Calibrations still open (acceptance gaps, a drift reopened) are not counted."""
+CHECK_ALLOWANCE_S = 600.0
+"""Board seconds of checks allowed ahead of the pace (a check or two at sunrise)."""
 OPERATION_MODES = ("ranked", "rota")
 """``ranked``: the gain rule above; ``rota``: every heliostat every ``rota_days`` (the baseline)."""
 
@@ -122,6 +136,14 @@ def choose_check(ids: list[str], spread_mrad, last_visit_s, now_s: float, *, mod
         return None
     best = sel[np.lexsort((-since_days[sel], -gain[sel]))[0]]
     return ids[int(best)]
+
+
+def check_budget_s(day_grid: np.ndarray, now_s: float) -> float:
+    """Board seconds of checks allowed by ``now_s``: :data:`CHECK_BOARD_SHARE` of the day's sunlit
+    seconds so far (``day_grid``: the day's times with the sun up, every :data:`PREFERRED_STEP_S`)
+    plus :data:`CHECK_ALLOWANCE_S`."""
+    sunlit = float(np.count_nonzero(np.asarray(day_grid) <= now_s)) * PREFERRED_STEP_S
+    return CHECK_BOARD_SHARE * sunlit + CHECK_ALLOWANCE_S
 
 
 def days_to_fix(drift_start_s: float, fixed_s: float | None) -> float:

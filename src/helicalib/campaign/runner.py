@@ -198,6 +198,11 @@ class CampaignRunner:
         (:func:`helicalib.store.retention.retain_frames`); None keeps every frame."""
         self._retained_day: int | None = None
         self._spread_cache: dict[str, tuple] = {}  # hid -> (plant time, fit, spread) for operation checks
+        self._day: int | None = None  # operation: the solar day of the grid and preferences below
+        self._day_grid = np.array([])  # that day's times with the sun above the low band (PREFERRED_STEP_S)
+        self._preferred: dict[str, float] = {}  # hid -> that day's time at which its model is least sure
+        self._board_check_s: dict[str, tuple[int, float]] = {}  # target -> (solar day, seconds of checks)
+        self._check_visits: dict[int, float] = {}  # visit id -> start of each operation check under way
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
@@ -570,6 +575,8 @@ class CampaignRunner:
         self.book.visiting(hid, now)
         self._visit_model[hid] = self.models[hid]
         self.checks += int(check)
+        if check:
+            self._check_visits[visit_id] = now
         self.returning.pop(hid, None)  # the visit commands it now; it ends with its own return
         self._boards[target_id] = BoardState(target_id, hid, None, None, now)
         gen = run_visit(ctx)
@@ -606,6 +613,30 @@ class CampaignRunner:
                 return hid
         return None
 
+    def _operation_day(self, now: float) -> int:
+        """The solar day of ``now``; on a new one, the day's sun grid and each fitted heliostat's
+        preferred check time (the hour of the day's sun at which its model is least sure) are made."""
+        day = int((now + self.cfg.site.longitude_deg / 15.0 * 3600.0) // 86400.0)
+        if self._day != day:
+            self._day = day
+            t0 = day * 86400.0 - self.cfg.site.longitude_deg / 15.0 * 3600.0
+            times = np.arange(t0, t0 + 86400.0, op_rules.PREFERRED_STEP_S)
+            el = np.degrees(np.arcsin(np.clip(self.sun_table.vector_enu(times)[:, 2], -1.0, 1.0)))
+            times = times[el >= self.cfg.acceptance.low_band_deg[0]]
+            self._day_grid = times
+            self._preferred = {}
+            fitted = [h for h in self.ids if self.book.h[h].fit is not None]
+            if fitted and times.size:
+                spread = np.full((times.size, len(fitted)), np.nan)
+                for k, t in enumerate(times):
+                    got = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows, fitted,
+                                               self.sun_table.vector_enu(t), math.inf)
+                    spread[k] = [got.get(h, np.nan) for h in fitted]
+                for j, h in enumerate(fitted):
+                    if np.isfinite(spread[:, j]).any():
+                        self._preferred[h] = float(times[int(np.nanargmax(spread[:, j]))])
+        return day
+
     def _spreads(self, hids: list[str], now: float) -> dict[str, float]:
         """Each model's predicted beam error at the present sun [mrad], kept for
         :data:`SPREAD_KEEP_S` of plant time (the sun moves about 2.5° in 10 min) or until a refit."""
@@ -629,6 +660,14 @@ class CampaignRunner:
         # only heliostats a check may take at all (unchecked long enough) are weighed: cheap tests first
         wait = self.rota_days * 86400.0 if self.operation == "rota" else op_rules.MIN_CHECK_INTERVAL_S
         cands = [h for h in self._home[target_id] if now - self.book.h[h].last_visit_s >= wait]
+        if self.operation == "ranked" and cands:
+            day = self._operation_day(now)
+            used_day, used_s = self._board_check_s.get(target_id, (day, 0.0))
+            if used_day == day and used_s >= op_rules.check_budget_s(self._day_grid, now):
+                return None  # this board's checks are ahead of their share of the day's sun so far
+            overdue = (op_rules.MAX_DAYS_UNCHECKED + 1.0) * 86400.0
+            cands = [h for h in cands if now >= self._preferred.get(h, -math.inf)
+                     or now - self.book.h[h].last_visit_s >= overdue]
         cands = self._eligible(cands, now, busy)
         if not cands:
             return None
@@ -726,6 +765,11 @@ class CampaignRunner:
                              iterations=out.iterations, first_error_mrad=out.first_error_mrad,
                              final_error_mrad=out.final_error_mrad)
         self.book.visited(hid, now, out)
+        started = self._check_visits.pop(ctx.visit_id, None)
+        if started is not None:  # the board time this check took, against its board's share of the day
+            day = self._operation_day(now)
+            prev_day, used = self._board_check_s.get(target_id, (day, 0.0))
+            self._board_check_s[target_id] = (day, (used if prev_day == day else 0.0) + max(0.0, now - started))
         was = self.book.accepted(hid)
         started_with = self._visit_model.pop(hid, None)
         if self.operation is not None and (was or hid in self._suspects) and first is not None \
