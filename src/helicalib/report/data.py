@@ -111,22 +111,6 @@ def find_config(campaign: Campaign, db_path: Path, override: str | Path | None =
     return None, f"the field config {candidates[0]} was not found"
 
 
-def _verdict_history(db_path: Path, campaign_id: int) -> list[Verdict]:
-    """Every verdict of a campaign, oldest first (the store's public API gives only the newest)."""
-    import json
-    import sqlite3
-
-    conn = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True)
-    try:
-        rows = conn.execute("SELECT id, campaign_id, heliostat_id, time_s, accepted, n_points, rms_mrad, reasons_json,"
-                            " details_json FROM verdicts WHERE campaign_id = ? ORDER BY time_s, id",
-                            (int(campaign_id),)).fetchall()
-    finally:
-        conn.close()
-    return [Verdict(id=r[0], campaign_id=r[1], heliostat_id=r[2], time_s=r[3], accepted=bool(r[4]), n_points=r[5],
-                    rms_mrad=r[6], reasons=tuple(json.loads(r[7])), details=json.loads(r[8])) for r in rows]
-
-
 def load_campaign(db_path: str | Path, campaign_id: int | None = None, field_config: str | Path | None = None,
                   images_dir: str | Path | None = None) -> CampaignData:
     """Read one campaign (default: the newest) and everything the report shows.
@@ -156,7 +140,7 @@ def load_campaign(db_path: str | Path, campaign_id: int | None = None, field_con
         data = CampaignData(
             db_path=db_path, images_dir=store.images_dir, campaign=campaign, heliostats=heliostats, visits=visits,
             observations=obs, fits=fits, verdicts=store.latest_verdicts(cid),
-            verdict_history=_verdict_history(db_path, cid), events=store.events(campaign_id=cid),
+            verdict_history=store.verdicts(cid), events=store.events(campaign_id=cid),
         )
     finally:
         store.close()
