@@ -212,3 +212,25 @@ def test_a_restart_requeues_only_the_rechecks_not_started_and_none_out_of_servic
     runner, sim, store, cid = _runner(cfg, tmp_path, campaign_id=cid)
     assert [h for h, _a in runner.operator.queue] == [waiting[0]]
     store.close()
+
+
+def test_in_operation_a_crews_recheck_goes_before_the_services_own_checks(cfg, tmp_path):
+    """``helicalib operate``'s runner: once the field is accepted the boards take checks of the
+    service's choosing; a crew's re-check still goes next on its board, before any of them."""
+    runner, sim, store, cid = _runner(cfg, tmp_path, operation="ranked")
+    end = sim.t_s + 3 * 86400
+    while sim.t_s < end and not runner.checks:  # until the service has started checking accepted heliostats
+        runner.run_until(sim.t_s + 1800)
+    assert runner.checks, "no operation check in three plant days"
+    target = cfg.heliostat("H0023").target
+    while any(t == target for t in runner.active):  # the board free, so the next visit on it is a new choice
+        runner.run_until(sim.t_s + 60)
+    runner.book.h["H0023"].cooldown_until_s = 0.0
+    _ask(runner, "recheck", ["H0023"])
+    t0 = sim.t_s
+    runner.run_until(sim.t_s + 1800)
+    on_board = [v for v in _visits_since(store, cid, t0) if v.target_id == target]
+    assert on_board and on_board[0].heliostat_id == "H0023", [(v.heliostat_id, v.started_s) for v in on_board]
+    visits = [e for e in store.events(campaign_id=cid, kind="operator") if "H0023" in e.reason]
+    assert any("onto" in e.reason for e in visits)
+    store.close()
