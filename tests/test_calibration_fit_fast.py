@@ -239,3 +239,28 @@ def test_gauss_newton_stalled_far_from_a_minimum_has_failed():
     x0 = 1.0 + 1e-3  # predicted gain 1e-6 of the cost: a real failure, not round-off
     x, _, _, converged, _ = fit_solver.gauss_newton(_cusp_problem(1e6, x0), np.array([x0]), "linear", 1.0)
     assert not converged and x[0] == x0
+
+
+def test_a_prior_centre_keeps_what_few_points_cannot_see(recorded):
+    """After a drift a heliostat is refitted on two checks with its earlier model as the priors'
+    centre: the parameters the two points do not determine stay at that model, not at the nominal."""
+    hid = "H0001"
+    nominal = HeliostatModel.from_config(CFG, [hid])
+    full = policy.refit(nominal, recorded[hid], nominal)[1]
+    few = recorded[hid][-2:]
+    centred = policy.refit(nominal, few, nominal.with_params(full.params[None, :]), prior_mean=full.params)[1]
+    plain = policy.refit(nominal, few, nominal.with_params(full.params[None, :]))[1]
+    # the two points agree with the full fit, so the centred refit stays at it; the plain one is drawn to 0
+    assert _beam_difference_mrad(full, centred, hid) < 0.1 * _beam_difference_mrad(full, plain, hid)
+    assert _beam_difference_mrad(full, plain, hid) > 0.3
+    # fast and reference solvers agree with a centre too, and so do the leave-one-out parameters
+    ref = policy.refit(nominal, few + recorded[hid][:3], nominal, method="reference", prior_mean=full.params)[1]
+    fast = policy.refit(nominal, few + recorded[hid][:3], nominal, prior_mean=full.params)[1]
+    assert _beam_difference_mrad(ref, fast, hid) < 1e-3
+    from helicalib.calibration.fit import leave_out_params
+
+    pts = few + recorded[hid][:3]
+    loo = leave_out_params(fast, [[0]])[0]
+    exact = policy.refit(nominal, pts[1:], nominal, prior_mean=full.params)[1].params
+    np.testing.assert_allclose(loo[fast.linearisation.free_idx], exact[fast.linearisation.free_idx],
+                               atol=0.05 * np.max(np.abs(full.params)))

@@ -141,7 +141,7 @@ def test_a_restarted_runner_keeps_the_reopened_calibration(drifted_run):
             assert kept and all(p.capture_time_s >= d["since_s"] for p in kept)
             assert len(kept) == len(first.book.points(hid))
             # the fit's prior is the model from before the drift, as stored with the drift event
-            np.testing.assert_allclose(again.fit_prior(hid).params[0], d["prior_params"])
+            np.testing.assert_allclose(again.prior_mean(hid), d["prior_params"])
             np.testing.assert_allclose(again.models[hid].params, first.models[hid].params, atol=1e-9)
             assert again.book.accepted(hid) == first.book.accepted(hid)
     finally:

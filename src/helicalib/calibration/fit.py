@@ -74,6 +74,7 @@ class Linearisation:
         least-squares row)
     hessian_weights : (2K + F,) those of the Gauss-Newton Hessian, ρ'(z) + 2 z ρ''(z)
     x : (F,) the solution; ``free_idx`` (F,) their columns in ``errors.PARAMETERS``; ``scale`` (F,) prior σ
+    centre : (F,) the priors' centre of those columns (parameter = centre + x · scale)
     """
 
     jacobian: np.ndarray
@@ -83,6 +84,7 @@ class Linearisation:
     x: np.ndarray
     free_idx: np.ndarray
     scale: np.ndarray
+    centre: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -197,7 +199,7 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
                     sigma_mrad: float = SIGMA_MRAD, residual_kind: str = "beam", candidate_sun_enu: np.ndarray | None = None,
                     aim_enu: np.ndarray | None = None, n_suggestions: int = 3,
                     approach: np.ndarray | None = None, start: np.ndarray | None = None,
-                    method: str = "fast") -> FitResult:
+                    method: str = "fast", prior_mean: np.ndarray | None = None) -> FitResult:
     """Fit the error model of one heliostat to its observations.
 
     Parameters
@@ -222,13 +224,16 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
         takes the one-sided shift.
     start : (P,), optional
         Parameters the solver starts from (only the free ones are used; e.g. the previous fit).
-        Default ``model.params``. The priors stay centred on 0 either way.
+        Default ``model.params``. The priors stay centred on ``prior_mean`` either way.
     method : "fast" (default) or "reference" (:data:`FIT_METHODS`)
         ``"fast"``: analytic Jacobian and a damped Gauss-Newton run to a step of 1e-9 prior σ; if
         it does not converge, the reference solver takes over. ``"reference"``:
         ``scipy.optimize.least_squares`` (TRF) with a central-difference Jacobian, whose covariance
         also uses that Jacobian. Both minimise the same cost; on recorded campaign observations
         their predicted beams agree to well under 0.001 mrad (docs/model.md).
+    prior_mean : (P,), optional
+        Centre of the priors (default 0: the nominal heliostat). A heliostat known to have changed
+        (a confirmed drift) is fitted with its earlier model as the centre.
     """
     if len(model) != 1:
         raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
@@ -243,15 +248,16 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     free_idx = np.array([em.index(n) for n in free_names], dtype=int)
     sig_prior = em.prior_sigma(prior_sigma)[free_idx]
     base = model.params[0].copy()
+    centre = np.zeros(em.P) if prior_mean is None else np.asarray(prior_mean, dtype=float).reshape(em.P)
     sigma_eff = sigma_mrad / 2.0 if residual_kind == "normal" else sigma_mrad
     prob = _Problem(model, strokes_mm, sun_enu, spot_enu, residual_kind, approach)
     first = base if start is None else np.asarray(start, dtype=float).reshape(em.P)
-    x0 = first[free_idx] / sig_prior
+    x0 = (first[free_idx] - centre[free_idx]) / sig_prior
     f_scale = f_scale_mrad / sigma_eff
 
     def params_of(xs: np.ndarray) -> np.ndarray:
         out = np.repeat(base[None, :], len(xs), axis=0)
-        out[:, free_idx] = xs * sig_prior
+        out[:, free_idx] = centre[free_idx] + xs * sig_prior
         return out
 
     solved = None
@@ -280,7 +286,7 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     z = (r_all / f_scale) ** 2
     weights, hessian_weights = _loss_weights(loss, z)
     lin = Linearisation(jacobian=j, residual=r_all, weights=weights, hessian_weights=hessian_weights, x=x.copy(),
-                        free_idx=free_idx, scale=sig_prior)
+                        free_idx=free_idx, scale=sig_prior, centre=centre[free_idx].copy())
     return FitResult(params=params, covariance=cov, sigma=sigma, residual_mrad=mag, residual_vec_mrad=res_vec,
                      rms_mrad=float(np.sqrt(np.mean(mag**2))) if len(mag) else float("nan"),
                      residual_kind=residual_kind, free=free_names, identifiability=ident, model=fitted,
@@ -354,7 +360,7 @@ def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndar
         rows = np.concatenate([[2 * int(i), 2 * int(i) + 1] for i in idx]) if len(idx) else np.zeros(0, dtype=int)
         jg, wg, vg, rg = lin.jacobian[rows], lin.weights[rows], lin.hessian_weights[rows], lin.residual[rows]
         dx = np.linalg.solve(a - jg.T @ (jg * vg[:, None]), jg.T @ (wg * rg))
-        out[g, lin.free_idx] = (lin.x + dx) * lin.scale
+        out[g, lin.free_idx] = lin.centre + (lin.x + dx) * lin.scale
     return out
 
 

@@ -32,7 +32,7 @@ def fit_points(observations, heliostat_id: str, until_s: float) -> list:
 
 
 def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = SIGMA_MRAD,
-                   alpha: float = DRIFT_ALPHA) -> dict | None:
+                   alpha: float = DRIFT_ALPHA, prior_mean=None) -> dict | None:
     """Test a re-check's observation ``check`` against the fit over ``points`` (module docstring).
 
     Parameters
@@ -41,6 +41,7 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     model : HeliostatModel, one row: the model the check placed it with (its newest fit)
     points : the fit's observations (:func:`fit_points`)
     check : the check's observation (strokes, sun, spot, approach)
+    prior_mean : (P,), optional, the fits' prior centre (after a confirmed drift: the model before it)
 
     Returns
     -------
@@ -49,7 +50,7 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     """
     if not points or check.spot_enu_m is None:
         return None
-    _model, fit = policy.refit(nominal, points, model)
+    _model, fit = policy.refit(nominal, points, model, prior_mean=prior_mean)
     if fit is None:
         return None
     strokes, sun, spot = policy._arrays([check])

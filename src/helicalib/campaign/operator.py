@@ -120,8 +120,9 @@ class OperatorDesk:
                 runner._prior.pop(hid, None)  # repaired after its drift: the nominal again
             runner.models[hid] = runner.nominal_of(hid)
             if b.points:
-                runner.models[hid], b.fit = policy.refit(runner.fit_prior(hid), b.points, runner.models[hid])
-                b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.fit_prior(hid), now,
+                runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid],
+                                                         prior_mean=runner.prior_mean(hid))
+                b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
                                            runner.models[hid])
             else:
                 b.verdict = None

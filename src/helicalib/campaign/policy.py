@@ -482,13 +482,15 @@ def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, no
 
 
 # ---------------------------------------------------------------------------------- fit
-def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method: str = "fast"):
+def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method: str = "fast",
+          prior_mean: np.ndarray | None = None):
     """Refit one heliostat's error model to its valid points; returns (model, FitResult or None).
 
     The solver starts from ``current``'s parameters (the priors stay centred on the nominal
-    heliostat), so a refit after one more point takes a few steps instead of a whole descent.
-    ``method``: the fit's solver (:data:`helicalib.calibration.fit.FIT_METHODS`; the fast one by
-    default, the same minimum as ``"reference"``)."""
+    heliostat, or on ``prior_mean`` (P,): after a confirmed drift, the model from before it), so a
+    refit after one more point takes a few steps instead of a whole descent. ``method``: the fit's
+    solver (:data:`helicalib.calibration.fit.FIT_METHODS`; the fast one by default, the same minimum
+    as ``"reference"``)."""
     if not points:
         return current, None
     strokes, sun, spot = _arrays(points)
@@ -498,7 +500,7 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
     fixed_as_nominal = np.any(approach) or np.array_equal(start.params[:, _BACKLASH], nominal.params[:, _BACKLASH])
     model = nominal if fixed_as_nominal else nominal.with_params(start.params)
     fit = fit_error_model(model, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0, approach=approach,
-                          start=start.params[0], method=method)
+                          start=start.params[0], method=method, prior_mean=prior_mean)
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return fit.model, fit

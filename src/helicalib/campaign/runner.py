@@ -188,7 +188,7 @@ class CampaignRunner:
         self._suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
         self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
         self._recent: dict[str, deque] = {}  # (time, model, whitened residual) of each heliostat's last checks
-        self._prior: dict[str, HeliostatModel] = {}  # after a confirmed drift: the fit's prior centre
+        self._prior: dict[str, np.ndarray] = {}  # after a confirmed drift: the fits' prior centre (P,)
         self._visit_model: dict[str, HeliostatModel] = {}  # the model each visit under way started with
         self.drifts: list[dict] = []  # confirmed drifts (this process and, from the store, earlier ones)
         self.checks = 0  # operation checks started
@@ -228,10 +228,10 @@ class CampaignRunner:
             if fit is not None:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
             if self.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
-                _model, self.book.h[hid].fit = policy.refit(self.fit_prior(hid), self.book.points(hid),
-                                                            self.models[hid])
+                _model, self.book.h[hid].fit = policy.refit(self.nominal_of(hid), self.book.points(hid),
+                                                            self.models[hid], prior_mean=self.prior_mean(hid))
             if visits:
-                self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.fit_prior(hid), now,
+                self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
         # stowed by THIS campaign for wind (its newest stow/resume event is a stow): stay stowed until
         # the wind allows; a plant stowed by its own logic (night, its own wind protection) is left alone
@@ -263,14 +263,14 @@ class CampaignRunner:
             epochs[hid] = float(e.data["since_s"])
             prior = e.data.get("prior_params")
             if prior is not None:
-                self._prior[hid] = self.nominal_of(hid).with_params(np.asarray(prior, dtype=float)[None, :])
+                self._prior[hid] = np.asarray(prior, dtype=float)
             self.drifts.append(dict(e.data, heliostat_id=hid, confirmed_s=e.time_s))
         return epochs
 
-    def fit_prior(self, hid: str) -> HeliostatModel:
-        """The centre of the priors of ``hid``'s fits: the nominal heliostat, or after a confirmed
-        drift the model from before it (:mod:`.operation`)."""
-        return self._prior.get(hid) or self.nominal_of(hid)
+    def prior_mean(self, hid: str) -> np.ndarray | None:
+        """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
+        heliostat, or after a confirmed drift the model from before it (:mod:`.operation`)."""
+        return self._prior.get(hid)
 
     # ------------------------------------------------------------------ events
     def safe_now(self) -> tuple[float, str]:
@@ -775,7 +775,7 @@ class CampaignRunner:
         if self.operation is not None and (was or hid in self._suspects) and first is not None \
                 and started_with is not None:
             self._drift_test(hid, ctx, first, started_with, now)
-        verdict = policy.verdict(self.cfg, self.book, hid, self.fit_prior(hid), now, self.models[hid])
+        verdict = policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now, self.models[hid])
         self.store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
                                   accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
                                   reasons=list(verdict.reasons),
@@ -808,11 +808,12 @@ class CampaignRunner:
         if suspect:  # tested against the fit from before the first suspicious check, not one it entered
             started_with, since = self._suspect_ref[hid]
             before = [p for p in self.book.points(hid) if p.capture_time_s < since]
-            evidence = drift_evidence(self.fit_prior(hid), started_with, before, first,
-                                      alpha=op_rules.CONFIRM_ALPHA)
+            evidence = drift_evidence(self.nominal_of(hid), started_with, before, first,
+                                      alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid))
         else:
             before = [p for p in self.book.points(hid) if p.visit_id != ctx.visit_id]
-            evidence = drift_evidence(self.fit_prior(hid), started_with, before, first)
+            evidence = drift_evidence(self.nominal_of(hid), started_with, before, first,
+                                      prior_mean=self.prior_mean(hid))
         if evidence is None:
             return
         lean = None
@@ -849,11 +850,13 @@ class CampaignRunner:
         self._recent.pop(hid, None)
         started_with = self._suspect_ref.pop(hid)[0]
         earlier = [p for p in self.book.points(hid) if p.capture_time_s < since]
-        prior_model, _fit = policy.refit(self.fit_prior(hid), earlier, started_with) if earlier else (started_with, None)
+        nominal = self.nominal_of(hid)
+        prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid))[0] if earlier
+                       else started_with)
         b = self.book.h[hid]
         b.points = [p for p in b.points if p.capture_time_s >= since]
-        self._prior[hid] = prior_model
-        self.models[hid], fit = policy.refit(prior_model, b.points, prior_model)
+        self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
+        self.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid])
         b.fit = fit
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
                   "points_dropped": len(earlier), "points_kept": len(b.points),
@@ -947,7 +950,8 @@ class CampaignRunner:
         self.book.add(obs)
         if self.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
             return self.models[hid]
-        model, fit = policy.refit(self.fit_prior(hid), self.book.points(hid), self.models[hid])
+        model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid],
+                                  prior_mean=self.prior_mean(hid))
         self.models[hid] = model
         if fit is not None:
             self.book.h[hid].fit = fit

@@ -55,10 +55,11 @@ def year_predictions(data) -> dict | None:
                       and o.capture_time_s >= since]
             if not points:
                 continue
-            prior = nominal.subset([i])
-            if drifts.get(hid, {}).get("prior_params") is not None:
-                prior = prior.with_params(np.asarray(drifts[hid]["prior_params"], dtype=float)[None, :])
-            model, fit = policy.refit(prior, points, prior)
+            one = nominal.subset([i])
+            centre = drifts.get(hid, {}).get("prior_params")
+            centre = None if centre is None else np.asarray(centre, dtype=float)
+            model, fit = policy.refit(one, points, one if centre is None else one.with_params(centre[None, :]),
+                                      prior_mean=centre)
             if fit is None:
                 continue
             fitted.append(i)
