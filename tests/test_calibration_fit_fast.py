@@ -264,3 +264,26 @@ def test_a_prior_centre_keeps_what_few_points_cannot_see(recorded):
     exact = policy.refit(nominal, pts[1:], nominal, prior_mean=full.params)[1].params
     np.testing.assert_allclose(loo[fast.linearisation.free_idx], exact[fast.linearisation.free_idx],
                                atol=0.05 * np.max(np.abs(full.params)))
+
+
+def test_points_weighed_down_by_their_sigma(recorded):
+    """A per-point σ scale: 1 changes nothing; a huge one removes the point (the fit equals the fit
+    without it); fast and reference solvers agree under it."""
+    hid = "H0017"
+    pts = recorded[hid]
+    strokes, sun, spot, approach = _inputs(pts)
+    nominal = HeliostatModel.from_config(CFG, [hid])
+    base = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0)
+    same = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0,
+                           point_sigma_scale=np.ones(len(pts)))
+    np.testing.assert_allclose(same.params, base.params, atol=1e-12)
+    scale = np.ones(len(pts))
+    scale[:6] = 1e6
+    down = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_sigma_scale=scale)
+    s2, u2, p2, a2 = _inputs(pts[6:])
+    without = fit_error_model(nominal, s2, u2, p2, approach=a2, n_suggestions=0)
+    assert _beam_difference_mrad(down, without, hid) < 1e-3
+    assert _beam_difference_mrad(down, base, hid) > 10 * _beam_difference_mrad(down, without, hid)
+    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_sigma_scale=scale,
+                          method="reference")
+    assert _beam_difference_mrad(ref, down, hid) < 1e-3

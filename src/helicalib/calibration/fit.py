@@ -199,7 +199,8 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
                     sigma_mrad: float = SIGMA_MRAD, residual_kind: str = "beam", candidate_sun_enu: np.ndarray | None = None,
                     aim_enu: np.ndarray | None = None, n_suggestions: int = 3,
                     approach: np.ndarray | None = None, start: np.ndarray | None = None,
-                    method: str = "fast", prior_mean: np.ndarray | None = None) -> FitResult:
+                    method: str = "fast", prior_mean: np.ndarray | None = None,
+                    point_sigma_scale: np.ndarray | None = None) -> FitResult:
     """Fit the error model of one heliostat to its observations.
 
     Parameters
@@ -234,6 +235,9 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     prior_mean : (P,), optional
         Centre of the priors (default 0: the nominal heliostat). A heliostat known to have changed
         (a confirmed drift) is fitted with its earlier model as the centre.
+    point_sigma_scale : (K,), optional
+        Each observation's noise σ is ``sigma_mrad`` times this (≥ 1 weighs it less; default all 1):
+        in year-round operation older points count less, so the model follows a slow drift.
     """
     if len(model) != 1:
         raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
@@ -251,6 +255,8 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     centre = np.zeros(em.P) if prior_mean is None else np.asarray(prior_mean, dtype=float).reshape(em.P)
     sigma_eff = sigma_mrad / 2.0 if residual_kind == "normal" else sigma_mrad
     prob = _Problem(model, strokes_mm, sun_enu, spot_enu, residual_kind, approach)
+    scale_k = np.ones(prob.k) if point_sigma_scale is None else np.asarray(point_sigma_scale, float).reshape(prob.k)
+    row_sigma = sigma_eff * np.repeat(scale_k, 2)  # the σ of each residual component (2 per observation)
     first = base if start is None else np.asarray(start, dtype=float).reshape(em.P)
     x0 = (first[free_idx] - centre[free_idx]) / sig_prior
     f_scale = f_scale_mrad / sigma_eff
@@ -262,16 +268,16 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
 
     solved = None
     if method == "fast":
-        solved = _solve_fast(prob, params_of, x0, free_idx, sig_prior, sigma_eff, loss, f_scale)
+        solved = _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale)
     if solved is None:
-        solved = _solve_reference(prob, params_of, x0, sigma_eff, loss, f_scale)
+        solved = _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale)
     x, j, res_vec, success, message, nfev = solved
     jd = j[: 2 * prob.k]
     info = j.T @ j
     cov_x = np.linalg.inv(info)
     # a-posteriori variance factor from the data residuals (only when there are spare degrees of freedom)
     dof = 2 * prob.k - float(np.trace(jd @ cov_x @ jd.T))
-    chi2 = float(np.sum((res_vec / sigma_eff) ** 2))
+    chi2 = float(np.sum((res_vec.ravel() / row_sigma) ** 2))
     factor = max(1.0, chi2 / dof) if dof >= 3.0 else 1.0
     cov_x = cov_x * factor
     params = params_of(x[None, :])[0]
@@ -282,7 +288,7 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     ident = _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x, sigma_eff, residual_kind,
                              candidate_sun_enu, aim_enu, n_suggestions)
     mag = np.linalg.norm(res_vec, axis=-1)
-    r_all = np.concatenate([res_vec.ravel() / sigma_eff, x])
+    r_all = np.concatenate([res_vec.ravel() / row_sigma, x])
     z = (r_all / f_scale) ** 2
     weights, hessian_weights = _loss_weights(loss, z)
     lin = Linearisation(jacobian=j, residual=r_all, weights=weights, hessian_weights=hessian_weights, x=x.copy(),
@@ -293,13 +299,14 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
                      success=success, message=message, nfev=nfev, linearisation=lin)
 
 
-def _solve_reference(prob, params_of, x0, sigma_eff, loss, f_scale):
-    """``least_squares`` (TRF) with a central-difference Jacobian in one vectorised call.
-    Returns ``(x, J at x (2K + F, F), residuals (K, 2) [mrad], success, message, nfev)``."""
+def _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale):
+    """``least_squares`` (TRF) with a central-difference Jacobian in one vectorised call; ``row_sigma``
+    (2K,) the σ of each residual component. Returns ``(x, J at x (2K + F, F), residuals (K, 2)
+    [mrad], success, message, nfev)``."""
     f = len(x0)
 
     def fun(x):
-        r = prob.residuals(params_of(x[None, :]))[0].ravel() / sigma_eff
+        r = prob.residuals(params_of(x[None, :]))[0].ravel() / row_sigma
         return np.concatenate([r, x])
 
     h = 1e-4
@@ -308,7 +315,7 @@ def _solve_reference(prob, params_of, x0, sigma_eff, loss, f_scale):
         xs = np.repeat(x[None, :], 2 * f, axis=0)
         xs[np.arange(f), np.arange(f)] += h
         xs[f + np.arange(f), np.arange(f)] -= h
-        r = prob.residuals(params_of(xs)).reshape(2 * f, -1) / sigma_eff
+        r = prob.residuals(params_of(xs)).reshape(2 * f, -1) / row_sigma
         jd = ((r[:f] - r[f:]) / (2 * h)).T
         return np.vstack([jd, np.eye(f)])
 
@@ -317,25 +324,26 @@ def _solve_reference(prob, params_of, x0, sigma_eff, loss, f_scale):
     return x, jac(x), prob.residuals(params_of(x[None, :]))[0], bool(sol.success), str(sol.message), int(sol.nfev)
 
 
-def _solve_fast(prob, params_of, x0, free_idx, sig_prior, sigma_eff, loss, f_scale):
+def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale):
     """Damped Gauss-Newton with the analytic Jacobian (:mod:`.fit_solver`); None if it does not
-    converge (the caller then solves with the reference solver)."""
+    converge (the caller then solves with the reference solver). ``row_sigma`` (2K,): the σ of
+    each residual component."""
     bj = fit_solver.BeamJacobian(prob.model.drives, prob.model.pivots_enu[0], prob.strokes, prob.approach,
                                  prob.sun, prob.spot, prob.basis, prob.kind)
     f = len(x0)
-    col_scale = sig_prior / sigma_eff
     eye = np.eye(f)
+    inv_sigma = 1.0 / row_sigma
 
     def fun_jac(x):
         res, jac = bj.evaluate(params_of(x[None, :])[0])
-        jd = jac[:, :, free_idx].reshape(-1, f) * col_scale
-        return np.concatenate([res.ravel() / sigma_eff, x]), np.vstack([jd, eye])
+        jd = jac[:, :, free_idx].reshape(-1, f) * sig_prior * inv_sigma[:, None]
+        return np.concatenate([res.ravel() * inv_sigma, x]), np.vstack([jd, eye])
 
     with np.errstate(divide="ignore", invalid="ignore"):
         x, r, j, converged, nfev = fit_solver.gauss_newton(fun_jac, x0, loss, f_scale)
     if not converged or not np.all(np.isfinite(x)):
         return None
-    return x, j, r[: 2 * prob.k].reshape(-1, 2) * sigma_eff, True, "Gauss-Newton converged", nfev
+    return x, j, (r[: 2 * prob.k] * row_sigma).reshape(-1, 2), True, "Gauss-Newton converged", nfev
 
 
 def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndarray:

@@ -121,7 +121,8 @@ class OperatorDesk:
             runner.models[hid] = runner.nominal_of(hid)
             if b.points:
                 runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid],
-                                                         prior_mean=runner.prior_mean(hid))
+                                                         prior_mean=runner.prior_mean(hid),
+                                                         age_tau_s=runner._age_tau_s)
                 b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
                                            runner.models[hid])
             else:

@@ -35,6 +35,8 @@ COOLDOWN_INVALID_S = 1800.0
 COOLDOWN_VALID_S = 1200.0
 """After a valid visit the heliostat waits this long (the next point should see another sun)."""
 FIT_LOSS = "soft_l1"
+MAX_AGE_SIGMA_LOG = 7.0
+"""An old point's σ grows at most by e^7 (about 1100): it still counts, a millionth of a new one."""
 MAX_VISIT_POINTS = 60
 """A heliostat's fits and verdicts stand on at most this many visits' points (the database keeps
 every observation): a year of operation adds a check every few days, and memory and fit time must
@@ -483,14 +485,15 @@ def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, no
 
 # ---------------------------------------------------------------------------------- fit
 def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method: str = "fast",
-          prior_mean: np.ndarray | None = None):
+          prior_mean: np.ndarray | None = None, age_tau_s: float | None = None):
     """Refit one heliostat's error model to its valid points; returns (model, FitResult or None).
 
     The solver starts from ``current``'s parameters (the priors stay centred on the nominal
     heliostat, or on ``prior_mean`` (P,): after a confirmed drift, the model from before it), so a
     refit after one more point takes a few steps instead of a whole descent. ``method``: the fit's
     solver (:data:`helicalib.calibration.fit.FIT_METHODS`; the fast one by default, the same minimum
-    as ``"reference"``)."""
+    as ``"reference"``). ``age_tau_s``: each point's noise σ grows as ``exp(age / age_tau_s)``, its
+    age counted from the newest point (year-round operation: the model follows a slow drift)."""
     if not points:
         return current, None
     strokes, sun, spot = _arrays(points)
@@ -499,8 +502,12 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
     # parameters the fit leaves fixed (the dead bands when no approach is recorded) keep the start's values
     fixed_as_nominal = np.any(approach) or np.array_equal(start.params[:, _BACKLASH], nominal.params[:, _BACKLASH])
     model = nominal if fixed_as_nominal else nominal.with_params(start.params)
+    scale = None
+    if age_tau_s:
+        t = np.array([p.capture_time_s for p in points], dtype=float)
+        scale = np.exp(np.minimum((t.max() - t) / float(age_tau_s), MAX_AGE_SIGMA_LOG))
     fit = fit_error_model(model, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0, approach=approach,
-                          start=start.params[0], method=method, prior_mean=prior_mean)
+                          start=start.params[0], method=method, prior_mean=prior_mean, point_sigma_scale=scale)
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return fit.model, fit

@@ -184,6 +184,8 @@ class CampaignRunner:
         if operation is not None and operation not in op_rules.OPERATION_MODES:
             raise ValueError(f"operation {operation!r}: choose one of {', '.join(op_rules.OPERATION_MODES)}")
         self.operation = operation if planner == "gaps" else None
+        # operation: older points count less in the fits (a slow drift is followed); a campaign weighs all alike
+        self._age_tau_s = op_rules.POINT_AGE_TAU_DAYS * 86400.0 if self.operation is not None else None
         self.rota_days = float(rota_days)
         self._suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
         self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
@@ -229,7 +231,8 @@ class CampaignRunner:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
             if self.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
                 _model, self.book.h[hid].fit = policy.refit(self.nominal_of(hid), self.book.points(hid),
-                                                            self.models[hid], prior_mean=self.prior_mean(hid))
+                                                            self.models[hid], prior_mean=self.prior_mean(hid),
+                                                            age_tau_s=self._age_tau_s)
             if visits:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
@@ -809,11 +812,12 @@ class CampaignRunner:
             started_with, since = self._suspect_ref[hid]
             before = [p for p in self.book.points(hid) if p.capture_time_s < since]
             evidence = drift_evidence(self.nominal_of(hid), started_with, before, first,
-                                      alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid))
+                                      alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
+                                      age_tau_s=self._age_tau_s)
         else:
             before = [p for p in self.book.points(hid) if p.visit_id != ctx.visit_id]
             evidence = drift_evidence(self.nominal_of(hid), started_with, before, first,
-                                      prior_mean=self.prior_mean(hid))
+                                      prior_mean=self.prior_mean(hid), age_tau_s=self._age_tau_s)
         if evidence is None:
             return
         lean = None
@@ -851,12 +855,13 @@ class CampaignRunner:
         started_with = self._suspect_ref.pop(hid)[0]
         earlier = [p for p in self.book.points(hid) if p.capture_time_s < since]
         nominal = self.nominal_of(hid)
-        prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid))[0] if earlier
-                       else started_with)
+        prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
+                                    age_tau_s=self._age_tau_s)[0] if earlier else started_with)
         b = self.book.h[hid]
         b.points = [p for p in b.points if p.capture_time_s >= since]
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
-        self.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid])
+        self.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
+                                             age_tau_s=self._age_tau_s)
         b.fit = fit
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
                   "points_dropped": len(earlier), "points_kept": len(b.points),
@@ -951,7 +956,7 @@ class CampaignRunner:
         if self.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
             return self.models[hid]
         model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid],
-                                  prior_mean=self.prior_mean(hid))
+                                  prior_mean=self.prior_mean(hid), age_tau_s=self._age_tau_s)
         self.models[hid] = model
         if fit is not None:
             self.book.h[hid].fit = fit
