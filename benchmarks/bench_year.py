@@ -15,6 +15,8 @@ The issue's goals: tracking ≤ 0.8 mrad every month, sky ≤ 0.5 mrad at the en
 median ≤ 7 days, board time after commissioning ≤ 20 %.
 
     .venv/bin/python benchmarks/bench_year.py [--field F] [--days 365] [--heliostats 500] [--workers 2]
+
+``BENCH_YEAR_OUT=path`` writes the JSON elsewhere (e.g. to compare two builds).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-OUT = ROOT / "benchmarks" / "out" / "bench_year.json"
+OUT = Path(os.environ.get("BENCH_YEAR_OUT", ROOT / "benchmarks" / "out" / "bench_year.json"))
 KEYS = ("accepted", "heliostats", "visits", "checks", "true_sky_rms_mrad", "true_tracking_rms_mrad",
         "monthly_plant_tracking_rms_mrad", "monthly_plant_tracking_undrifted_rms_mrad", "drifted", "drift_detected", "drift_false_alarms",
         "drift_median_days_to_fix", "drift_days_to_fix", "commissioned_day", "board_time_share_after_commissioning",
