@@ -80,9 +80,10 @@ same way (:func:`helicalib.campaign.drift.trend_p_value`) ..."""
 TREND_ALPHA = 1e-3
 """... below this p-value make the heliostat suspected, as one check outside its band does."""
 POINT_AGE_TAU_DAYS = 20.0
-"""In operation a point's noise σ in the fits grows as exp(age / this) (its weight halves about every
-7 days): every heliostat drifts slowly (foundations settle), and a fit that weighs two months of
-points alike lags it. The newest point's age is 0; the database keeps every point."""
+"""In ranked operation a point's noise σ in the fits grows as exp(age / this) (its weight halves
+about every 7 days): every heliostat drifts slowly (foundations settle), and a fit that weighs two
+months of points alike lags it. The newest point's age is 0; the database keeps every point. The
+rota rule's sparse checks would leave too few points of full weight: it weighs all alike."""
 PREFERRED_STEP_S = 1800.0
 """Each solar day the runner evaluates every fitted model's predicted error on the day's sun every
 this many seconds; a heliostat's check waits for the time its model is least sure (its preferred

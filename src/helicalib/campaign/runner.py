@@ -184,8 +184,9 @@ class CampaignRunner:
         if operation is not None and operation not in op_rules.OPERATION_MODES:
             raise ValueError(f"operation {operation!r}: choose one of {', '.join(op_rules.OPERATION_MODES)}")
         self.operation = operation if planner == "gaps" else None
-        # operation: older points count less in the fits (a slow drift is followed); a campaign weighs all alike
-        self._age_tau_s = op_rules.POINT_AGE_TAU_DAYS * 86400.0 if self.operation is not None else None
+        # ranked operation (daily checks): older points count less in the fits, so a slow drift is followed;
+        # a campaign, and a sparse rota (a point or two of full weight would be left), weigh all alike
+        self._age_tau_s = op_rules.POINT_AGE_TAU_DAYS * 86400.0 if self.operation == "ranked" else None
         self.rota_days = float(rota_days)
         self._suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
         self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
