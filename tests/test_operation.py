@@ -114,8 +114,9 @@ def test_a_drifted_heliostat_is_accepted_again_on_points_after_the_drift(drifted
     _cfg, result = drifted_run
     s = result.summary
     fixed = [x for x in s["drift_days_to_fix"] if x is not None]
-    assert fixed, s["drift_days_to_fix"]
-    assert s["drift_median_days_to_fix"] is None or s["drift_median_days_to_fix"] <= 3.6
+    assert len(fixed) == len(IDS), s["drift_days_to_fix"]  # every settling accepted again before the end
+    # within the 3.6 days the run has left after the drifts (2.4-2.6 days in)
+    assert s["drift_median_days_to_fix"] is not None and s["drift_median_days_to_fix"] <= 3.6
     for d in result.runner.drifts:
         if d.get("fixed_s") is not None:
             assert result.runner.book.accepted(d["heliostat_id"])
