@@ -68,8 +68,10 @@ FIELD = ROOT / "simulations" / "fields" / "bench500.yaml"
 SCENARIO = ROOT / "simulations" / "scenarios" / "benchmark.yaml"
 OUT = ROOT / "benchmarks" / "out"
 SITE = (40.063, 94.426, 1267.0)
-PLANNERS = ("gaps", "gaps+refine", "gaps-own", "round-robin", "round-robin-shared")
-"""``gaps+refine``: the gaps planner asked to spend idle board time on uncertain models (``--refine``);
+PLANNERS = ("gaps", "gaps+refine", "gaps-own", "gaps-turns", "round-robin", "round-robin-shared")
+"""``gaps-turns``: the gaps planner with three visits per board whose beams take turns on it
+(``--spots-per-board auto``; the others run the default, one visit per board at a time);
+``gaps+refine``: the gaps planner asked to spend idle board time on uncertain models (``--refine``);
 ``gaps-own``: the gaps planner with each heliostat on its own board only (``calibration.share_targets:
 false``); ``gaps`` and ``gaps+refine`` lend a free board to heliostats of a busy one (the default);
 ``round-robin-shared``: in turn over the whole field with boards shared as ``gaps`` shares them
@@ -178,7 +180,8 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     if planner == "gaps-own":
         cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"share_targets": False})})
     result = simulate_campaign(cfg, out_dir, days, seed=seed, scenario=scenario, planner=base, heliostat_ids=ids,
-                               progress=progress, refine=refine, start_s=start_s, fidelity=fidelity)
+                               progress=progress, refine=refine, start_s=start_s, fidelity=fidelity,
+                               spots_per_board="auto" if planner == "gaps-turns" else 1)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     s = result.summary
     start_s, timeline = acceptance_timeline(result.database, n)
@@ -234,9 +237,9 @@ def _run_job(field: str, scenario_path: str, job) -> dict:
     from helicalib.config import load_field_config
     from helicalib.sim.scenario import load_scenario
 
-    planner, days, seed, ids, out_dir, keep, start_s = job
+    planner, days, seed, ids, out_dir, keep, start_s, fidelity = job
     return run_one(load_field_config(field), planner, days, seed, load_scenario(scenario_path), ids, out_dir, keep,
-                   start_s)
+                   start_s, fidelity)
 
 
 def speed_ratio(results: dict, days: float, name: str = "gaps", base: str = "round-robin") -> dict:
@@ -338,6 +341,8 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="run the planners in parallel processes (default 1; "
                     "CPU times stay comparable, wall times do not)")
     ap.add_argument("--keep-frames", action="store_true", help="keep the PNG frames of each run")
+    ap.add_argument("--fidelity", choices=("render", "fast"), default="render",
+                    help="render (default): every frame drawn and measured; fast: the fitted sensor model")
     ap.add_argument("--baseline", type=Path, default=None,
                     help="an earlier bench_campaign JSON whose planners' results are reused instead of run "
                          "(e.g. round robin's, the costly one); it must be of the same field, heliostats, "
@@ -375,8 +380,8 @@ def main(argv=None) -> int:
                                seed=args.seed, start=args.start or START_DEFAULT)
         for name, r in reused.items():
             print(f"  {name}: reused from {args.baseline} ({r['days_simulated']:g} days simulated)", flush=True)
-    jobs = [(planner, days, args.seed, ids, args.work / planner.replace("+", "-"), args.keep_frames, start_s)
-            for planner in planners if planner not in reused]
+    jobs = [(planner, days, args.seed, ids, args.work / planner.replace("+", "-"), args.keep_frames, start_s,
+             args.fidelity) for planner in planners if planner not in reused]
 
     def done(planner: str, r: dict) -> None:  # each planner's figures as soon as it ends (a stopped run keeps them)
         results[planner] = r
@@ -392,7 +397,7 @@ def main(argv=None) -> int:
                 done(futures[fut], fut.result())
     else:
         for job in jobs:
-            done(job[0], run_one(cfg, job[0], *job[1:3], scenario, *job[3:6], start_s=start_s))
+            done(job[0], run_one(cfg, job[0], *job[1:3], scenario, *job[3:6], start_s=start_s, fidelity=args.fidelity))
     results.update({p: r for p, r in reused.items() if p in planners})
     results = {p: results[p] for p in planners}  # table columns in the order asked for
     ratios = {name: speed_ratio(results, days, name) for name in results if name.startswith("gaps")}
@@ -406,6 +411,7 @@ def main(argv=None) -> int:
     doc = {"benchmark": "campaign", "field": str(args.field), "heliostats": count, "per_target": per_target,
            "targets": targets,
            "scenario": scenario.name, "days": days, "seed": args.seed, "quick": bool(args.quick),
+           "fidelity": args.fidelity,
            "start": args.start or START_DEFAULT, "baseline": None if args.baseline is None else str(args.baseline),
            "reused": sorted(reused),
            "results": results, "speed_ratio": ratios, "speed_ratio_vs_shared_round_robin": shared,

@@ -191,9 +191,11 @@ def test_refinement_keeps_boards_busy_and_survives_a_restart(cfg, tmp_path):
     point its 2 h window asks for), and a restarted runner rebuilds the fits' covariances the
     planner ranks by."""
     ids = ["H0001", "H0002", "H0003", "H0021", "H0022"]
-    plain, sim_p, store_p, cid_p, _ = inprocess_campaign(cfg, tmp_path / "plain", 11, 8, ids)
+    # one visit per board at a time: the board time refinement fills is then the board's own
+    plain, sim_p, store_p, cid_p, _ = inprocess_campaign(cfg, tmp_path / "plain", 11, 8, ids, spots_per_board=1)
     plain.run_until(sim_p.t_s + 3 * 3600)
-    runner, sim, store, cid, cams = inprocess_campaign(cfg, tmp_path / "refine", 11, 8, ids, refine=True)
+    runner, sim, store, cid, cams = inprocess_campaign(cfg, tmp_path / "refine", 11, 8, ids, refine=True,
+                                                       spots_per_board=1)
     runner.run_until(sim.t_s + 3 * 3600)
     n_plain, n_refine = len(store_p.visits(campaign_id=cid_p)), len(store.visits(campaign_id=cid))
     store_p.close()
@@ -393,8 +395,8 @@ def test_a_campaign_stop_takes_each_beam_to_standby_before_tracking(cfg, tmp_pat
     for _ in range(400):  # until some visit holds its beam on the board
         runner.run_until(sim.t_s + 4.0)
         _uv, _hit, on = sim.truth.spots(sim.true_beams(jitter=False), sim.targets)
-        on_board = {hid: ctx for (_w, hid, _g, ctx) in runner.active.values()
-                    if sim.state[ctx.index] == HeliostatState.HOLDING and on[ctx.index]}
+        on_board = {hid: v.ctx for hid, v in runner.active.items()
+                    if sim.state[v.ctx.index] == HeliostatState.HOLDING and on[v.ctx.index]}
         if on_board:
             break
     assert on_board

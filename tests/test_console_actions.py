@@ -114,7 +114,7 @@ def test_repaired_resets_the_model_and_its_points_stay_dropped_after_a_restart(c
     assert runner.book.points("H0021")
     assert not runner.models["H0021"].params.tolist() == runner.nominal_of("H0021").params.tolist()
     _ask(runner, "repaired", ["H0021"])
-    while "H0021" in {h for (_w, h, _g, _c) in runner.active.values()}:
+    while "H0021" in runner.active:
         runner.run_until(sim.t_s + 60)  # a repair waits for a visit under way to end
     runner.tick(sim.t_s)
     t_fix = store.actions(cid)[0].done_s
@@ -191,7 +191,7 @@ def test_a_version_2_database_gets_the_actions_table(tmp_path):
 
 
 def test_a_restart_requeues_only_the_rechecks_not_started_and_none_out_of_service(cfg, tmp_path):
-    runner, sim, store, cid = _runner(cfg, tmp_path)
+    runner, sim, store, cid = _runner(cfg, tmp_path, spots_per_board=1)
     runner.run_until(sim.t_s + 2 * 3600)  # everyone visited, in cool-down or accepted
     asked = ["H0001", "H0002", "H0003"]  # one board (T2): they go one after another
     _ask(runner, "recheck", asked)
@@ -223,7 +223,7 @@ def test_in_operation_a_crews_recheck_goes_before_the_services_own_checks(cfg, t
         runner.run_until(sim.t_s + 1800)
     assert runner.checks, "no operation check in three plant days"
     target = cfg.heliostat("H0023").target
-    while any(t == target for t in runner.active):  # the board free, so the next visit on it is a new choice
+    while any(v.target_id == target for v in runner.active.values()):  # the board free, so the next visit on it is a new choice
         runner.run_until(sim.t_s + 60)
     runner.book.h["H0023"].cooldown_until_s = 0.0
     _ask(runner, "recheck", ["H0023"])

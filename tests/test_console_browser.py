@@ -164,8 +164,9 @@ def test_the_page_follows_the_campaign_without_a_reload(campaign, browser):
 
     def shows_current():
         """the page shows the heliostat the runner has on board T1"""
-        active = {t: h for t, (_w, h, _g, _c) in list(runner.active.items())}
-        return active.get("T1") and _board(browser, "T1") == active.get("T1") and active["T1"]
+        on_t1 = [h for h, v in list(runner.active.items()) if v.target_id == "T1"]
+        shown = _board(browser, "T1")
+        return shown in on_t1 and shown
 
     first = _until(shows_current, 40)
 

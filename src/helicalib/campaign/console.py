@@ -106,7 +106,8 @@ class LineLog(_Lines):
     def on_snapshot(self, s: Snapshot) -> None:
         if not self._status_due():
             return
-        boards = ", ".join(f"{b.target_id}: {b.heliostat_id or 'free'}" for b in s.boards)
+        boards = ", ".join(f"{b.target_id}: {'+'.join((b.heliostat_id, *b.others)) if b.heliostat_id else 'free'}"
+                           for b in s.boards)
         self._write(f"{iso_utc(s.time_s).replace('+00:00', 'Z')} status           {s.accepted}/{s.heliostats} "
                     f"accepted, {s.in_progress} in progress, {s.waiting} waiting; {s.visits} visits; "
                     f"{gate_text(s)}; {boards}; {s.next_band}")
@@ -207,7 +208,8 @@ class TerminalView:
             boards.add_column(col)
         for b in s.boards:
             since = "" if b.since_s is None else f"{(s.time_s - b.since_s) / 60.0:.1f} min"
-            boards.add_row(Text(b.target_id), Text(b.heliostat_id) if b.heliostat_id else Text("free", style="dim"),
+            who = Text(" + ".join((b.heliostat_id, *b.others))) if b.heliostat_id else Text("free", style="dim")
+            boards.add_row(Text(b.target_id), who,
                            "—" if b.iteration is None else str(b.iteration + 1), _fmt(b.last_error_mrad, "", 2), since)
         log = Table(box=None, show_header=False, expand=True)
         log.add_column(no_wrap=True, style="dim", width=9)

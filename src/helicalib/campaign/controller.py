@@ -14,6 +14,10 @@ clipped) starts a search: aim points on the board opposite to where the spot was
 ring around the centre. Every attempt is recorded, valid or not, with its reason. At the end the
 heliostat goes back to standby, then to tracking with its new corrections.
 
+Several heliostats in one board visit (:mod:`.board`): each visit holds the board's frame lock
+from its before frame until its beam is back at standby, so one beam at a time lights the board;
+the other visits travel to the standby point and wait there meanwhile.
+
 Safety: every stroke is checked against the drive's range before it is sent; beams rest only on
 the board or at the standby point (search aims never leave the board); on any fault the
 heliostat is returned to tracking.
@@ -27,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from helicalib.calibration.correction import stroke_correction
+from helicalib.campaign.board import Board
 from helicalib.campaign.sensor import Before, CaptureTimeError, SpotSensor
 from helicalib.devices.protocols import Plant
 from helicalib.devices.registers import HeliostatState
@@ -105,6 +110,10 @@ class VisitContext:
     time_slack_s: Callable[[], float] | None = None
     """How far the plant time read by ``now`` may be off [plant s] (the clock's uncertainty),
     added to the capture-time tolerance."""
+    board: Board | None = None
+    """The board shared with other visits (its frame lock); None: the visit is alone."""
+    on_board: bool = False
+    """True while the beam was last commanded onto the board (False at standby or tracking)."""
 
 
 @dataclass(frozen=True)
@@ -133,11 +142,14 @@ class VisitOutcome:
 
 
 class VisitAborted(HelicalibError):
-    """A visit cannot go on (fault, refused command, timeout); the reason code is ``code``."""
+    """A visit cannot go on: ``refused`` when the controller itself declined a command (a stroke
+    out of the drive's range: nothing was sent), else a fault (the plant's fault, refusal or a
+    timeout); the reason code is ``code``."""
 
-    def __init__(self, code: str, message: str):
+    def __init__(self, code: str, message: str, refused: bool = False):
         super().__init__(message)
         self.code = code
+        self.refused = refused
 
 
 def _in_range(ctx: VisitContext, strokes_mm: np.ndarray) -> bool:
@@ -145,11 +157,18 @@ def _in_range(ctx: VisitContext, strokes_mm: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(s)) and np.all(strokes_in_range(ctx.model.drives, s)))
 
 
-def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray) -> Generator[float, None, tuple[float, float]]:
-    """Command strokes (after the range check) and wait for "holding"; returns the read-back strokes."""
+def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray, on_board: bool = True
+                  ) -> Generator[float, None, tuple[float, float]]:
+    """Command strokes (after the range check) and wait for "holding"; returns the read-back strokes.
+    ``on_board``: the beam lands on the board (False: at standby or tracking)."""
     if not _in_range(ctx, strokes_mm):
         raise VisitAborted("stroke_out_of_range",
-                           f"{ctx.heliostat_id}: strokes {np.round(strokes_mm, 1).tolist()} mm lie outside the drive's range; not sent")
+                           f"{ctx.heliostat_id}: strokes {np.round(strokes_mm, 1).tolist()} mm lie outside the drive's range; not sent",
+                           refused=True)
+    if on_board and ctx.board is not None and ctx.board.lock_holder != ctx.heliostat_id:
+        raise VisitAborted("board_not_held", f"{ctx.heliostat_id}: a move onto board {ctx.target.id} without its "
+                                             "turn (another beam may be measured there); not sent", refused=True)
+    ctx.on_board = bool(on_board)
     ctx.last_strokes_mm = np.asarray(strokes_mm, dtype=float)
     seq = ctx.plant.move_to(ctx.index, np.asarray(strokes_mm, dtype=float))
     ctx.approach = _approach_after(ctx.approach, ctx.held_mm, ctx.last_strokes_mm)
@@ -226,8 +245,24 @@ def _aim_strokes(ctx: VisitContext, aim_enu: np.ndarray, t_s: float, on_board: b
     approach = tracking_direction(ctx.model, ctx.sun, aim_enu, t_s) if on_board and ctx.model.has_dead_bands else None
     sol = ctx.model.strokes_for_aim(sun_vec, aim_enu, approach)
     if not bool(sol.in_range[0]):
-        raise VisitAborted("aim_out_of_range", f"{ctx.heliostat_id}: the strokes for this aim point lie outside the drive's range now")
+        raise VisitAborted("aim_out_of_range", f"{ctx.heliostat_id}: the strokes for this aim point lie outside the drive's range now",
+                           refused=True)
     return sol.strokes_mm[0]
+
+
+def _lock(ctx: VisitContext) -> Generator[float, None, None]:
+    """Wait for the board's turn (at once when the visit is alone); the beam waits at standby."""
+    if ctx.board is not None:
+        yield from ctx.board.acquire(ctx.heliostat_id)
+
+
+def _unlock(ctx: VisitContext) -> None:
+    if ctx.board is not None:
+        ctx.board.release(ctx.heliostat_id)
+
+
+def _standby(ctx: VisitContext) -> np.ndarray:
+    return ctx.target.uvw_to_enu(np.asarray(ctx.target.standby_uvw_m))
 
 
 def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
@@ -235,9 +270,9 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     out = VisitOutcome(status="invalid", reason="not started", model=ctx.model)
     target = ctx.target
     centre = np.asarray(target.center_enu_m, dtype=float)
-    standby = target.uvw_to_enu(np.asarray(target.standby_uvw_m))
     try:
-        yield from move_and_hold(ctx, _aim_strokes(ctx, standby, ctx.now(), on_board=False))
+        yield from move_and_hold(ctx, _aim_strokes(ctx, _standby(ctx), ctx.now(), on_board=False), on_board=False)
+        yield from _lock(ctx)  # the board's turn: every other beam is off it until this one is back at standby
         before = ctx.sensor.before(ctx)
         if ctx.save_frame is not None and before.data is not None:
             ctx.before_path = ctx.save_frame(before.data, campaign_id=ctx.campaign_id,
@@ -286,7 +321,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
             strokes = corr.strokes_mm[0]
         out.iterations = placements
     except VisitAborted as err:
-        out.status, out.reason = ("refused" if "range" in err.code else "fault"), err.code
+        out.status, out.reason = ("refused" if err.refused else "fault"), err.code
         _record_failure(ctx, err.code, str(err))
     except (PlantError, MeasurementError) as err:
         code = "plant_error" if isinstance(err, PlantError) else getattr(err, "reason", "camera_error")
@@ -410,21 +445,28 @@ def leave_board(ctx: VisitContext) -> Generator[float, None, Left]:
     where it is: holding at standby, or on the board if even that move failed; the runner retries
     the return), or the corrections written with the track command."""
     try:
-        standby = ctx.target.uvw_to_enu(np.asarray(ctx.target.standby_uvw_m))
-        sol = ctx.model.strokes_for_aim(ctx.sun(ctx.now())[0], standby)
-        if bool(sol.in_range[0]):
-            yield from move_and_hold(ctx, sol.strokes_mm[0])
-    except (VisitAborted, PlantError, MeasurementError):
-        pass
-    corrections = None
-    if ctx.corrections is not None:
         try:
-            corrections = ctx.corrections(ctx.model)
-        except Exception:  # noqa: BLE001 - keep the plant's corrections rather than write doubtful ones
-            corrections = None
-    corrections = None if corrections is None else np.asarray(corrections, dtype=float)
-    try:  # None: the plant keeps the corrections it has
-        ctx.plant.track(ctx.index, corrections)
-    except PlantError as err:
-        return Left(error=f"back to tracking failed: {err}", corrections_mm=corrections)
-    return Left(corrections_mm=corrections)
+            if ctx.on_board:  # (a stopped visit's leg: its turn is still held, or waited for)
+                yield from _lock(ctx)
+            standby = _standby(ctx)
+            sol = ctx.model.strokes_for_aim(ctx.sun(ctx.now())[0], standby)
+            if bool(sol.in_range[0]):
+                yield from move_and_hold(ctx, sol.strokes_mm[0], on_board=False)
+        except (VisitAborted, PlantError, MeasurementError):
+            pass
+        corrections = None
+        if ctx.corrections is not None:
+            try:
+                corrections = ctx.corrections(ctx.model)
+            except Exception:  # noqa: BLE001 - keep the plant's corrections rather than write doubtful ones
+                corrections = None
+        corrections = None if corrections is None else np.asarray(corrections, dtype=float)
+        try:  # None: the plant keeps the corrections it has
+            ctx.plant.track(ctx.index, corrections)
+        except PlantError as err:
+            return Left(error=f"back to tracking failed: {err}", corrections_mm=corrections)
+        return Left(corrections_mm=corrections)
+    finally:
+        # the next visit's turn once this beam is off the board: at standby, or sent to tracking when even
+        # the standby move failed (if both failed it may rest on the board: the next visit's frames show it)
+        _unlock(ctx)

@@ -81,6 +81,8 @@ class BoardState:
     iteration: int | None = None
     last_error_mrad: float | None = None
     since_s: float | None = None
+    others: tuple[str, ...] = ()
+    """The other heliostats on the board at the same time (several in their own aim slots)."""
 
 
 @dataclass(frozen=True)

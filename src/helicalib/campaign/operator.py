@@ -142,7 +142,7 @@ class OperatorDesk:
         """Apply every pending action (a repair of a heliostat in a visit waits for the visit's end)."""
         pending = self.store.actions(self.campaign_id, pending=True)
         if pending:
-            busy = {h for (_w, h, _g, _c) in runner.active.values()}
+            busy = set(runner.active)
             for a in pending:
                 self._apply_one(runner, a, now, busy)
         self._hold(runner)
@@ -206,7 +206,7 @@ class OperatorDesk:
 
     def next_for(self, runner, target_id: str, now: float) -> str | None:
         """The queued re-check that goes on ``target_id`` now (its own board, not in a visit), or None."""
-        busy = {h for (_w, h, _g, _c) in runner.active.values()}
+        busy = set(runner.active)
         for k, (hid, action_id) in enumerate(self.queue):
             if (runner.cfg.heliostat(hid).target == target_id and hid not in busy
                     and hid not in self.standing.out_of_service and runner._reaches(hid, target_id, now)):

@@ -8,8 +8,9 @@ One :class:`CampaignRunner` drives the same campaign core in every place it runs
   the same :meth:`tick` is called by APScheduler jobs on the plant clock (see :mod:`.live`).
 
 Visits are generators (:func:`~helicalib.campaign.controller.run_visit`) that yield the plant
-seconds they want to wait; the runner keeps at most one visit per target and steps each when its
-wake-up time comes. Every observation goes to the store as soon as it is made.
+seconds they want to wait; the runner steps each when its wake-up time comes. A board serves up to
+``spots_per_board`` visits at once, whose beams take turns on it (:mod:`.board`).
+Every observation goes to the store as soon as it is made.
 """
 
 from __future__ import annotations
@@ -17,13 +18,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import operation as op_rules
 from helicalib.campaign import policy
+from helicalib.campaign.board import AUTO_SPOTS, Board
 from helicalib.campaign.controller import (
     APPROACH_LEAD_S,
     Left,
@@ -81,6 +83,17 @@ class Returning:
         return now + min(RETURN_RETRY_S * 2.0 ** max(self.attempts - 1, 0), RETURN_RETRY_MAX_S)
 
 
+@dataclass
+class RunningVisit:
+    """A visit under way: its generator and when it next wants a step."""
+
+    heliostat_id: str
+    target_id: str
+    gen: object
+    ctx: VisitContext
+    wake_s: float
+
+
 STATS_KEPT = 200_000
 """Visits whose iterations and first placements the runner's statistics keep in memory."""
 
@@ -96,6 +109,10 @@ class RunnerStats:
     iterations: deque = field(default_factory=lambda: deque(maxlen=STATS_KEPT))
     first_errors: deque = field(default_factory=lambda: deque(maxlen=STATS_KEPT))  # (time, mrad, had a model)
     outcomes: dict[str, int] = field(default_factory=dict)
+    shared_visits: int = 0
+    """Visits that started while another visit was under way on the same board."""
+    peak_on_board: int = 0
+    """The most visits under way on one board at once."""
 
 
 class CampaignRunner:
@@ -130,11 +147,15 @@ class CampaignRunner:
         of accepted heliostats, ``"ranked"`` by the expected reduction of the year-round error or on
         a fixed ``"rota"`` (every ``rota_days``); a check outside its fit's band is drift, confirmed
         drift reopens the calibration. None (default): a campaign, no checks.
+    spots_per_board : int or "auto"
+        Visits under way on one board at once (gaps planner; :mod:`.board`): their beams take turns
+        on the board while the others travel to or from it or wait at its standby point. 1
+        (default) is one visit at a time; ``"auto"`` is :data:`~.board.AUTO_SPOTS`.
     """
 
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
                  recheck=False, model=None, armed=True, refine=False, listeners=(), operation=None,
-                 rota_days=14.0):
+                 rota_days=14.0, spots_per_board=1):
         self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
         # the measurement seam: each board's spot sensor (a camera is wrapped in the camera + vision sensor)
         wrapped = camera_sensors(cfg, {t: c for t, c in cameras.items() if not isinstance(c, SpotSensor)})
@@ -159,7 +180,14 @@ class CampaignRunner:
         self.book = policy.Book(cfg, self.ids)
         self.book.table.set_guests(self._guests)
         self.stats = RunnerStats()
-        self.active: dict[str, tuple[float, str, object, VisitContext]] = {}
+        self.active: dict[str, RunningVisit] = {}
+        """Visits under way, by heliostat id."""
+        if spots_per_board not in (None, "auto") and int(spots_per_board) < 1:
+            raise ValueError(f"spots per board: {spots_per_board} (at least 1, or 'auto')")
+        self.spots_per_board = "auto" if spots_per_board in (None, "auto") else int(spots_per_board)
+        # several visits per board with the gaps planner (the round robins are the paper's baselines)
+        cap = (AUTO_SPOTS if self.spots_per_board == "auto" else self.spots_per_board) if planner == "gaps" else 1
+        self.boards: dict[str, Board] = {t.id: Board(t.id, cap=cap) for t in cfg.targets}
         self.stowed = False
         self.last_weather = None
         self.last_poll_s = -math.inf
@@ -350,7 +378,7 @@ class CampaignRunner:
         """Confirm or retry every return to tracking that is due (state 1 read from the plant)."""
         if self.stowed:  # the field's resume brings every heliostat back; no track command into a stow
             return
-        busy = {h for (_w, h, _g, _c) in self.active.values()}
+        busy = self.active
         for hid in [h for h, r in self.returning.items() if r.next_check_s <= now and h not in busy]:
             ret = self.returning[hid]
             try:
@@ -408,22 +436,23 @@ class CampaignRunner:
             self._nightly_retention(now)
         if self.returning and self.armed:
             self._check_returns(now)
-        due = [tid for tid, (wake, *_rest) in self.active.items() if wake <= now]
-        for tid in due:
-            self._step(tid, now)
-        free = [t.id for t in self.cfg.targets if t.id not in self.active]
+        due = sorted((v.wake_s, hid) for hid, v in self.active.items() if v.wake_s <= now)
+        for _wake, hid in due:
+            if hid in self.active:
+                self._step(hid, now)
+        free = self._free_targets()
         gate = None
         if free and not self.stowed:
             gate = self._gate(now)
             if gate.open and not (self.operator is not None and self.operator.paused):  # operator: paused
                 for tid in free:
-                    self._start_visit(tid, now)
-        wakes = [w for (w, *_r) in self.active.values()]
+                    while self._start_visit(tid, now):  # a shared board fills its slots
+                        pass
+        wakes = [v.wake_s for v in self.active.values()]
         wakes.append(self.last_poll_s + WEATHER_POLL_S)
         if self.armed and not self.stowed:  # (while stowed, or for a heliostat in a visit, no check is due)
-            busy = {h for (_w, h, _g, _c) in self.active.values()}
-            wakes.extend(r.next_check_s for h, r in self.returning.items() if h not in busy)
-        if [t for t in self.cfg.targets if t.id not in self.active] and not self.stowed:
+            wakes.extend(r.next_check_s for h, r in self.returning.items() if h not in self.active)
+        if self._free_targets() and not self.stowed:
             if gate is not None and not gate.open and gate.night:
                 wakes.append(max(now + PLANNER_TICK_S, gate.next_open_s))
             elif self._steady():  # operation with every heliostat accepted: the next check can wait minutes
@@ -508,12 +537,13 @@ class CampaignRunner:
             return
         self.stowed = True
         self.event("stow", reason)
-        for tid in list(self.active):
-            _wake, _hid, gen, ctx = self.active.pop(tid)
-            gen.close()
-            self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="field stowed for wind")
-            self.event("visit_end", f"{ctx.heliostat_id} off {tid}: aborted (field stowed for wind)", ctx.heliostat_id,
-                       tid, data={"outcome": "aborted"})
+        for hid in list(self.active):
+            v = self.active.pop(hid)
+            v.gen.close()
+            self.boards[v.target_id].leave(hid)
+            self.store.end_visit(v.ctx.visit_id, ended_s=now, outcome="aborted", reason="field stowed for wind")
+            self.event("visit_end", f"{hid} off {v.target_id}: aborted (field stowed for wind)", hid,
+                       v.target_id, data={"outcome": "aborted"})
 
     def _gate(self, now: float):
         _vec, _az, el, _rising = self.sun(now)
@@ -527,9 +557,22 @@ class CampaignRunner:
         return gate
 
     # ------------------------------------------------------------------ visits
-    def _start_visit(self, target_id: str, now: float) -> None:
+    def _free_targets(self) -> list[str]:
+        """Boards that can take a visit now."""
+        return [t.id for t in self.cfg.targets if self.boards[t.id].has_room]
+
+    def _busy_targets(self) -> list[str]:
+        """Boards with a visit under way."""
+        return sorted({v.target_id for v in self.active.values()})
+
+    def _start_visit(self, target_id: str, now: float) -> bool:
+        """Start the visit the planner (or the crew, or a drift check) puts on ``target_id`` now.
+        Returns whether one started."""
+        board = self.boards[target_id]
+        if not board.has_room:
+            return False
         cands = self._home[target_id]
-        busy = [h for (_w, h, _g, _c) in self.active.values()]
+        busy = list(self.active)
         spreads = None
         if self.refine:
             spreads = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows,
@@ -546,29 +589,32 @@ class CampaignRunner:
             choice = policy.choose_next_vectorised(
                 self.cfg, self.book, target_id, now, lambda rows: self._cleanliness_of_rows(rows, now),
                 recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
-                active_targets=list(self.active), usable=usable)
+                active_targets=self._busy_targets(), usable=usable)
             if choice is None and self.operation is not None:
                 choice = self._check_for(target_id, now, busy)
                 check = choice is not None
         elif choice is None:
             guests = {h: r for h, r in self._guests.get(target_id, {}).items()
-                      if self.cfg.heliostat(h).target in self.active}
+                      if self.cfg.heliostat(h).target in self._busy_targets()}
             cleanliness = {hid: self._cleanliness(hid, now) for hid in [*cands, *guests]}
             choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
                                         recheck=self.recheck, busy_heliostats=busy, target_id=target_id,
                                         guests=guests, usable=usable)
         if choice is None:
-            return
+            return False
         hid = choice
         if not self.armed:
             self.event("note", f"not armed: would send {hid} to {target_id}", hid, target_id, time_s=now)
             self.book.visiting(hid, now)
             self.book.h[hid].cooldown_until_s = now + policy.COOLDOWN_VALID_S
-            return
+            return False
         visit_id = self.store.begin_visit(self.campaign_id, hid, target_id, now)
+        index = self.cfg.heliostat_index(hid)
+        shared = not board.empty
+        board.join(hid)
         ctx = VisitContext(
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
-            index=self.cfg.heliostat_index(hid), target=self.cfg.target(target_id),
+            index=index, target=self.cfg.target(target_id), board=board,
             sensor=self.sensors[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
             model=self.models[hid], settings=self.settings, record=self._record,
             save_frame=self.store.save_frame,
@@ -583,15 +629,19 @@ class CampaignRunner:
             self._check_visits[visit_id] = now
         self.returning.pop(hid, None)  # the visit commands it now; it ends with its own return
         self._boards[target_id] = BoardState(target_id, hid, None, None, now)
-        gen = run_visit(ctx)
-        self.active[target_id] = (now, hid, gen, ctx)
+        self.active[hid] = RunningVisit(hid, target_id, run_visit(ctx), ctx, now)
         self.stats.visits += 1
+        self.stats.shared_visits += int(shared)
+        self.stats.peak_on_board = max(self.stats.peak_on_board, len(board.visitors))
         why = "" if self.cfg.heliostat(hid).target == target_id else \
             f" (lent; its own board {self.cfg.heliostat(hid).target} is busy)"
+        if shared:
+            why += f" ({len(board.visitors)} visits on the board, beams taking turns)"
         if check:
             why += " (check: suspected drift)" if hid in self._suspects else " (check)"
         self.event("visit", f"{hid} onto {target_id}{why}", hid, target_id, time_s=now,
                    data={"check": True} if check else None)
+        return True
 
     def _eligible(self, hids, now: float, busy) -> list[str]:
         """Of ``hids``: accepted, not in a visit, off cool-down, mirror clean enough (the heliostats an
@@ -739,22 +789,24 @@ class CampaignRunner:
             read_at[r] = now
         return values[rows]
 
-    def _step(self, target_id: str, now: float) -> None:
-        _wake, hid, gen, ctx = self.active[target_id]
+    def _step(self, hid: str, now: float) -> None:
+        v = self.active[hid]
         try:
-            wait = next(gen)
+            wait = next(v.gen)
         except StopIteration as stop:
-            self._finish(target_id, stop.value, now)
+            self._finish(hid, stop.value, now)
             return
         except Exception as err:  # noqa: BLE001 - a visit must never take the campaign down
             # the visit could not leave by itself: _finish sends it back to tracking (left is None),
             # keeping the plant's corrections
-            self._finish(target_id, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}: {err}"), now)
+            self._finish(hid, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}: {err}"), now)
             return
-        self.active[target_id] = (now + float(wait), hid, gen, ctx)
+        v.wake_s = now + float(wait)
 
-    def _finish(self, target_id: str, out: VisitOutcome, now: float) -> None:
-        _wake, hid, _gen, ctx = self.active.pop(target_id)
+    def _finish(self, hid: str, out: VisitOutcome, now: float) -> None:
+        v = self.active.pop(hid)
+        target_id, ctx = v.target_id, v.ctx
+        self.boards[target_id].leave(hid)
         self.stats.outcomes[out.status] = self.stats.outcomes.get(out.status, 0) + 1
         if out.valid_points:
             self.stats.valid_visits += 1
@@ -923,8 +975,7 @@ class CampaignRunner:
         vec, _az, el, _r = self.sun(now + policy.TRACKING_REFRESH_S / 2)
         if not self.armed or self.recheck or self.stowed or el < self.cfg.acceptance.low_band_deg[0]:
             return
-        busy = {h for (_w, h, _g, _c) in self.active.values()}
-        ids = [hid for hid in self.ids if hid not in busy and self.book.points(hid)]
+        ids = [hid for hid in self.ids if hid not in self.active and self.book.points(hid)]
         if not ids:
             return
         rows = [self._index[hid] for hid in ids]
@@ -977,9 +1028,10 @@ class CampaignRunner:
         confirmed is checked once. Returns the heliostats left off tracking: each has an
         ``off_tracking`` event, and the next run on this database retries them first."""
         leaving = []
-        for tid in list(self.active):
-            _wake, hid, gen, ctx = self.active.pop(tid)
-            gen.close()
+        for hid in list(self.active):
+            v = self.active.pop(hid)
+            v.gen.close()
+            ctx, tid = v.ctx, v.target_id
             self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
             self.event("visit_end", f"{hid} off {tid}: aborted (campaign stopped), leaving via standby", hid, tid,
                        data={"outcome": "aborted"})
@@ -995,6 +1047,8 @@ class CampaignRunner:
                     t = self.clock.now_s()
                 leaving.append([t + float(leg.send(None)), hid, ctx, leg])
             except StopIteration as done:
+                if ctx.board is not None:
+                    ctx.board.leave(hid)
                 self._after_leaving(hid, done.value, self.safe_now()[0])
             except HelicalibError as err:  # no clock: straight back to tracking, as before a stop
                 for _w, h, c, g in [[wake, hid, ctx, leg], *leaving]:
@@ -1029,9 +1083,13 @@ class CampaignRunner:
         """The campaign's state at plant time ``now`` (read-only; call it where no tick runs)."""
         boards = []
         for t in self.cfg.targets:
-            if t.id in self.active:
-                b = self._boards.get(t.id, BoardState(t.id, self.active[t.id][1]))
-                boards.append(b if b.heliostat_id == self.active[t.id][1] else BoardState(t.id, self.active[t.id][1]))
+            board = self.boards[t.id]
+            on = ([board.measuring] if board.measuring in board.visitors else []) + \
+                [h for h in board.visitors if h != board.measuring]
+            if on:
+                b = self._boards.get(t.id, BoardState(t.id, on[0]))
+                b = b if b.heliostat_id in on else BoardState(t.id, on[0])
+                boards.append(replace(b, others=tuple(h for h in on if h != b.heliostat_id)))
             else:
                 boards.append(BoardState(t.id))
         el = self.sun(now)[2]

@@ -154,7 +154,8 @@ def live_session(args, mode: str) -> int:
                                 heliostat_ids=opened.heliostat_ids, planner=args.planner, recheck=args.recheck,
                                 armed=args.arm, refine=getattr(args, "refine", False),
                                 listeners=[output.on_event],  # a restart's own events are shown too
-                                operation=operation, rota_days=getattr(args, "rota_days", 14.0))
+                                operation=operation, rota_days=getattr(args, "rota_days", 14.0),
+                                spots_per_board=getattr(args, "spots_per_board", 1))
         if operation and getattr(args, "keep_frames", None) is not None:
             runner.retention = (int(args.keep_frames), True)  # every night: frames of the newest N and the rejected
         output = attach_console(args, runner, output)  # operator actions; the crew console with --console

@@ -46,14 +46,15 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
                       over_network: bool = False, planner: str = "gaps", heliostat_ids=None, progress=None,
                       rate: float = 3000.0, refine: bool = False, fidelity: str = "render", operation: str | None = None,
                       rota_days: float = 14.0, monthly_tracking: bool | None = None,
-                      keep_frames: int | None = None) -> SimulationResult:
+                      keep_frames: int | None = None, spots_per_board=1) -> SimulationResult:
     """Run a simulated campaign; returns its summary (see :func:`summarise`). ``refine``, ``operation``
     (``"ranked"`` or ``"rota"``: the campaign then year-round operation) and ``rota_days``: see
     :class:`~helicalib.campaign.runner.CampaignRunner`; ``fidelity``: :data:`FIDELITIES`;
     ``monthly_tracking`` (default: with ``operation`` or 30 days and more): the plant's true tracking
     sampled every plant day, reported per 30 days (``monthly_plant_tracking_rms_mrad``); ``keep_frames``:
     every night delete the frames of all but each heliostat's newest N observations and the rejected
-    ones (as ``helicalib operate``; default keep all)."""
+    ones (as ``helicalib operate``; default keep all); ``spots_per_board``: heliostats on one board at
+    once (1, N or ``"auto"``, :mod:`helicalib.campaign.board`)."""
     from helicalib.errors import ConfigError
     from helicalib.sim.scenario import Scenario
 
@@ -76,12 +77,12 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
             monthly_tracking = operation is not None or days >= MONTH_DAYS
         return _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_network, planner,
                          heliostat_ids, progress, rate, refine, fidelity, operation, rota_days, monthly_tracking,
-                         keep_frames)
+                         keep_frames, spots_per_board)
 
 
 def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_network, planner, heliostat_ids,
               progress, rate, refine, fidelity, operation=None, rota_days=14.0,
-              monthly_tracking=False, keep_frames=None) -> SimulationResult:
+              monthly_tracking=False, keep_frames=None, spots_per_board=1) -> SimulationResult:
     from helicalib.sim.clock import VirtualClock
     from helicalib.sim.plant import SimulatedPlant
 
@@ -116,11 +117,13 @@ def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_
                 config_path=str(cfg.source or ""),
                 settings={"days": days, "seed": seed, "planner": planner, "refine": refine,
                           "over_network": over_network, "scenario": scenario.name, "fidelity": fidelity,
-                          "operation": operation, "rota_days": rota_days if operation == "rota" else None})
+                          "operation": operation, "rota_days": rota_days if operation == "rota" else None,
+                          "spots_per_board": spots_per_board})
         elif clock.now_s() < store_resume_time(store, campaign_id, start_s):
             clock.sleep(store_resume_time(store, campaign_id, start_s) - clock.now_s())
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=heliostat_ids,
-                                planner=planner, refine=refine, operation=operation, rota_days=rota_days)
+                                planner=planner, refine=refine, operation=operation, rota_days=rota_days,
+                                spots_per_board=spots_per_board)
         if keep_frames is not None:
             runner.retention = (int(keep_frames), True)
         store.remove_orphan_frames(campaign_id)  # after the runner closed the interrupted visits
@@ -341,6 +344,8 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "visits": stats.visits,
         "valid_visits": stats.valid_visits,
         "visits_per_target_hour": round(stats.visits / max(hours * len(cfg.targets), 1e-9), 3),
+        "spots_per_board": runner.spots_per_board, "shared_visits": stats.shared_visits,
+        "peak_visits_on_a_board": stats.peak_on_board,
         "mean_iterations": round(float(np.mean(stats.iterations)), 3) if stats.iterations else None,
         "first_shot_rms_mrad": rms(last_day),
         "first_shot_median_mrad": round(float(np.median(last_day)), 3) if last_day else None,

@@ -142,6 +142,28 @@ def add_live_session(p: argparse.ArgumentParser) -> None:
     add_console(p)
 
 
+def spots_per_board(text: str) -> int | str:
+    """``auto`` or a whole number >= 1 (``--spots-per-board``)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 'auto' or a whole number >= 1") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 'auto' or a whole number >= 1")
+    return value
+
+
+def add_spots(p: argparse.ArgumentParser) -> None:
+    """``--spots-per-board N|auto`` (several heliostats in one board visit, docs/campaign.md)."""
+    p.add_argument("--spots-per-board", type=spots_per_board, default=1, metavar="N|auto",
+                   help="heliostats in a visit on one board at once (gaps planner): their beams take turns on the "
+                        "board while the others slew to or from it or wait at its standby point; 1 (default) = one "
+                        "at a time; auto = 3 (docs/campaign.md: the measured gain, and why several spots are not on "
+                        "the board together)")
+
+
 def add_console(p: argparse.ArgumentParser) -> None:
     """``--console [HOST:]PORT`` and ``--console-public`` (the crew console, docs/console.md)."""
     p.add_argument("--console", metavar="[HOST:]PORT", default=None,

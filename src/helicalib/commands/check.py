@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import add_console, positive_float
+from helicalib.commands._args import add_spots, add_console, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="JSON lines on stdout: one per event, a status line every 5 s, a final summary with each "
                         "heliostat's present error, limit and verdict")
     add_console(p)
+    add_spots(p)
     p.set_defaults(func=run)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import add_live_session, add_live_target, nonnegative_int, positive_float
+from helicalib.commands._args import add_spots, add_live_session, add_live_target, nonnegative_int, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="every night keep the frames of each heliostat's newest N observations and of every rejected "
                         "one, delete the rest (default 20; the database keeps every observation)")
     add_live_session(p)
+    add_spots(p)
     p.set_defaults(func=run, recheck=False, planner="gaps", refine=False)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import add_live_session, add_live_target
+from helicalib.commands._args import add_spots, add_live_session, add_live_target
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="gaps planner: spend target time no acceptance gap needs on the heliostats whose model is "
                         "most uncertain at the present sun, accepted ones included (better year-round accuracy)")
     add_live_session(p)
+    add_spots(p)
     p.set_defaults(func=run, recheck=False)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from helicalib.commands._args import float_in, iso_time, nonnegative_int, positive_float
+from helicalib.commands._args import add_spots, float_in, iso_time, nonnegative_int, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,6 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "rejected ones, as helicalib operate does (default: keep every frame)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--report", action="store_true", help="also write the HTML report into OUT/report")
+    add_spots(p)
     p.set_defaults(func=run)
 
 
@@ -84,7 +85,8 @@ def run(args) -> int:
         result = simulate_campaign(cfg, out, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
                                    over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
                                    progress=progress, rate=args.rate, refine=args.refine, fidelity=args.fidelity,
-                                   operation=args.operate, rota_days=args.rota_days, keep_frames=args.keep_frames)
+                                   operation=args.operate, rota_days=args.rota_days, keep_frames=args.keep_frames,
+                                   spots_per_board=args.spots_per_board)
     (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
     if args.report:
         from helicalib.report.build import build_report
