@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from helicalib.campaign.runner import CampaignRunner
-from helicalib.campaign.simulate import default_start_s
-from helicalib.sim.camera import SimCamera
+from helicalib.simulation import default_start_s
+from helicalib.sim.camera import SimCamera, simulated_flux
 from helicalib.sim.clock import VirtualClock
 from helicalib.sim.plant import SimulatedPlant
 from helicalib.sim.scenario import parse_scenario
@@ -26,4 +26,5 @@ def inprocess_campaign(cfg, tmp_path, hours: float, seed: int, ids, camera=lambd
     cid = campaign_id if campaign_id is not None else store.start_campaign(
         name="t", mode="simulate", started_s=start,
         heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
+    runner_kw.setdefault("flux", simulated_flux(cfg, sim.scenario))  # the simulated cameras' Fe, as simulate gives it
     return CampaignRunner(cfg, plant(sim), cams, clock, store, cid, heliostat_ids=ids, **runner_kw), sim, store, cid, cams

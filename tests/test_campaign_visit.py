@@ -11,7 +11,7 @@ import pytest
 
 from helicalib.campaign import policy
 from helicalib.campaign.runner import CampaignRunner
-from helicalib.campaign.simulate import default_start_s, simulate_campaign
+from helicalib.simulation import default_start_s, simulate_campaign
 from helicalib.config import load_field_config
 from helicalib.devices.registers import HeliostatState
 from helicalib.geometry import errors as em

@@ -74,7 +74,7 @@ def browser():
 def campaign(tmp_path_factory):
     """A live armed campaign of six heliostats with its console on 127.0.0.1 (a free port)."""
     from helicalib.campaign.runner import CampaignRunner
-    from helicalib.campaign.simulate import _network_plant, default_start_s
+    from helicalib.simulation import _network_plant, default_start_s
     from helicalib.sim.scenario import Scenario
 
     tmp = tmp_path_factory.mktemp("console")

@@ -305,7 +305,7 @@ def served(cfg):
     """The simulated plant on loopback Modbus TCP + HTTP, with the real clients and the plant clock."""
     from contextlib import ExitStack
 
-    from helicalib.campaign.simulate import _network_plant, default_start_s
+    from helicalib.simulation import _network_plant, default_start_s
     from helicalib.sim.scenario import Scenario
 
     with ExitStack() as stack:

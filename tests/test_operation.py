@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from helicalib.campaign import operation as op
-from helicalib.campaign.simulate import simulate_campaign
+from helicalib.simulation import simulate_campaign
 from helicalib.config import load_field_config
 from helicalib.sim.scenario import parse_scenario
 

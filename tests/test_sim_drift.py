@@ -127,7 +127,7 @@ def test_simulate_drift_share_reports_the_drift_it_met(cfg, demo_field_path, tmp
     the run (after its first tenth here), and the summary lists the events that began."""
     import json
 
-    from helicalib.campaign.simulate import default_start_s
+    from helicalib.simulation import default_start_s
     from helicalib.cli import main
     from helicalib.commands.simulate import with_drift_share
     from helicalib.sim.scenario import Scenario

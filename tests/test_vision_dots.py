@@ -236,7 +236,7 @@ def cylinder():
 
 
 def test_simulated_cameras_render_dot_boards_the_vision_finds(cylinder):
-    from helicalib.campaign.simulate import default_start_s
+    from helicalib.simulation import default_start_s
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
 
@@ -264,7 +264,7 @@ def test_simulated_cameras_render_dot_boards_the_vision_finds(cylinder):
 
 
 def test_short_simulated_campaign_on_dot_boards_gives_valid_observations(cylinder, tmp_path):
-    from helicalib.campaign.simulate import default_start_s, simulate_campaign
+    from helicalib.simulation import default_start_s, simulate_campaign
     from helicalib.store.sqlite import Store
 
     start = default_start_s(cylinder) + 9.5 * 3600

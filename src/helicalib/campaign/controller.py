@@ -2,8 +2,11 @@
 
 A visit is a generator: it talks only to device protocols (:class:`~helicalib.devices.protocols.Plant`,
 ``Camera``) and yields the plant seconds it wants to wait, so one runner can interleave visits on
-several targets on a virtual clock, or drive them from a live scheduler. It returns a
-:class:`VisitOutcome`.
+several targets on a virtual clock, or drive them from a live scheduler. What it needs from the
+campaign it asks for by yielding a request instead (:class:`Record` an observation,
+:class:`SaveFrame`, :class:`Refit` the model, the :class:`Corrections` to write when it leaves);
+the runner serves it and sends the answer back (or throws the error into the visit). So the visit
+holds no store and no fit: it can be read as the paper's loop. It returns a :class:`VisitOutcome`.
 
 Steps: park the beam at the standby point → "before" reference from the visit's spot sensor (the
 board's camera, :mod:`.sensor`) → on-target strokes from the current model, each actuator arriving in the direction it moves while tracking (so the gears' backlash
@@ -94,12 +97,6 @@ class VisitContext:
     sun: Callable[[float], tuple[np.ndarray, float, float, bool]]
     model: HeliostatModel
     settings: VisitSettings
-    record: Callable[..., int]
-    save_frame: Callable[..., str] | None = None
-    """Save one frame, returns its stored path (the before frame is saved once per visit)."""
-    on_valid: Callable[[Observation], HeliostatModel] | None = None
-    corrections: Callable[[HeliostatModel], np.ndarray | None] | None = None
-    """Tracking stroke corrections [mm] to write when the visit ends (None: keep the plant's)."""
     last_strokes_mm: np.ndarray | None = None
     held_mm: np.ndarray | None = None
     """Read-back strokes of the last hold [mm] (None before the first)."""
@@ -114,6 +111,45 @@ class VisitContext:
     """The board shared with other visits (its frame lock); None: the visit is alone."""
     on_board: bool = False
     """True while the beam was last commanded onto the board (False at standby or tracking)."""
+
+
+@dataclass(frozen=True)
+class Record:
+    """Request: store this observation (frames first: ``frames`` are ``before_frame`` and/or
+    ``after_frames``); the runner sends back its id."""
+
+    observation: Observation
+    frames: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SaveFrame:
+    """Request: store one frame of this visit; the runner sends back its stored path."""
+
+    data: bytes
+    iteration: int
+    capture_time_s: float
+    kind: str
+
+
+@dataclass(frozen=True)
+class Refit:
+    """Request: a valid observation of this visit's heliostat; the runner adds it to the heliostat's
+    points, refits, and sends back the model the loop goes on with."""
+
+    observation: Observation
+
+
+@dataclass(frozen=True)
+class Corrections:
+    """Request, as the visit leaves: the tracking stroke corrections [mm] to write with the track
+    command for ``model``; the runner sends them back (None: the plant keeps its own)."""
+
+    model: HeliostatModel
+
+
+REQUESTS = (Record, SaveFrame, Refit, Corrections)
+"""What a visit may yield besides a wait in plant seconds."""
 
 
 @dataclass(frozen=True)
@@ -274,10 +310,8 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         yield from move_and_hold(ctx, _aim_strokes(ctx, _standby(ctx), ctx.now(), on_board=False), on_board=False)
         yield from _lock(ctx)  # the board's turn: every other beam is off it until this one is back at standby
         before = ctx.sensor.before(ctx)
-        if ctx.save_frame is not None and before.data is not None:
-            ctx.before_path = ctx.save_frame(before.data, campaign_id=ctx.campaign_id,
-                                             heliostat_id=ctx.heliostat_id, visit_id=ctx.visit_id, iteration=0,
-                                             capture_time_s=before.capture_time_s, kind="before")
+        if before.data is not None:  # saved once: every observation of the visit points to it
+            ctx.before_path = yield SaveFrame(before.data, 0, before.capture_time_s, "before")
         aim = centre.copy()
         strokes = _aim_strokes(ctx, aim, ctx.now())
         search = _search_aims(target, ctx.settings.search_steps)
@@ -302,9 +336,8 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
             if out.first_error_mrad is None:
                 out.first_error_mrad = obs.error_mrad
             out.final_error_mrad = obs.error_mrad
-            if ctx.on_valid is not None:
-                ctx.model = ctx.on_valid(obs)
-                out.model = ctx.model
+            ctx.model = yield Refit(obs)
+            out.model = ctx.model
             if obs.error_mrad < ctx.settings.loop_threshold_mrad:
                 out.status, out.reason = "converged", "ok"
                 break
@@ -322,15 +355,15 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         out.iterations = placements
     except VisitAborted as err:
         out.status, out.reason = ("refused" if err.refused else "fault"), err.code
-        _record_failure(ctx, err.code, str(err))
+        yield from _record_failure(ctx, err.code, str(err))
     except (PlantError, MeasurementError) as err:
         code = "plant_error" if isinstance(err, PlantError) else getattr(err, "reason", "camera_error")
         out.status, out.reason = "fault", code
-        _record_failure(ctx, code, str(err), frame=err.frame if isinstance(err, CaptureTimeError) else None)
+        yield from _record_failure(ctx, code, str(err), frame=err.frame if isinstance(err, CaptureTimeError) else None)
     except Exception as err:  # noqa: BLE001 - e.g. a full disk: the beam must still leave the board
         code = f"error_{type(err).__name__}"
         out.status, out.reason = "fault", code
-        _record_failure(ctx, code, f"{ctx.heliostat_id}: {type(err).__name__}: {err}")
+        yield from _record_failure(ctx, code, f"{ctx.heliostat_id}: {type(err).__name__}: {err}")
     out.left = yield from leave_board(ctx)
     return out
 
@@ -374,7 +407,7 @@ def _measure(ctx, before: Before, strokes_cmd, strokes_read, aim, iteration):
         if clean is not None:
             extra["cleanliness_measured"] = clean
     obs = Observation(valid=bool(reading.valid), reason=reading.reason, message=reading.message, **base, **extra)
-    obs_id = ctx.record(obs, before_frame=_before_data(ctx, before), after_frames=list(reading.frames))
+    obs_id = yield Record(obs, {"before_frame": _before_data(ctx, before), "after_frames": list(reading.frames)})
     return _with_id(obs, obs_id)
 
 
@@ -422,7 +455,7 @@ def _next_search_aim(target, obs: Observation, aim_enu: np.ndarray, search: list
     return target.uvw_to_enu(search.pop(0)) if search else None
 
 
-def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> None:
+def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> Generator[Record, int, None]:
     t = ctx.now()
     sun_vec, az, el, rising = ctx.sun(t)
     obs = Observation(campaign_id=ctx.campaign_id, heliostat_id=ctx.heliostat_id, target_id=ctx.target.id,
@@ -433,7 +466,7 @@ def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> N
                       sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message,
                       before_frame_path=ctx.before_path)
     try:
-        ctx.record(obs, **({} if frame is None else {"before_frame": frame.data}))
+        yield Record(obs, {} if frame is None else {"before_frame": frame.data})
     except Exception:  # noqa: BLE001 - recording the failure must not stop the beam leaving the board
         pass
 
@@ -454,12 +487,10 @@ def leave_board(ctx: VisitContext) -> Generator[float, None, Left]:
                 yield from move_and_hold(ctx, sol.strokes_mm[0], on_board=False)
         except (VisitAborted, PlantError, MeasurementError):
             pass
-        corrections = None
-        if ctx.corrections is not None:
-            try:
-                corrections = ctx.corrections(ctx.model)
-            except Exception:  # noqa: BLE001 - keep the plant's corrections rather than write doubtful ones
-                corrections = None
+        try:
+            corrections = yield Corrections(ctx.model)
+        except Exception:  # noqa: BLE001 - keep the plant's corrections rather than write doubtful ones
+            corrections = None
         corrections = None if corrections is None else np.asarray(corrections, dtype=float)
         try:  # None: the plant keeps the corrections it has
             ctx.plant.track(ctx.index, corrections)

@@ -28,6 +28,11 @@ from helicalib.campaign import policy
 from helicalib.campaign.board import AUTO_SPOTS, Board
 from helicalib.campaign.controller import (
     APPROACH_LEAD_S,
+    REQUESTS,
+    Corrections,
+    Record,
+    Refit,
+    SaveFrame,
     Left,
     VisitContext,
     VisitOutcome,
@@ -151,14 +156,17 @@ class CampaignRunner:
         Visits under way on one board at once (gaps planner; :mod:`.board`): their beams take turns
         on the board while the others travel to or from it or wait at its standby point. 1
         (default) is one visit at a time; ``"auto"`` is :data:`~.board.AUTO_SPOTS`.
+    flux : dict, optional
+        Target id → (Fe, atmosphere) of each board's camera for the cleanliness measured from the
+        spot (:func:`~.sensor.camera_sensors`; default each camera's FLUX.yaml from the config).
     """
 
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, planner="gaps",
                  recheck=False, model=None, armed=True, refine=False, listeners=(), operation=None,
-                 rota_days=14.0, spots_per_board=1):
+                 rota_days=14.0, spots_per_board=1, flux=None):
         self.cfg, self.plant, self.cameras, self.clock, self.store = cfg, plant, cameras, clock, store
         # the measurement seam: each board's spot sensor (a camera is wrapped in the camera + vision sensor)
-        wrapped = camera_sensors(cfg, {t: c for t, c in cameras.items() if not isinstance(c, SpotSensor)})
+        wrapped = camera_sensors(cfg, {t: c for t, c in cameras.items() if not isinstance(c, SpotSensor)}, flux)
         self.sensors = {t: (c if isinstance(c, SpotSensor) else wrapped[t]) for t, c in cameras.items()}
         self.campaign_id = campaign_id
         self.ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
@@ -616,10 +624,7 @@ class CampaignRunner:
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
             index=index, target=self.cfg.target(target_id), board=board,
             sensor=self.sensors[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
-            model=self.models[hid], settings=self.settings, record=self._record,
-            save_frame=self.store.save_frame,
-            on_valid=lambda obs, hid=hid: self._refit(hid, obs),
-            corrections=lambda model, hid=hid: self._corrections(hid, model),
+            model=self.models[hid], settings=self.settings,
             time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
         self.book.visiting(hid, now)
@@ -789,10 +794,40 @@ class CampaignRunner:
             read_at[r] = now
         return values[rows]
 
+    def _advance(self, hid: str, ctx: VisitContext, gen, stopping: bool = False) -> float:
+        """Run a visit (or a stopped visit's way off the board) until it asks to wait; returns the
+        wait [plant s]. Its requests on the way are served here: the store's writes and the refits
+        happen in the runner, never inside the visit (:data:`~.controller.REQUESTS`). A request that
+        fails is thrown into the visit, which decides (a failed record of a measurement ends the visit
+        as a fault and the beam leaves the board). ``StopIteration`` carries the visit's outcome."""
+        answer, error = None, None
+        while True:
+            request = gen.throw(error) if error is not None else gen.send(answer)
+            answer, error = None, None
+            if not isinstance(request, REQUESTS):
+                return float(request)
+            try:
+                answer = self._serve(hid, ctx, request, stopping)
+            except Exception as err:  # noqa: BLE001 - the visit decides; it must still leave the board
+                error = err
+
+    def _serve(self, hid: str, ctx: VisitContext, request, stopping: bool):
+        if isinstance(request, Record):
+            return self._record(request.observation, **request.frames)
+        if isinstance(request, SaveFrame):
+            return self.store.save_frame(request.data, campaign_id=self.campaign_id, heliostat_id=hid,
+                                         visit_id=ctx.visit_id, iteration=request.iteration,
+                                         capture_time_s=request.capture_time_s, kind=request.kind)
+        if isinstance(request, Refit):
+            return self._refit(hid, request.observation)
+        if isinstance(request, Corrections):  # a stopped visit leaves with the corrections last written
+            return self.corrections[hid] if stopping else self._corrections(hid, request.model)
+        raise TypeError(f"{hid}: a visit asked for {type(request).__name__}")
+
     def _step(self, hid: str, now: float) -> None:
         v = self.active[hid]
         try:
-            wait = next(v.gen)
+            wait = self._advance(hid, v.ctx, v.gen)
         except StopIteration as stop:
             self._finish(hid, stop.value, now)
             return
@@ -1035,7 +1070,6 @@ class CampaignRunner:
             self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
             self.event("visit_end", f"{hid} off {tid}: aborted (campaign stopped), leaving via standby", hid, tid,
                        data={"outcome": "aborted"})
-            ctx.corrections = lambda _model, hid=hid: self.corrections[hid]
             leaving.append([now, hid, ctx, leave_board(ctx)])
         while leaving:
             leaving.sort(key=lambda item: item[0])
@@ -1045,7 +1079,7 @@ class CampaignRunner:
                 if wake > t:
                     self.clock.sleep(wake - t)
                     t = self.clock.now_s()
-                leaving.append([t + float(leg.send(None)), hid, ctx, leg])
+                leaving.append([t + self._advance(hid, ctx, leg, stopping=True), hid, ctx, leg])
             except StopIteration as done:
                 if ctx.board is not None:
                     ctx.board.leave(hid)

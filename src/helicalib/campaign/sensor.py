@@ -190,12 +190,23 @@ class CameraSensor:
         return None if est.value is None else float(est.value)
 
 
-def camera_sensors(cfg, cameras: dict) -> dict[str, CameraSensor]:
-    """One :class:`CameraSensor` per board from the cameras (``target id → Camera``) a plant offers."""
+def camera_sensors(cfg, cameras: dict, flux: dict | None = None) -> dict[str, CameraSensor]:
+    """One :class:`CameraSensor` per board from the cameras (``target id → Camera``) a plant offers.
+
+    ``flux``: target id → (Fe [W/m² per grey] or None, atmosphere model) of the board's camera, for
+    the cleanliness measured from the spot; a board not in it takes its camera's FLUX.yaml from the
+    field config (``flux_calibration``; none: no cleanliness is measured). A FLUX.yaml that cannot
+    be read raises :class:`~helicalib.errors.ConfigError`. The camera itself is only a device
+    (frames); the composition root that knows the plant gives its flux factors here (the simulated
+    plant's: :func:`helicalib.sim.camera.simulated_flux`).
+    """
+    from helicalib.flux.config import flux_calibration_of
+
     out = {}
     for tid, cam in cameras.items():
-        out[tid] = CameraSensor(cam, cfg.cameras_for(tid)[0], fe_wm2_per_grey=getattr(cam, "fe_wm2_per_grey", None),
-                                atmosphere=getattr(cam, "atmosphere", "clear"))
+        cam_cfg = cfg.cameras_for(tid)[0]
+        fe, atmosphere = (flux or {}).get(tid) or flux_calibration_of(cfg, cam_cfg)
+        out[tid] = CameraSensor(cam, cam_cfg, fe_wm2_per_grey=fe, atmosphere=atmosphere)
     return out
 
 

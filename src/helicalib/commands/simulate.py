@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from helicalib.campaign.simulate import simulate_campaign
+    from helicalib.simulation import simulate_campaign
     from helicalib.commands._progress import ProgressReporter, timed_step
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError

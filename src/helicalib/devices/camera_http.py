@@ -72,25 +72,19 @@ class HttpCamera:
         Wait before the first retry [s], doubled each time.
     sleep : callable
         Real sleep (``time.sleep``), injected.
-    fe_wm2_per_grey : float, optional
-        The camera's flux calibration factor Fe [W/m² per grey] (from its FLUX.yaml); None: the
-        camera is no flux meter (no cleanliness is measured from its frames).
-    atmosphere : {"clear", "hazy"} or None
-        Attenuation model between mirror and board for the measured cleanliness (FLUX.yaml
-        ``cleanliness.atmosphere``; default clear).
+
+    A camera is a device: it gives frames. Its flux calibration (FLUX.yaml) is the sensor's
+    business (:func:`helicalib.campaign.sensor.camera_sensors`).
     """
 
     def __init__(self, url: str, timeout_s: float = 5.0, retries: int = 2, expected_size_px: tuple[int, int] | None = None,
-                 backoff_s: float = 0.2, sleep: Callable[[float], None] = time.sleep,
-                 fe_wm2_per_grey: float | None = None, atmosphere: str | None = "clear"):
+                 backoff_s: float = 0.2, sleep: Callable[[float], None] = time.sleep):
         self.url = url
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
         self.expected_size_px = None if expected_size_px is None else (int(expected_size_px[0]), int(expected_size_px[1]))
         self.backoff_s = float(backoff_s)
         self._sleep = sleep
-        self.fe_wm2_per_grey = None if fe_wm2_per_grey is None else float(fe_wm2_per_grey)
-        self.atmosphere = atmosphere
 
     def grab(self) -> Frame:
         """The current frame; raises :class:`CameraError` after the retries."""
@@ -161,27 +155,10 @@ def cameras_from_config(cfg, timeout_s: float = 5.0, retries: int = 2) -> dict[s
     """One :class:`HttpCamera` per target (the first camera configured for it), by target id.
 
     The frame size is checked against ``resolution_px`` when the camera gives it in the config.
-    A camera with ``flux_calibration`` (a FLUX.yaml, ``docs/flux.md``) gets its Fe and atmosphere
-    model as ``fe_wm2_per_grey`` and ``atmosphere``; a FLUX.yaml that cannot be read raises
-    :class:`~helicalib.errors.ConfigError`.
     """
     out: dict[str, HttpCamera] = {}
     for cam in cfg.cameras:
         if cam.target not in out:
             size = cam.resolution_px if "resolution_px" in cam.model_fields_set else None
-            fe, atmosphere = flux_calibration_of(cfg, cam)
-            out[cam.target] = HttpCamera(cam.url, timeout_s=timeout_s, retries=retries, expected_size_px=size,
-                                         fe_wm2_per_grey=fe, atmosphere=atmosphere)
+            out[cam.target] = HttpCamera(cam.url, timeout_s=timeout_s, retries=retries, expected_size_px=size)
     return out
-
-
-def flux_calibration_of(cfg, cam) -> tuple[float | None, str | None]:
-    """(Fe [W/m² per grey] or None, atmosphere model) of a configured camera, from its FLUX.yaml."""
-    path = cfg.flux_calibration_path(cam)
-    if path is None:
-        return None, "clear"
-    from helicalib.flux.config import load_flux_calibration
-
-    fc = load_flux_calibration(path)
-    fe = fc.fe_wm2_per_grey(cam.camera_matrix)
-    return fe, (fc.cleanliness.atmosphere if fc.cleanliness is not None else "clear")

@@ -293,3 +293,13 @@ def load_correction_data(fc: FluxCalibration) -> CorrectionData:
         record["flat_field"] = {"source": str(path), "shape_px": [int(raw.shape[1]), int(raw.shape[0])],
                                 "nonuniformity_error": round(eps_nu, 6)}
     return CorrectionData(dark_grey=dark, response=response, flat_factors=flat, record=record)
+
+
+def flux_calibration_of(cfg, cam) -> tuple[float | None, str | None]:
+    """(Fe [W/m² per grey] or None, atmosphere model) of a configured camera, from its FLUX.yaml."""
+    path = cfg.flux_calibration_path(cam)
+    if path is None:
+        return None, "clear"
+    fc = load_flux_calibration(path)
+    fe = fc.fe_wm2_per_grey(cam.camera_matrix)
+    return fe, (fc.cleanliness.atmosphere if fc.cleanliness is not None else "clear")

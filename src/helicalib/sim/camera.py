@@ -42,6 +42,14 @@ def simulated_fe(scenario) -> float:
     return 1.0 / (float(spec.board_albedo) * float(spec.gain_counts_per_wm2))
 
 
+def simulated_flux(cfg, scenario) -> dict[str, tuple[float, None]]:
+    """Each board's (Fe, atmosphere) for the campaign's camera sensors
+    (:func:`helicalib.campaign.sensor.camera_sensors`): the scenario's Fe, and None for the
+    atmosphere because the simulated plant renders no attenuation between mirror and board."""
+    fe = simulated_fe(scenario)
+    return {t.id: (fe, None) for t in cfg.targets}
+
+
 def camera_pose(position_enu: np.ndarray, look_at_enu: np.ndarray) -> np.ndarray:
     """World→camera rotation (3, 3), OpenCV axes (x right, y down, z forward), level (no roll)."""
     f = optics.unit(np.asarray(look_at_enu, float) - np.asarray(position_enu, float))
@@ -256,12 +264,9 @@ class SimCamera:
     ``grab()`` renders the board at the plant's current time and returns PNG bytes with the
     capture time in plant time. ``render()`` gives the uint8 array without encoding.
 
-    Flux hooks (read with ``getattr`` by the campaign, absent on cameras that have none):
-    ``fe_wm2_per_grey`` is :func:`simulated_fe` of the plant's scenario; ``atmosphere`` is None
-    because the simulated plant renders no atmospheric attenuation between mirror and board.
+    ``fe_wm2_per_grey`` is :func:`simulated_fe` of the plant's scenario (the campaign gets it
+    through :func:`simulated_flux`, not from the camera).
     """
-
-    atmosphere = None
 
     def __init__(self, plant, camera_id: str):
         self.plant = plant

@@ -143,7 +143,7 @@ class Sweep:
 
     def runs(self, out_dir: str | Path) -> list[Run]:
         """Every run of the grid, cell by cell, seeds in file order; ``out_dir`` is made absolute."""
-        from helicalib.campaign.simulate import default_start_s
+        from helicalib.simulation import default_start_s
         from helicalib.geometry.sun import parse_time, to_unix_seconds
 
         out = Path(out_dir).resolve()
@@ -190,7 +190,7 @@ def simulation_seed(root_seed: int, cell: str, seed: int) -> int:
 
 def fidelity_supported() -> bool:
     """Whether ``simulate_campaign`` takes a ``fidelity`` (else every run renders frames)."""
-    from helicalib.campaign.simulate import simulate_campaign
+    from helicalib.simulation import simulate_campaign
 
     return "fidelity" in inspect.signature(simulate_campaign).parameters
 

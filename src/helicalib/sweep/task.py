@@ -52,7 +52,7 @@ def run_one(run: Run, cfg, scenario) -> dict:
 
 
 def _run(run: Run, cfg, scenario) -> dict:
-    from helicalib.campaign.simulate import simulate_campaign
+    from helicalib.simulation import simulate_campaign
 
     out = Path(run.run_dir)
     if out.is_dir():

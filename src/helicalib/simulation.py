@@ -4,6 +4,10 @@
 campaign runner to it (directly, or through the real Modbus TCP and HTTP clients when
 ``over_network``), runs it for the given days and returns the summary figures, judged against
 the simulator's truth.
+
+This is the composition root of simulated runs: it knows both sides, the simulator
+(:mod:`helicalib.sim`) and the campaign (:mod:`helicalib.campaign`). The campaign itself imports
+nothing of ``sim``: it cannot tell a simulated plant from a real one (``tests/test_layers.py``).
 """
 
 from __future__ import annotations
@@ -83,6 +87,7 @@ def simulate_campaign(cfg, out_dir: Path, days: float, seed: int = 1, scenario=N
 def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_network, planner, heliostat_ids,
               progress, rate, refine, fidelity, operation=None, rota_days=14.0,
               monthly_tracking=False, keep_frames=None, spots_per_board=1) -> SimulationResult:
+    from helicalib.sim.camera import simulated_flux
     from helicalib.sim.clock import VirtualClock
     from helicalib.sim.plant import SimulatedPlant
 
@@ -123,7 +128,7 @@ def _simulate(store, cfg, out_dir, db_path, days, seed, scenario, start_s, over_
             clock.sleep(store_resume_time(store, campaign_id, start_s) - clock.now_s())
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=heliostat_ids,
                                 planner=planner, refine=refine, operation=operation, rota_days=rota_days,
-                                spots_per_board=spots_per_board)
+                                spots_per_board=spots_per_board, flux=simulated_flux(cfg, scenario))
         if keep_frames is not None:
             runner.retention = (int(keep_frames), True)
         store.remove_orphan_frames(campaign_id)  # after the runner closed the interrupted visits
@@ -282,10 +287,7 @@ def _network_plant(cfg, scenario, start_s, rate, stack):
                         heliostat_ids=[h.id for h in cfg.heliostats])
     if hasattr(plant, "close"):
         stack.callback(plant.close)
-    from helicalib.sim.camera import simulated_fe
-
-    cameras = {t.id: HttpCamera(server.camera_url(cfg.cameras_for(t.id)[0].id), timeout_s=5.0,
-                                fe_wm2_per_grey=simulated_fe(scenario), atmosphere=None) for t in cfg.targets}
+    cameras = {t.id: HttpCamera(server.camera_url(cfg.cameras_for(t.id)[0].id), timeout_s=5.0) for t in cfg.targets}
     clock = PlantClock(plant)
     return plant, cameras, clock, sim, server
 
