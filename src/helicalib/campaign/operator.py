@@ -116,13 +116,14 @@ class OperatorDesk:
             b = runner.book.h[hid]
             b.points[:] = [p for p in b.points if p.capture_time_s > t]
             b.fit, b.last_first_error_mrad = None, None
-            if any(d["heliostat_id"] == hid and d["since_s"] < t for d in runner.drifts):
-                runner._prior.pop(hid, None)  # repaired after its drift: the nominal again
+            # repaired after its drift: the nominal again (a drift confirmed after the repair keeps its prior)
+            runner.ops.forget(hid, prior_too=any(d["heliostat_id"] == hid and d["since_s"] < t
+                                                 for d in runner.drifts))
             runner.models[hid] = runner.nominal_of(hid)
             if b.points:
                 runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid],
                                                          prior_mean=runner.prior_mean(hid),
-                                                         age_tau_s=runner._age_tau_s)
+                                                         age_tau_s=runner.ops.age_tau_s)
                 b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
                                            runner.models[hid])
             else:
@@ -190,9 +191,7 @@ class OperatorDesk:
         b.points.clear()
         b.fit = b.verdict = b.last_first_error_mrad = None
         b.cooldown_until_s = 0.0
-        runner._prior.pop(hid, None)  # a repaired heliostat starts from the nominal again, drift or not
-        runner._suspects.pop(hid, None)
-        runner._recent.pop(hid, None)
+        runner.ops.forget(hid)  # a repaired heliostat starts from the nominal again, drift or not
         runner.models[hid] = runner.nominal_of(hid)
         runner.store.record_verdict(campaign_id=runner.campaign_id, heliostat_id=hid, time_s=now, accepted=False,
                                     n_points=0, rms_mrad=None, reasons=[f"repaired: model reset by {who}"],

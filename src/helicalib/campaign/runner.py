@@ -26,6 +26,7 @@ from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import operation as op_rules
 from helicalib.campaign import policy
 from helicalib.campaign.board import AUTO_SPOTS, Board
+from helicalib.campaign.checks import OperationChecks
 from helicalib.campaign.controller import (
     APPROACH_LEAD_S,
     REQUESTS,
@@ -66,9 +67,6 @@ not confirmed; the wait doubles with each attempt, up to :data:`RETURN_RETRY_MAX
 RETURN_RETRY_MAX_S = 600.0
 STEADY_TICK_S = 300.0
 """Plant seconds between planner ticks in operation while every heliostat is accepted (checks only)."""
-SPREAD_KEEP_S = 600.0
-"""Operation: a model's predicted error at the present sun is reused for this long [plant s]."""
-
 
 @dataclass
 class Returning:
@@ -220,28 +218,13 @@ class CampaignRunner:
         if operation is not None and operation not in op_rules.OPERATION_MODES:
             raise ValueError(f"operation {operation!r}: choose one of {', '.join(op_rules.OPERATION_MODES)}")
         self.operation = operation if planner == "gaps" else None
-        # ranked operation (daily checks): older points count less in the fits, so a slow drift is followed;
-        # a campaign, and a sparse rota (a point or two of full weight would be left), weigh all alike
-        self._age_tau_s = op_rules.POINT_AGE_TAU_DAYS * 86400.0 if self.operation == "ranked" else None
-        self.rota_days = float(rota_days)
-        self._suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
-        self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
-        self._recent: dict[str, deque] = {}  # (time, model, whitened residual) of each heliostat's last checks
-        self._prior: dict[str, np.ndarray] = {}  # after a confirmed drift: the fits' prior centre (P,)
-        self._visit_model: dict[str, HeliostatModel] = {}  # the model each visit under way started with
-        self.drifts: list[dict] = []  # confirmed drifts (this process and, from the store, earlier ones)
-        self.checks = 0  # operation checks started
+        self.ops = OperationChecks(self, self.operation, rota_days)
+        """Operation's checks and drift detection (:mod:`.checks`)."""
         self.retention: tuple[int, bool] | None = None
         """(keep_last, keep_invalid): every night the frames of all but each heliostat's newest
         ``keep_last`` observations (and, with keep_invalid, the rejected ones) are deleted
         (:func:`helicalib.store.retention.retain_frames`); None keeps every frame."""
         self._retained_day: int | None = None
-        self._spread_cache: dict[str, tuple] = {}  # hid -> (plant time, fit, spread) for operation checks
-        self._day: int | None = None  # operation: the solar day of the grid and preferences below
-        self._day_grid = np.array([])  # that day's times with the sun above the low band (PREFERRED_STEP_S)
-        self._preferred: dict[str, float] = {}  # hid -> that day's time at which its model is least sure
-        self._board_check_s: dict[str, tuple[int, float]] = {}  # target -> (solar day, seconds of checks)
-        self._check_visits: dict[int, float] = {}  # visit id -> start of each operation check under way
         self._resume_from_store()
 
     # ------------------------------------------------------------------ state from the store
@@ -254,7 +237,7 @@ class CampaignRunner:
         the plant reports stowed stays stowed until the wind allows a resume.
         """
         now = self.clock.now_s()
-        epochs = self._drifts_from_store()
+        epochs = self.ops.load_drifts()
         for hid in self.ids:
             for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid):
                 if obs.capture_time_s >= epochs.get(hid, -math.inf):
@@ -268,8 +251,8 @@ class CampaignRunner:
                 self.models[hid] = policy.model_from_fit(self.models[hid], fit)
             if self.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
                 _model, self.book.h[hid].fit = policy.refit(self.nominal_of(hid), self.book.points(hid),
-                                                            self.models[hid], prior_mean=self.prior_mean(hid),
-                                                            age_tau_s=self._age_tau_s)
+                                                            self.models[hid], prior_mean=self.ops.prior_mean(hid),
+                                                            age_tau_s=self.ops.age_tau_s)
             if visits:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
@@ -290,27 +273,6 @@ class CampaignRunner:
                     self.returning[hid] = Returning(since_s=now, next_check_s=now, failed=True)
                 else:
                     self._send_back(hid, None, now, why="left off tracking by the previous run")
-
-    def _drifts_from_store(self) -> dict[str, float]:
-        """Confirmed drifts of this campaign (its ``drift`` events): each heliostat's points before its
-        newest one are left out, and its fit is centred on the model from before it. Returns the
-        epochs (plant time from which points count) by heliostat."""
-        epochs: dict[str, float] = {}
-        for e in self.store.events(campaign_id=self.campaign_id, kind="drift"):
-            hid = e.heliostat_id
-            if hid not in self._index or "since_s" not in e.data:
-                continue
-            epochs[hid] = float(e.data["since_s"])
-            prior = e.data.get("prior_params")
-            if prior is not None:
-                self._prior[hid] = np.asarray(prior, dtype=float)
-            self.drifts.append(dict(e.data, heliostat_id=hid, confirmed_s=e.time_s))
-        return epochs
-
-    def prior_mean(self, hid: str) -> np.ndarray | None:
-        """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
-        heliostat, or after a confirmed drift the model from before it (:mod:`.operation`)."""
-        return self._prior.get(hid)
 
     # ------------------------------------------------------------------ events
     def safe_now(self) -> tuple[float, str]:
@@ -496,7 +458,7 @@ class CampaignRunner:
     def _steady(self) -> bool:
         """Operation with nothing but checks to plan: every heliostat accepted, none suspected of drift,
         no crew request waiting."""
-        if self.operation is None or self._suspects or (self.operator is not None and self.operator.queue):
+        if self.operation is None or self.ops.suspects or (self.operator is not None and self.operator.queue):
             return False
         return bool(np.all(self.book.table.accepted))
 
@@ -590,7 +552,7 @@ class CampaignRunner:
         choice = self.operator.next_for(self, target_id, now) if self.operator is not None else None
         check = False
         if choice is None and self.operation is not None:  # a suspected drift is checked again first
-            choice = self._suspect_for(target_id, now, busy)
+            choice = self.ops.suspect_for(target_id, now, busy)
             check = choice is not None
         if choice is None and self.planner_kind == "gaps":
             # a board is lent only to heliostats whose own board is busy (a free own board takes them)
@@ -599,7 +561,7 @@ class CampaignRunner:
                 recheck=self.recheck, busy_heliostats=busy, refine=self.refine, spreads=spreads,
                 active_targets=self._busy_targets(), usable=usable)
             if choice is None and self.operation is not None:
-                choice = self._check_for(target_id, now, busy)
+                choice = self.ops.check_for(target_id, now, busy)
                 check = choice is not None
         elif choice is None:
             guests = {h: r for h, r in self._guests.get(target_id, {}).items()
@@ -628,10 +590,7 @@ class CampaignRunner:
             time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
         self.book.visiting(hid, now)
-        self._visit_model[hid] = self.models[hid]
-        self.checks += int(check)
-        if check:
-            self._check_visits[visit_id] = now
+        self.ops.started(hid, visit_id, self.models[hid], now, check)
         self.returning.pop(hid, None)  # the visit commands it now; it ends with its own return
         self._boards[target_id] = BoardState(target_id, hid, None, None, now)
         self.active[hid] = RunningVisit(hid, target_id, run_visit(ctx), ctx, now)
@@ -643,103 +602,10 @@ class CampaignRunner:
         if shared:
             why += f" ({len(board.visitors)} visits on the board, beams taking turns)"
         if check:
-            why += " (check: suspected drift)" if hid in self._suspects else " (check)"
+            why += " (check: suspected drift)" if hid in self.ops.suspects else " (check)"
         self.event("visit", f"{hid} onto {target_id}{why}", hid, target_id, time_s=now,
                    data={"check": True} if check else None)
         return True
-
-    def _eligible(self, hids, now: float, busy) -> list[str]:
-        """Of ``hids``: accepted, not in a visit, off cool-down, mirror clean enough (the heliostats an
-        operation check may take; whether the strokes reach the board is asked of the one chosen)."""
-        free = [h for h in hids if h not in busy and self.book.h[h].cooldown_until_s <= now and self.book.accepted(h)]
-        if not free:
-            return []
-        plant = self._cleanliness_of_rows(np.array([self._index[h] for h in free], dtype=np.int64), now)
-        out = []
-        for hid, c in zip(free, plant):
-            if not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
-                c = self.book.h[hid].measured_cleanliness
-            if c is not None and math.isfinite(float(c)) and c <= self.cfg.gating.cleanliness_min:
-                continue
-            out.append(hid)
-        return out
-
-    def _suspect_for(self, target_id: str, now: float, busy) -> str | None:
-        """A heliostat of this board suspected of drift, off cool-down: checked again before anything else."""
-        for hid in self._home[target_id]:
-            if hid in self._suspects and hid not in busy and self.book.h[hid].cooldown_until_s <= now \
-                    and self._reaches(hid, target_id, now):
-                return hid
-        return None
-
-    def _operation_day(self, now: float) -> int:
-        """The solar day of ``now``; on a new one, the day's sun grid and each fitted heliostat's
-        preferred check time (the hour of the day's sun at which its model is least sure) are made."""
-        day = int((now + self.cfg.site.longitude_deg / 15.0 * 3600.0) // 86400.0)
-        if self._day != day:
-            self._day = day
-            t0 = day * 86400.0 - self.cfg.site.longitude_deg / 15.0 * 3600.0
-            times = np.arange(t0, t0 + 86400.0, op_rules.PREFERRED_STEP_S)
-            el = np.degrees(np.arcsin(np.clip(self.sun_table.vector_enu(times)[:, 2], -1.0, 1.0)))
-            times = times[el >= self.cfg.acceptance.low_band_deg[0]]
-            self._day_grid = times
-            self._preferred = {}
-            fitted = [h for h in self.ids if self.book.h[h].fit is not None]
-            if fitted and times.size:
-                spread = np.full((times.size, len(fitted)), np.nan)
-                for k, t in enumerate(times):
-                    got = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows, fitted,
-                                               self.sun_table.vector_enu(t), math.inf)
-                    spread[k] = [got.get(h, np.nan) for h in fitted]
-                for j, h in enumerate(fitted):
-                    if np.isfinite(spread[:, j]).any():
-                        self._preferred[h] = float(times[int(np.nanargmax(spread[:, j]))])
-        return day
-
-    def _spreads(self, hids: list[str], now: float) -> dict[str, float]:
-        """Each model's predicted beam error at the present sun [mrad], kept for
-        :data:`SPREAD_KEEP_S` of plant time (the sun moves about 2.5° in 10 min) or until a refit."""
-        out, todo = {}, []
-        for h in hids:
-            kept = self._spread_cache.get(h)
-            if kept is not None and now - kept[0] < SPREAD_KEEP_S and kept[1] is self.book.h[h].fit:
-                out[h] = kept[2]
-            else:
-                todo.append(h)
-        if todo:
-            fresh = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows, todo,
-                                         self.sun(now)[0], now)
-            for h in todo:
-                out[h] = fresh.get(h, math.nan)
-                self._spread_cache[h] = (now, self.book.h[h].fit, out[h])
-        return out
-
-    def _check_for(self, target_id: str, now: float, busy) -> str | None:
-        """The accepted heliostat of this board most worth a check now (:func:`.operation.choose_check`)."""
-        # only heliostats a check may take at all (unchecked long enough) are weighed: cheap tests first
-        wait = self.rota_days * 86400.0 if self.operation == "rota" else op_rules.MIN_CHECK_INTERVAL_S
-        cands = [h for h in self._home[target_id] if now - self.book.h[h].last_visit_s >= wait]
-        if self.operation == "ranked" and cands:
-            day = self._operation_day(now)
-            used_day, used_s = self._board_check_s.get(target_id, (day, 0.0))
-            if used_day == day and used_s >= op_rules.check_budget_s(self._day_grid, now):
-                return None  # this board's checks are ahead of their share of the day's sun so far
-            overdue = (op_rules.MAX_DAYS_UNCHECKED + 1.0) * 86400.0
-            cands = [h for h in cands if now >= self._preferred.get(h, -math.inf)
-                     or now - self.book.h[h].last_visit_s >= overdue]
-        cands = self._eligible(cands, now, busy)
-        if not cands:
-            return None
-        last = [self.book.h[h].last_visit_s for h in cands]
-        spreads = self._spreads(cands, now) if self.operation == "ranked" else {}
-        for _try in range(3):  # a heliostat whose strokes do not reach the board now is passed over
-            hid = op_rules.choose_check(cands, [spreads.get(h, np.nan) for h in cands], last, now,
-                                        mode=self.operation, rota_days=self.rota_days)
-            if hid is None or self._reaches(hid, target_id, now):
-                return hid
-            k = cands.index(hid)
-            del cands[k], last[k]
-        return None
 
     def _reaches(self, hid: str, target_id: str, now: float) -> bool:
         """Whether ``hid``'s model puts both the standby point and the centre of ``target_id``
@@ -856,16 +722,8 @@ class CampaignRunner:
                              iterations=out.iterations, first_error_mrad=out.first_error_mrad,
                              final_error_mrad=out.final_error_mrad)
         self.book.visited(hid, now, out)
-        started = self._check_visits.pop(ctx.visit_id, None)
-        if started is not None:  # the board time this check took, against its board's share of the day
-            day = self._operation_day(now)
-            prev_day, used = self._board_check_s.get(target_id, (day, 0.0))
-            self._board_check_s[target_id] = (day, (used if prev_day == day else 0.0) + max(0.0, now - started))
         was = self.book.accepted(hid)
-        started_with = self._visit_model.pop(hid, None)
-        if self.operation is not None and (was or hid in self._suspects) and first is not None \
-                and started_with is not None:
-            self._drift_test(hid, ctx, first, started_with, now)
+        self.ops.finished(hid, target_id, ctx.visit_id, first, was, now)
         verdict = policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now, self.models[hid])
         self.store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
                                   accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
@@ -880,85 +738,12 @@ class CampaignRunner:
                    time_s=now, data={"outcome": out.status, "iterations": out.iterations,
                                      "first_error_mrad": out.first_error_mrad, "final_error_mrad": out.final_error_mrad})
         if verdict.accepted and not was:
-            for d in self.drifts:
-                if d["heliostat_id"] == hid and d.get("fixed_s") is None:
-                    d["fixed_s"] = now
+            self.ops.accepted_again(hid, now)
         if verdict.accepted != was:
             rms = "" if verdict.rms_mrad is None else f", acceptance error {verdict.rms_mrad:.2f} mrad"
             text = "accepted" if verdict.accepted else f"no longer accepted: {(verdict.reasons or ('',))[0]}"
             self.event("verdict", f"{hid} {text} ({verdict.n_points} points{rms})", hid, time_s=now,
                        data={"accepted": verdict.accepted, "n_points": verdict.n_points, "rms_mrad": verdict.rms_mrad})
-
-    def _drift_test(self, hid: str, ctx, first, started_with: HeliostatModel, now: float) -> None:
-        """A check of an accepted heliostat: its first placement against the fit the visit started
-        with (:func:`.drift.drift_evidence`); :data:`.operation.CONFIRM_CHECKS` in a row outside the
-        band confirm a drift and reopen the calibration (:mod:`.operation`)."""
-        from helicalib.campaign.drift import drift_evidence, trend_p_value
-
-        suspect = self._suspects.get(hid)
-        if suspect:  # tested against the fit from before the first suspicious check, not one it entered
-            started_with, since = self._suspect_ref[hid]
-            before = [p for p in self.book.points(hid) if p.capture_time_s < since]
-            evidence = drift_evidence(self.nominal_of(hid), started_with, before, first,
-                                      alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
-                                      age_tau_s=self._age_tau_s)
-        else:
-            before = [p for p in self.book.points(hid) if p.visit_id != ctx.visit_id]
-            evidence = drift_evidence(self.nominal_of(hid), started_with, before, first,
-                                      prior_mean=self.prior_mean(hid), age_tau_s=self._age_tau_s)
-        if evidence is None:
-            return
-        lean = None
-        if not suspect:  # a slow creep: checks each inside the band but leaning the same way
-            recent = self._recent.setdefault(hid, deque(maxlen=op_rules.TREND_CHECKS))
-            recent.append((first.capture_time_s, started_with, evidence["whitened"]))
-            if not evidence["drift"] and len(recent) == recent.maxlen:
-                p_trend = trend_p_value([w for _t, _m, w in recent])
-                if p_trend < op_rules.TREND_ALPHA:
-                    lean = (recent[0], p_trend)
-        if not evidence["drift"] and lean is None:
-            if self._suspects.pop(hid, None):
-                self._suspect_ref.pop(hid, None)
-                self.event("note", f"{hid}: check inside its band again ({evidence['residual_mrad']:.2f} mrad, "
-                                   f"band {evidence['band_mrad']:.2f}, p {evidence['p_value']:.2g}); "
-                                   "drift not confirmed", hid, data={"drift": evidence}, time_s=now)
-            return
-        flagged = self._suspects.setdefault(hid, [])
-        if not flagged:  # the reference of the confirming check: the fit from before the first sign
-            since, model0 = (lean[0][0], lean[0][1]) if lean is not None else (first.capture_time_s, started_with)
-            self._suspect_ref[hid] = (model0, since)
-            flagged.append(since)
-        else:
-            flagged.append(first.capture_time_s)
-        text = (f"{hid}: check {evidence['residual_mrad']:.2f} mrad off its model, band {evidence['band_mrad']:.2f} "
-                f"mrad, p {evidence['p_value']:.2g}"
-                + (f"; its last {op_rules.TREND_CHECKS} checks lean the same way (p {lean[1]:.2g})" if lean else ""))
-        if len(flagged) < op_rules.CONFIRM_CHECKS:
-            self.event("note", text + "; suspected drift, checking again", hid, data={"drift": evidence}, time_s=now)
-            return
-        # confirmed: the points from the first suspicious check on count; the fit centres on the model before
-        since = flagged[0]
-        del self._suspects[hid]
-        self._recent.pop(hid, None)
-        started_with = self._suspect_ref.pop(hid)[0]
-        earlier = [p for p in self.book.points(hid) if p.capture_time_s < since]
-        nominal = self.nominal_of(hid)
-        prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
-                                    age_tau_s=self._age_tau_s)[0] if earlier else started_with)
-        b = self.book.h[hid]
-        b.points = [p for p in b.points if p.capture_time_s >= since]
-        self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
-        self.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
-                                             age_tau_s=self._age_tau_s)
-        b.fit = fit
-        record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
-                  "points_dropped": len(earlier), "points_kept": len(b.points),
-                  "prior_params": [float(x) for x in np.asarray(prior_model.params)[0]]}
-        self.drifts.append(dict(record, heliostat_id=hid))
-        self.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
-                   f"({len(earlier)} earlier points left out, {len(b.points)} kept)", hid, data=record, time_s=now)
-        if fit is not None:
-            self.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now, **policy.fit_record(fit))
 
     def _after_leaving(self, hid: str, left: Left | None, now: float) -> None:
         """What a heliostat's leaving the board did, recorded after the fact: the corrections the
@@ -1043,13 +828,27 @@ class CampaignRunner:
         if self.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
             return self.models[hid]
         model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid],
-                                  prior_mean=self.prior_mean(hid), age_tau_s=self._age_tau_s)
+                                  prior_mean=self.ops.prior_mean(hid), age_tau_s=self.ops.age_tau_s)
         self.models[hid] = model
         if fit is not None:
             self.book.h[hid].fit = fit
             self.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
                                   **policy.fit_record(fit))
         return model
+
+    @property
+    def drifts(self) -> list[dict]:
+        """Confirmed drifts (this process and, from the store, earlier ones)."""
+        return self.ops.drifts
+
+    @property
+    def checks(self) -> int:
+        """Operation checks started by this process."""
+        return self.ops.checks
+
+    def prior_mean(self, hid: str) -> np.ndarray | None:
+        """The centre of the priors of ``hid``'s fits (:meth:`.checks.OperationChecks.prior_mean`)."""
+        return self.ops.prior_mean(hid)
 
     def rechecked(self) -> bool:
         """Re-check mode: every heliostat has been visited and no visit is under way."""

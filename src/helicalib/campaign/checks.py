@@ -1,0 +1,281 @@
+"""Year-round operation inside a campaign run: which check goes on a board, and drift found and confirmed.
+
+:class:`OperationChecks` holds the state of ``helicalib operate`` (and ``simulate --operate``) that
+the campaign runner asks at each free board and at each visit's end: the heliostats suspected of
+drift and their reference models, the recent checks' residuals (a creep), each board's check time
+today against its share, each fitted heliostat's preferred time of day, and the confirmed drifts
+with the prior each reopened fit is centred on. The rules themselves (the gain, the budget, the
+thresholds) are in :mod:`.operation`; the statistics in :mod:`.drift`. The runner's book, models
+and store are reached through ``runner`` (``self.r``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from helicalib.campaign import operation as op_rules
+from helicalib.campaign import policy
+from helicalib.geometry.heliostat import HeliostatModel
+
+SPREAD_KEEP_S = 600.0
+"""A model's predicted error at the present sun is reused for this long [plant s]."""
+
+
+class OperationChecks:
+    """Operation's checks and drift detection for one runner.
+
+    Parameters
+    ----------
+    runner : CampaignRunner
+    mode : {"ranked", "rota"} or None
+        None: a campaign (no checks; :meth:`prior_mean` and the drifts of a resumed operation
+        still apply).
+    rota_days : float
+        ``rota``: days between checks of each heliostat.
+    """
+
+    def __init__(self, runner, mode: str | None, rota_days: float = 14.0):
+        self.r = runner
+        self.mode = mode
+        self.rota_days = float(rota_days)
+        # ranked operation (daily checks): older points count less in the fits, so a slow drift is followed;
+        # a campaign, and a sparse rota (a point or two of full weight would be left), weigh all alike
+        self.age_tau_s = op_rules.POINT_AGE_TAU_DAYS * 86400.0 if mode == "ranked" else None
+        self.suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
+        self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
+        self._recent: dict[str, deque] = {}  # (time, model, whitened residual) of each heliostat's last checks
+        self._prior: dict[str, np.ndarray] = {}  # after a confirmed drift: the fits' prior centre (P,)
+        self._visit_model: dict[str, HeliostatModel] = {}  # the model each visit under way started with
+        self.drifts: list[dict] = []  # confirmed drifts (this process and, from the store, earlier ones)
+        self.checks = 0  # operation checks started
+        self._spread_cache: dict[str, tuple] = {}  # hid -> (plant time, fit, spread)
+        self._day: int | None = None  # the solar day of the grid and preferences below
+        self._day_grid = np.array([])  # that day's times with the sun above the low band (PREFERRED_STEP_S)
+        self._preferred: dict[str, float] = {}  # hid -> that day's time at which its model is least sure
+        self._board_check_s: dict[str, tuple[int, float]] = {}  # target -> (solar day, seconds of checks)
+        self._check_visits: dict[int, float] = {}  # visit id -> start of each operation check under way
+
+    # ------------------------------------------------------------------ the visits' life
+    def started(self, hid: str, visit_id: int, model: HeliostatModel, now: float, check: bool) -> None:
+        """A visit of ``hid`` started with ``model`` (``check``: an operation check)."""
+        self._visit_model[hid] = model
+        self.checks += int(check)
+        if check:
+            self._check_visits[visit_id] = now
+
+    def finished(self, hid: str, target_id: str, visit_id: int, first, was_accepted: bool, now: float) -> None:
+        """A visit ended: the board time a check took, then its first placement tested for drift
+        (an accepted heliostat's, or a suspect's)."""
+        started = self._check_visits.pop(visit_id, None)
+        if started is not None:  # the board time this check took, against its board's share of the day
+            day = self.day(now)
+            prev_day, used = self._board_check_s.get(target_id, (day, 0.0))
+            self._board_check_s[target_id] = (day, (used if prev_day == day else 0.0) + max(0.0, now - started))
+        started_with = self._visit_model.pop(hid, None)
+        if self.mode is not None and (was_accepted or hid in self.suspects) and first is not None \
+                and started_with is not None:
+            self._drift_test(hid, visit_id, first, started_with, now)
+
+    def accepted_again(self, hid: str, now: float) -> None:
+        """``hid`` is accepted again: each of its open drifts is fixed now."""
+        for d in self.drifts:
+            if d["heliostat_id"] == hid and d.get("fixed_s") is None:
+                d["fixed_s"] = now
+
+    def forget(self, hid: str, prior_too: bool = True) -> None:
+        """A repaired or replaced heliostat: no suspicion, no creep record, and (``prior_too``) its
+        fits centred on the nominal again."""
+        if prior_too:
+            self._prior.pop(hid, None)
+        self.suspects.pop(hid, None)
+        self._suspect_ref.pop(hid, None)
+        self._recent.pop(hid, None)
+
+    def load_drifts(self) -> dict[str, float]:
+        """Confirmed drifts of this campaign (its ``drift`` events): each heliostat's points before its
+        newest one are left out, and its fit is centred on the model from before it. Returns the
+        epochs (plant time from which points count) by heliostat."""
+        epochs: dict[str, float] = {}
+        for e in self.r.store.events(campaign_id=self.r.campaign_id, kind="drift"):
+            hid = e.heliostat_id
+            if hid not in self.r._index or "since_s" not in e.data:
+                continue
+            epochs[hid] = float(e.data["since_s"])
+            prior = e.data.get("prior_params")
+            if prior is not None:
+                self._prior[hid] = np.asarray(prior, dtype=float)
+            self.drifts.append(dict(e.data, heliostat_id=hid, confirmed_s=e.time_s))
+        return epochs
+
+    def prior_mean(self, hid: str) -> np.ndarray | None:
+        """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
+        heliostat, or after a confirmed drift the model from before it (:mod:`.operation`)."""
+        return self._prior.get(hid)
+
+    # ------------------------------------------------------------------ choosing a check
+    def eligible(self, hids, now: float, busy) -> list[str]:
+        """Of ``hids``: accepted, not in a visit, off cool-down, mirror clean enough (the heliostats an
+        operation check may take; whether the strokes reach the board is asked of the one chosen)."""
+        free = [h for h in hids if h not in busy and self.r.book.h[h].cooldown_until_s <= now and self.r.book.accepted(h)]
+        if not free:
+            return []
+        plant = self.r._cleanliness_of_rows(np.array([self.r._index[h] for h in free], dtype=np.int64), now)
+        out = []
+        for hid, c in zip(free, plant):
+            if not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
+                c = self.r.book.h[hid].measured_cleanliness
+            if c is not None and math.isfinite(float(c)) and c <= self.r.cfg.gating.cleanliness_min:
+                continue
+            out.append(hid)
+        return out
+
+    def suspect_for(self, target_id: str, now: float, busy) -> str | None:
+        """A heliostat of this board suspected of drift, off cool-down: checked again before anything else."""
+        for hid in self.r._home[target_id]:
+            if hid in self.suspects and hid not in busy and self.r.book.h[hid].cooldown_until_s <= now \
+                    and self.r._reaches(hid, target_id, now):
+                return hid
+        return None
+
+    def day(self, now: float) -> int:
+        """The solar day of ``now``; on a new one, the day's sun grid and each fitted heliostat's
+        preferred check time (the hour of the day's sun at which its model is least sure) are made."""
+        day = int((now + self.r.cfg.site.longitude_deg / 15.0 * 3600.0) // 86400.0)
+        if self._day != day:
+            self._day = day
+            t0 = day * 86400.0 - self.r.cfg.site.longitude_deg / 15.0 * 3600.0
+            times = np.arange(t0, t0 + 86400.0, op_rules.PREFERRED_STEP_S)
+            el = np.degrees(np.arcsin(np.clip(self.r.sun_table.vector_enu(times)[:, 2], -1.0, 1.0)))
+            times = times[el >= self.r.cfg.acceptance.low_band_deg[0]]
+            self._day_grid = times
+            self._preferred = {}
+            fitted = [h for h in self.r.ids if self.r.book.h[h].fit is not None]
+            if fitted and times.size:
+                spread = np.full((times.size, len(fitted)), np.nan)
+                for k, t in enumerate(times):
+                    got = policy.model_spreads(self.r.cfg, self.r.book, self.r.models, self.r._nominal_rows, fitted,
+                                               self.r.sun_table.vector_enu(t), math.inf)
+                    spread[k] = [got.get(h, np.nan) for h in fitted]
+                for j, h in enumerate(fitted):
+                    if np.isfinite(spread[:, j]).any():
+                        self._preferred[h] = float(times[int(np.nanargmax(spread[:, j]))])
+        return day
+
+    def spreads(self, hids: list[str], now: float) -> dict[str, float]:
+        """Each model's predicted beam error at the present sun [mrad], kept for
+        :data:`SPREAD_KEEP_S` of plant time (the sun moves about 2.5° in 10 min) or until a refit."""
+        out, todo = {}, []
+        for h in hids:
+            kept = self._spread_cache.get(h)
+            if kept is not None and now - kept[0] < SPREAD_KEEP_S and kept[1] is self.r.book.h[h].fit:
+                out[h] = kept[2]
+            else:
+                todo.append(h)
+        if todo:
+            fresh = policy.model_spreads(self.r.cfg, self.r.book, self.r.models, self.r._nominal_rows, todo,
+                                         self.r.sun(now)[0], now)
+            for h in todo:
+                out[h] = fresh.get(h, math.nan)
+                self._spread_cache[h] = (now, self.r.book.h[h].fit, out[h])
+        return out
+
+    def check_for(self, target_id: str, now: float, busy) -> str | None:
+        """The accepted heliostat of this board most worth a check now (:func:`.operation.choose_check`)."""
+        # only heliostats a check may take at all (unchecked long enough) are weighed: cheap tests first
+        wait = self.rota_days * 86400.0 if self.mode == "rota" else op_rules.MIN_CHECK_INTERVAL_S
+        cands = [h for h in self.r._home[target_id] if now - self.r.book.h[h].last_visit_s >= wait]
+        if self.mode == "ranked" and cands:
+            day = self.day(now)
+            used_day, used_s = self._board_check_s.get(target_id, (day, 0.0))
+            if used_day == day and used_s >= op_rules.check_budget_s(self._day_grid, now):
+                return None  # this board's checks are ahead of their share of the day's sun so far
+            overdue = (op_rules.MAX_DAYS_UNCHECKED + 1.0) * 86400.0
+            cands = [h for h in cands if now >= self._preferred.get(h, -math.inf)
+                     or now - self.r.book.h[h].last_visit_s >= overdue]
+        cands = self.eligible(cands, now, busy)
+        if not cands:
+            return None
+        last = [self.r.book.h[h].last_visit_s for h in cands]
+        spreads = self.spreads(cands, now) if self.mode == "ranked" else {}
+        for _try in range(3):  # a heliostat whose strokes do not reach the board now is passed over
+            hid = op_rules.choose_check(cands, [spreads.get(h, np.nan) for h in cands], last, now,
+                                        mode=self.mode, rota_days=self.rota_days)
+            if hid is None or self.r._reaches(hid, target_id, now):
+                return hid
+            k = cands.index(hid)
+            del cands[k], last[k]
+        return None
+
+    def _drift_test(self, hid: str, visit_id: int, first, started_with: HeliostatModel, now: float) -> None:
+        """A check of an accepted heliostat: its first placement against the fit the visit started
+        with (:func:`.drift.drift_evidence`); :data:`.operation.CONFIRM_CHECKS` in a row outside the
+        band confirm a drift and reopen the calibration (:mod:`.operation`)."""
+        from helicalib.campaign.drift import drift_evidence, trend_p_value
+
+        suspect = self.suspects.get(hid)
+        if suspect:  # tested against the fit from before the first suspicious check, not one it entered
+            started_with, since = self._suspect_ref[hid]
+            before = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
+            evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
+                                      alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
+                                      age_tau_s=self.age_tau_s)
+        else:
+            before = [p for p in self.r.book.points(hid) if p.visit_id != visit_id]
+            evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
+                                      prior_mean=self.prior_mean(hid), age_tau_s=self.age_tau_s)
+        if evidence is None:
+            return
+        lean = None
+        if not suspect:  # a slow creep: checks each inside the band but leaning the same way
+            recent = self._recent.setdefault(hid, deque(maxlen=op_rules.TREND_CHECKS))
+            recent.append((first.capture_time_s, started_with, evidence["whitened"]))
+            if not evidence["drift"] and len(recent) == recent.maxlen:
+                p_trend = trend_p_value([w for _t, _m, w in recent])
+                if p_trend < op_rules.TREND_ALPHA:
+                    lean = (recent[0], p_trend)
+        if not evidence["drift"] and lean is None:
+            if self.suspects.pop(hid, None):
+                self._suspect_ref.pop(hid, None)
+                self.r.event("note", f"{hid}: check inside its band again ({evidence['residual_mrad']:.2f} mrad, "
+                                   f"band {evidence['band_mrad']:.2f}, p {evidence['p_value']:.2g}); "
+                                   "drift not confirmed", hid, data={"drift": evidence}, time_s=now)
+            return
+        flagged = self.suspects.setdefault(hid, [])
+        if not flagged:  # the reference of the confirming check: the fit from before the first sign
+            since, model0 = (lean[0][0], lean[0][1]) if lean is not None else (first.capture_time_s, started_with)
+            self._suspect_ref[hid] = (model0, since)
+            flagged.append(since)
+        else:
+            flagged.append(first.capture_time_s)
+        text = (f"{hid}: check {evidence['residual_mrad']:.2f} mrad off its model, band {evidence['band_mrad']:.2f} "
+                f"mrad, p {evidence['p_value']:.2g}"
+                + (f"; its last {op_rules.TREND_CHECKS} checks lean the same way (p {lean[1]:.2g})" if lean else ""))
+        if len(flagged) < op_rules.CONFIRM_CHECKS:
+            self.r.event("note", text + "; suspected drift, checking again", hid, data={"drift": evidence}, time_s=now)
+            return
+        # confirmed: the points from the first suspicious check on count; the fit centres on the model before
+        since = flagged[0]
+        del self.suspects[hid]
+        self._recent.pop(hid, None)
+        started_with = self._suspect_ref.pop(hid)[0]
+        earlier = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
+        nominal = self.r.nominal_of(hid)
+        prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
+                                    age_tau_s=self.age_tau_s)[0] if earlier else started_with)
+        b = self.r.book.h[hid]
+        b.points = [p for p in b.points if p.capture_time_s >= since]
+        self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
+        self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
+                                             age_tau_s=self.age_tau_s)
+        b.fit = fit
+        record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
+                  "points_dropped": len(earlier), "points_kept": len(b.points),
+                  "prior_params": [float(x) for x in np.asarray(prior_model.params)[0]]}
+        self.drifts.append(dict(record, heliostat_id=hid))
+        self.r.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
+                   f"({len(earlier)} earlier points left out, {len(b.points)} kept)", hid, data=record, time_s=now)
+        if fit is not None:
+            self.r.store.record_fit(campaign_id=self.r.campaign_id, heliostat_id=hid, time_s=now, **policy.fit_record(fit))
