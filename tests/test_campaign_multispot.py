@@ -115,7 +115,7 @@ def test_visits_overlap_but_one_beam_at_a_time_lights_the_board(cfg, tmp_path):
 
 
 class _FaultOn:
-    """The plant, with one heliostat whose move commands fail once it has had a first valid placement."""
+    """The plant, with one heliostat whose move commands fail from the moment the test arms the fault."""
 
     def __init__(self, sim, victim: int):
         self.sim, self.victim, self.armed_fault = sim, victim, False
@@ -144,9 +144,9 @@ def test_a_fault_on_one_heliostat_parks_it_and_the_others_go_on_measuring(cfg, t
     p = holder["p"]
     for _ in range(4000):  # until the victim is in a visit beside others on its board
         runner.run_until(sim.t_s + 5)
-        if ids[0] in runner.active and len(runner.boards["T1"].visitors) >= 2:
+        if ids[0] in runner.boards["T1"].visitors and len(runner.boards["T1"].visitors) >= 2:
             break
-    assert ids[0] in runner.active and len(runner.boards["T1"].visitors) >= 2
+    assert ids[0] in runner.boards["T1"].visitors and len(runner.boards["T1"].visitors) >= 2
     p.armed_fault = True
     runner.run_until(sim.t_s + 3600)
     visits = store.visits(campaign_id=cid)
