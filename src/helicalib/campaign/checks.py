@@ -117,9 +117,14 @@ class OperationChecks:
 
     # ------------------------------------------------------------------ choosing a check
     def eligible(self, hids, now: float, busy) -> list[str]:
-        """Of ``hids``: accepted, not in a visit, off cool-down, mirror clean enough (the heliostats an
-        operation check may take; whether the strokes reach the board is asked of the one chosen)."""
-        free = [h for h in hids if h not in busy and self.r.book.h[h].cooldown_until_s <= now and self.r.book.accepted(h)]
+        """Of ``hids``: fitted, not in a visit, off cool-down, mirror clean enough (the heliostats an
+        operation check may take; whether the strokes reach the board is asked of the one chosen).
+
+        Fitted, not only accepted: a heliostat that lost its verdict on accuracy alone (its band
+        coverage complete) is asked for nothing by the gaps planner, and without checks its model
+        would fall behind the heliostat for good."""
+        free = [h for h in hids if h not in busy and self.r.book.h[h].cooldown_until_s <= now
+                and self.r.book.h[h].fit is not None]
         if not free:
             return []
         plant = self.r._cleanliness_of_rows(np.array([self.r._index[h] for h in free], dtype=np.int64), now)
