@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "drift section otherwise; docs/simulator.md)")
     p.add_argument("--operate", nargs="?", const="ranked", choices=("ranked", "rota"), default=None,
                    help="after (or during) the campaign, year-round operation for the rest of --days: checks of "
-                        "accepted heliostats ranked by the expected reduction of the year-round error (default), or "
+                        "fitted heliostats ranked by the expected reduction of the year-round error (default), or "
                         "'rota' (every heliostat every --rota-days, the baseline); drift confirmed by checks reopens "
                         "the calibration (docs/operation.md)")
     p.add_argument("--rota-days", type=positive_float, default=14.0,
