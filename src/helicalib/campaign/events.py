@@ -82,7 +82,7 @@ class BoardState:
     last_error_mrad: float | None = None
     since_s: float | None = None
     others: tuple[str, ...] = ()
-    """The other heliostats on the board at the same time (several in their own aim slots)."""
+    """The other visits on the board at the same time (waiting at its standby point or leaving)."""
 
 
 @dataclass(frozen=True)

@@ -416,7 +416,7 @@ class CampaignRunner:
             gate = self._gate(now)
             if gate.open and not (self.operator is not None and self.operator.paused):  # operator: paused
                 for tid in free:
-                    while self._start_visit(tid, now):  # a shared board fills its slots
+                    while self._start_visit(tid, now):  # a board fills its places (--spots-per-board)
                         pass
         wakes = [v.wake_s for v in self.active.values()]
         wakes.append(self.last_poll_s + WEATHER_POLL_S)
