@@ -564,8 +564,9 @@ class CampaignRunner:
                 choice = self.ops.check_for(target_id, now, busy)
                 check = choice is not None
         elif choice is None:
+            busy_boards = set(self._busy_targets())  # once, not per guest
             guests = {h: r for h, r in self._guests.get(target_id, {}).items()
-                      if self.cfg.heliostat(h).target in self._busy_targets()}
+                      if self.cfg.heliostat(h).target in busy_boards}
             cleanliness = {hid: self._cleanliness(hid, now) for hid in [*cands, *guests]}
             choice = policy.choose_next(self.cfg, self.book, cands, now, cleanliness, planner=self.planner_kind,
                                         recheck=self.recheck, busy_heliostats=busy, target_id=target_id,
