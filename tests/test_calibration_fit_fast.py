@@ -287,3 +287,65 @@ def test_points_weighed_down_by_their_sigma(recorded):
     ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_sigma_scale=scale,
                           method="reference")
     assert _beam_difference_mrad(ref, down, hid) < 1e-3
+
+
+def _tilting(recorded, hid, rate, days=120.0, seed=3):
+    """The recorded day's points seen again over ``days`` by a heliostat whose pedestal tilts at
+    ``rate`` (east, north) [mrad/day]: each point gets an age and the spot that heliostat's beam
+    made then (the recorded fit is the heliostat now). Returns (truth fit, inputs, ages, rows)."""
+    from helicalib.calibration.fit import _TILT
+
+    pts = recorded[hid]
+    nominal = HeliostatModel.from_config(CFG, [hid])
+    truth = policy.refit(nominal, pts, nominal)[1]
+    strokes, sun, _spot, approach = _inputs(pts)
+    k = len(pts)
+    age = np.random.default_rng(seed).permutation(np.linspace(0.0, days, k))
+    rows = np.repeat(truth.params[None, :], k, axis=0)
+    rows[:, _TILT] -= age[:, None] * np.asarray(rate)
+    target = CFG.target(pts[0].target_id)
+    uv = nominal.repeat(k).with_params(rows).spot_on_target(strokes, sun, [target] * k, approach)
+    spot = np.array([target.uvw_to_enu(u) for u in uv])
+    return nominal, truth, (strokes, sun, spot, approach), age, rows
+
+
+def test_a_tilt_rate_keeps_old_points_consistent(recorded):
+    """A pedestal that tilts 0.012 / -0.018 mrad a day over 120 days (up to 2.6 mrad): the fit with
+    each point's age finds the rate and the heliostat as it is now; the fit without it misses by
+    more than ten times as much. Fast (first order in the tilt change) and reference (each point
+    with its own tilts) agree to the linearisation's second order."""
+    hid = "H0001"
+    rate = np.array([0.012, -0.018])
+    nominal, truth, (strokes, sun, spot, approach), age, _rows = _tilting(recorded, hid, rate)
+    kw = dict(approach=approach, n_suggestions=0, point_age_days=age)
+    fast = fit_error_model(nominal, strokes, sun, spot, **kw)
+    ref = fit_error_model(nominal, strokes, sun, spot, method="reference", **kw)
+    plain = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0)
+    assert fast.message == "Gauss-Newton converged"
+    for f in (fast, ref):
+        np.testing.assert_allclose(f.tilt_rate_mrad_per_day, rate, atol=3 * f.tilt_rate_sigma.max())
+        assert f.tilt_rate_sigma.max() < 0.1 * np.abs(rate).min()
+        assert f.rms_mrad < 0.05  # the points agree with a steadily tilting heliostat
+    assert plain.rms_mrad > 0.5
+    assert plain.tilt_rate_mrad_per_day is None
+    assert _beam_difference_mrad(truth, plain, hid) > 10 * _beam_difference_mrad(truth, fast, hid)
+    assert _beam_difference_mrad(fast, ref, hid) < 0.005
+
+
+def test_leaving_a_visit_out_gives_the_tilts_of_its_time(recorded):
+    """Leave-one-out parameters of a fit with a tilt rate are those of the left-out point's time:
+    equal to a full refit without the point, moved back by its age."""
+    from helicalib.calibration.fit import _TILT, leave_out_params
+
+    hid = "H0001"
+    nominal, _truth, (strokes, sun, spot, approach), age, rows = _tilting(recorded, hid, (0.012, -0.018))
+    fast = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_age_days=age)
+    oldest = int(np.argmax(age))
+    loo = leave_out_params(fast, [[oldest]])[0]
+    keep = np.arange(len(age)) != oldest
+    exact = fit_error_model(nominal, strokes[keep], sun[keep], spot[keep], approach=approach[keep], n_suggestions=0,
+                            point_age_days=age[keep])
+    then = exact.params[_TILT] - age[oldest] * exact.tilt_rate_mrad_per_day
+    np.testing.assert_allclose(loo[_TILT], then, atol=0.01)
+    # and far from the tilts now (the heliostat moved by age × rate since)
+    assert np.max(np.abs(loo[_TILT] - fast.params[_TILT])) > 1.0

@@ -106,6 +106,11 @@ def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drif
         # the fits after it stand on points since the first suspicious check only
         assert all(p.capture_time_s >= d["since_s"] for p in runner.book.points(hid))
     assert s["checks"] > 0
+    # operation's fits model a settling pedestal (a tilt rate); every point counts alike
+    assert runner.ops.aging == op.FIT_AGING
+    for hid in IDS:
+        fit = runner.book.h[hid].fit
+        assert fit.tilt_rate_mrad_per_day is not None and np.all(np.isfinite(fit.tilt_rate_sigma))
     assert 0.0 < s["board_time_share_after_commissioning"] < 0.5
     assert s["monthly_plant_tracking_rms_mrad"] and all(m > 0 for m in s["monthly_plant_tracking_rms_mrad"])
 

@@ -75,6 +75,9 @@ class Linearisation:
     hessian_weights : (2K + F,) those of the Gauss-Newton Hessian, ρ'(z) + 2 z ρ''(z)
     x : (F,) the solution; ``free_idx`` (F,) their columns in ``errors.PARAMETERS``; ``scale`` (F,) prior σ
     centre : (F,) the priors' centre of those columns (parameter = centre + x · scale)
+    tilt_rate_scale : prior σ of the tilt rate [mrad/day] when the fit has one (its two unknowns
+        are then the last two of ``x``, whitened by it); 0 without
+    age_days : (K,) each observation's age [days] (with a tilt rate), else None
     """
 
     jacobian: np.ndarray
@@ -85,6 +88,8 @@ class Linearisation:
     free_idx: np.ndarray
     scale: np.ndarray
     centre: np.ndarray
+    tilt_rate_scale: float = 0.0
+    age_days: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -105,6 +110,10 @@ class FitResult:
     model : the fitted HeliostatModel (N = 1)
     success, message, nfev : from the solver
     linearisation : :class:`Linearisation` at the solution
+    tilt_rate_mrad_per_day : (2,) fitted pedestal tilt rate (east, north) [mrad/day] when the fit
+        had one (``point_age_days``), else None; ``tilt_rate_sigma`` (2,) its posterior σ.
+        ``params`` are then the parameters at age 0; an observation of age ``a`` was made with
+        the pedestal tilts ``params − a · rate``
     """
 
     params: np.ndarray
@@ -121,6 +130,8 @@ class FitResult:
     message: str
     nfev: int
     linearisation: Linearisation | None = None
+    tilt_rate_mrad_per_day: np.ndarray | None = None
+    tilt_rate_sigma: np.ndarray | None = None
 
     def as_dict(self) -> dict:
         """Parameters with σ by name, and the summary figures (plain data for JSON)."""
@@ -162,16 +173,22 @@ class _Problem:
         self.basis = _basis(ref)
 
     def residuals(self, param_sets: np.ndarray) -> np.ndarray:
-        """(M, P) parameter sets → residuals (M, K, 2) [mrad]."""
+        """(M, P) parameter sets, or (M, K, P) one per observation → residuals (M, K, 2) [mrad]."""
+        param_sets = np.asarray(param_sets, dtype=float)
         m = len(param_sets)
-        # the errors applied once per parameter set, then shared by its K observations
-        eff, piv = em.apply(self.model.drives.take(np.zeros(m, dtype=int)),
-                            np.broadcast_to(self.model.pivots_enu[0], (m, 3)), param_sets)
-        rows = np.repeat(np.arange(m), self.k)
-        eff, piv = eff.take(rows), piv[rows]
+        if param_sets.ndim == 3:  # one parameter row per observation (a pedestal that tilts with time)
+            rows_p = param_sets.reshape(m * self.k, -1)
+            eff, piv = em.apply(self.model.drives.take(np.zeros(m * self.k, dtype=int)),
+                                np.broadcast_to(self.model.pivots_enu[0], (m * self.k, 3)), rows_p)
+        else:
+            # the errors applied once per parameter set, then shared by its K observations
+            eff, piv = em.apply(self.model.drives.take(np.zeros(m, dtype=int)),
+                                np.broadcast_to(self.model.pivots_enu[0], (m, 3)), param_sets)
+            rows = np.repeat(np.arange(m), self.k)
+            eff, piv, rows_p = eff.take(rows), piv[rows], param_sets[rows]
         strokes = np.tile(self.strokes, (m, 1))
         if self.approach is not None:  # backlash: half the dead band against each actuator's approach
-            strokes = strokes + em.backlash_shift_mm(param_sets[rows], np.tile(self.approach, (m, 1)))
+            strokes = strokes + em.backlash_shift_mm(rows_p, np.tile(self.approach, (m, 1)))
         sun = np.tile(self.sun, (m, 1))
         spot = np.tile(self.spot, (m, 1))
         n = angles_to_normal(eff, strokes_to_angles(eff, strokes))
@@ -192,6 +209,11 @@ FIT_METHODS = ("fast", "reference")
 TRF, with a central-difference Jacobian). Both minimise the same cost."""
 SIGMA_MRAD = 0.3
 """Default measurement noise of one beam-angle component [mrad] (``sigma_mrad`` of the fit)."""
+TILT_RATE_SIGMA_MRAD_PER_DAY = 0.02
+"""Prior σ of a pedestal's tilt rate per axis [mrad/day] in a fit with ``point_age_days``: 0.14 mrad
+a week, 7 mrad a year (foundations settle by a few mrad in their first years; the data of a few
+weeks determine the rate far more tightly)."""
+_TILT = np.array([em.index("pedestal_tilt_e_mrad"), em.index("pedestal_tilt_n_mrad")])
 
 
 def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mapping[str, float] | None = None,
@@ -200,7 +222,8 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
                     aim_enu: np.ndarray | None = None, n_suggestions: int = 3,
                     approach: np.ndarray | None = None, start: np.ndarray | None = None,
                     method: str = "fast", prior_mean: np.ndarray | None = None,
-                    point_sigma_scale: np.ndarray | None = None) -> FitResult:
+                    point_sigma_scale: np.ndarray | None = None, point_age_days: np.ndarray | None = None,
+                    tilt_rate_sigma_mrad_per_day: float = TILT_RATE_SIGMA_MRAD_PER_DAY) -> FitResult:
     """Fit the error model of one heliostat to its observations.
 
     Parameters
@@ -238,6 +261,16 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     point_sigma_scale : (K,), optional
         Each observation's noise σ is ``sigma_mrad`` times this (≥ 1 weighs it less; default all 1):
         in year-round operation older points count less, so the model follows a slow drift.
+    point_age_days : (K,), optional
+        Each observation's age [days] (≥ 0; the newest 0). Given, the fit adds a **pedestal tilt
+        rate** (east, north) [mrad/day], with a prior of mean 0 and σ ``tilt_rate_sigma_mrad_per_day``:
+        an observation of age ``a`` is fitted with the pedestal tilts ``tilt − a · rate``, so points
+        of other seasons stay consistent with a foundation that settles at a steady rate, and
+        ``params`` are the parameters now (age 0). The fast solver takes the tilt change to first
+        order (its second-order term is below 0.001 mrad for a change of 2 mrad); the reference
+        solver evaluates each observation with its own tilts.
+    tilt_rate_sigma_mrad_per_day : float
+        The rate's prior σ (:data:`TILT_RATE_SIGMA_MRAD_PER_DAY`).
     """
     if len(model) != 1:
         raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
@@ -260,17 +293,31 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     first = base if start is None else np.asarray(start, dtype=float).reshape(em.P)
     x0 = (first[free_idx] - centre[free_idx]) / sig_prior
     f_scale = f_scale_mrad / sigma_eff
+    f = len(free_idx)
+    age = None
+    if point_age_days is not None:
+        if not np.all(np.isin(_TILT, free_idx)):
+            raise ValueError("a tilt rate (point_age_days) needs both pedestal tilts free")
+        age = np.asarray(point_age_days, dtype=float).reshape(prob.k)
+        x0 = np.concatenate([x0, np.zeros(2)])  # the rate, whitened by its prior σ
+    rate_scale = float(tilt_rate_sigma_mrad_per_day) if age is not None else 0.0
 
     def params_of(xs: np.ndarray) -> np.ndarray:
         out = np.repeat(base[None, :], len(xs), axis=0)
-        out[:, free_idx] = centre[free_idx] + xs * sig_prior
+        out[:, free_idx] = centre[free_idx] + xs[:, :f] * sig_prior
+        return out
+
+    def rows_of(xs: np.ndarray) -> np.ndarray:
+        """(M, K, P): each observation's parameters (the tilts of its age)."""
+        out = np.repeat(params_of(xs)[:, None, :], prob.k, axis=1)
+        out[:, :, _TILT] -= age[None, :, None] * (xs[:, None, f:] * rate_scale)
         return out
 
     solved = None
     if method == "fast":
-        solved = _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale)
+        solved = _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age, rate_scale)
     if solved is None:
-        solved = _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale)
+        solved = _solve_reference(prob, params_of if age is None else rows_of, x0, row_sigma, loss, f_scale)
     x, j, res_vec, success, message, nfev = solved
     jd = j[: 2 * prob.k]
     info = j.T @ j
@@ -282,27 +329,33 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     cov_x = cov_x * factor
     params = params_of(x[None, :])[0]
     cov = np.zeros((em.P, em.P))
-    cov[np.ix_(free_idx, free_idx)] = cov_x * np.outer(sig_prior, sig_prior)
+    cov[np.ix_(free_idx, free_idx)] = cov_x[:f, :f] * np.outer(sig_prior, sig_prior)
     sigma = np.sqrt(np.diag(cov))
     fitted = model.with_params(params)
-    ident = _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x, sigma_eff, residual_kind,
-                             candidate_sun_enu, aim_enu, n_suggestions)
+    ident = _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x[:f, :f], sigma_eff,
+                             residual_kind, candidate_sun_enu, aim_enu, n_suggestions)
+    rate = rate_sigma = None
+    if age is not None:
+        rate, rate_sigma = x[f:] * rate_scale, np.sqrt(np.diag(cov_x)[f:]) * rate_scale
     mag = np.linalg.norm(res_vec, axis=-1)
     r_all = np.concatenate([res_vec.ravel() / row_sigma, x])
     z = (r_all / f_scale) ** 2
     weights, hessian_weights = _loss_weights(loss, z)
     lin = Linearisation(jacobian=j, residual=r_all, weights=weights, hessian_weights=hessian_weights, x=x.copy(),
-                        free_idx=free_idx, scale=sig_prior, centre=centre[free_idx].copy())
+                        free_idx=free_idx, scale=sig_prior, centre=centre[free_idx].copy(),
+                        tilt_rate_scale=rate_scale, age_days=age)
     return FitResult(params=params, covariance=cov, sigma=sigma, residual_mrad=mag, residual_vec_mrad=res_vec,
                      rms_mrad=float(np.sqrt(np.mean(mag**2))) if len(mag) else float("nan"),
                      residual_kind=residual_kind, free=free_names, identifiability=ident, model=fitted,
-                     success=success, message=message, nfev=nfev, linearisation=lin)
+                     success=success, message=message, nfev=nfev, linearisation=lin,
+                     tilt_rate_mrad_per_day=rate, tilt_rate_sigma=rate_sigma)
 
 
 def _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale):
     """``least_squares`` (TRF) with a central-difference Jacobian in one vectorised call; ``row_sigma``
-    (2K,) the σ of each residual component. Returns ``(x, J at x (2K + F, F), residuals (K, 2)
-    [mrad], success, message, nfev)``."""
+    (2K,) the σ of each residual component; ``params_of`` maps (M, F) unknowns to (M, P)
+    parameter sets or (M, K, P) rows per observation. Returns ``(x, J at x (2K + F, F),
+    residuals (K, 2) [mrad], success, message, nfev)``."""
     f = len(x0)
 
     def fun(x):
@@ -324,19 +377,25 @@ def _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale):
     return x, jac(x), prob.residuals(params_of(x[None, :]))[0], bool(sol.success), str(sol.message), int(sol.nfev)
 
 
-def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale):
+def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age=None, rate_scale=0.0):
     """Damped Gauss-Newton with the analytic Jacobian (:mod:`.fit_solver`); None if it does not
     converge (the caller then solves with the reference solver). ``row_sigma`` (2K,): the σ of
-    each residual component."""
+    each residual component. With ``age`` (K,) [days] the last two unknowns are the tilt rate
+    (whitened by ``rate_scale``), taken to first order: ``r(p − a·rate) ≈ r(p) − a · ∂r/∂tilt · rate``."""
     bj = fit_solver.BeamJacobian(prob.model.drives, prob.model.pivots_enu[0], prob.strokes, prob.approach,
                                  prob.sun, prob.spot, prob.basis, prob.kind)
-    f = len(x0)
-    eye = np.eye(f)
+    n_x = len(x0)
+    f = len(free_idx)
+    eye = np.eye(n_x)
     inv_sigma = 1.0 / row_sigma
 
     def fun_jac(x):
         res, jac = bj.evaluate(params_of(x[None, :])[0])
         jd = jac[:, :, free_idx].reshape(-1, f) * sig_prior * inv_sigma[:, None]
+        if age is not None:
+            d_rate = -age[:, None, None] * jac[:, :, _TILT] * rate_scale  # (K, 2, 2) per whitened rate
+            res = res + d_rate @ x[f:]
+            jd = np.hstack([jd, d_rate.reshape(-1, 2) * inv_sigma[:, None]])
         return np.concatenate([res.ravel() * inv_sigma, x]), np.vstack([jd, eye])
 
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -348,7 +407,9 @@ def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_sca
 
 def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndarray:
     """Parameters (G, P) of ``fit`` refitted without each group of observations (indices into the
-    fit's observations), by one Gauss-Newton step from the full solution.
+    fit's observations), by one Gauss-Newton step from the full solution. A fit with a tilt rate
+    gives each group's parameters at that group's time (the mean age of its observations), which
+    is what predicting the left-out observations needs.
 
     Without group g the gradient at the full solution x̂ is ``−J_gᵀ W_g r_g``, so the Newton step
     is ``Δx = (A − J_gᵀ V_g J_g)⁻¹ J_gᵀ W_g r_g`` with ``A = Jᵀ V J`` over every row (data and
@@ -364,11 +425,15 @@ def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndar
         raise ValueError("this fit carries no linearisation")
     a = lin.jacobian.T @ (lin.jacobian * lin.hessian_weights[:, None])
     out = np.repeat(fit.params[None, :], len(groups), axis=0)
+    f = len(lin.free_idx)
     for g, idx in enumerate(groups):
         rows = np.concatenate([[2 * int(i), 2 * int(i) + 1] for i in idx]) if len(idx) else np.zeros(0, dtype=int)
         jg, wg, vg, rg = lin.jacobian[rows], lin.weights[rows], lin.hessian_weights[rows], lin.residual[rows]
         dx = np.linalg.solve(a - jg.T @ (jg * vg[:, None]), jg.T @ (wg * rg))
-        out[g, lin.free_idx] = lin.centre + (lin.x + dx) * lin.scale
+        xg = lin.x + dx
+        out[g, lin.free_idx] = lin.centre + xg[:f] * lin.scale
+        if lin.age_days is not None and len(idx):  # the tilts at the group's own time
+            out[g, _TILT] -= float(np.mean(lin.age_days[list(idx)])) * xg[f:] * lin.tilt_rate_scale
     return out
 
 
