@@ -214,3 +214,32 @@ def test_nightly_frame_retention_keeps_the_disk_bounded(tmp_path, demo_field_pat
         assert len([t for t in with_frames[hid] if t < last_night]) <= 1, hid
     cleared = [r for r in rows if not r[3] and not json.loads(r[4] or "[]")]
     assert cleared  # the database kept the observations whose frames went, their paths cleared
+
+
+def test_the_report_fits_an_operated_campaign_as_operation_does(drifted_run, demo_field_path):
+    """The report's year-round prediction refits each heliostat from the database: for a campaign that
+    went into operation it fits as operation does (a tilt rate), so it predicts what the runner's own
+    fits predicted (the summary's median, from those fits)."""
+    from helicalib.report.data import load_campaign
+    from helicalib.geometry.heliostat import HeliostatModel
+    from helicalib.report.prediction import operated, stored_fits, year_predictions
+    from helicalib.store.sqlite import Store
+
+    _cfg, result = drifted_run
+    data = load_campaign(result.database, field_config=demo_field_path)
+    store = Store.open(result.database, "images", readonly=True)
+    try:
+        assert operated(data.campaign, store)
+    finally:
+        store.close()
+    # the report's fits are the runner's models (fitted from the same stored points, as operation fits)
+    ids = sorted(IDS)
+    fits = stored_fits(data, ids, HeliostatModel.from_config(data.cfg, ids))
+    assert set(fits) == set(IDS)
+    for hid, (params, fit) in fits.items():
+        assert fit.tilt_rate_mrad_per_day is not None
+        np.testing.assert_allclose(params, result.runner.models[hid].params[0], atol=1e-6)
+    yp = year_predictions(data)
+    assert set(yp["heliostats"]) == set(IDS)
+    median = float(np.median([p["expected_rms_mrad"] for p in yp["heliostats"].values()]))
+    assert median == pytest.approx(result.summary["predicted_year_rms_median_mrad"], abs=0.005)

@@ -141,7 +141,8 @@ def live_session(args, mode: str) -> int:
         else:
             until_s = now + 86400.0 * days
         opened = open_campaign(store, cfg, args, mode, now, ids)
-        store.record_event(campaign_id=opened.campaign_id, time_s=now, kind="campaign", reason=opened.line)
+        store.record_event(campaign_id=opened.campaign_id, time_s=now, kind="campaign", reason=opened.line,
+                           data={"command": command, "operation": operation})
         if as_json:
             output.emit({"event": "campaign", "campaign": opened.campaign_id, "reason": opened.line})
         else:

@@ -5,7 +5,8 @@ what its model predicts over the year's sun path (:func:`helicalib.calibration.u
 the expected RMS of the beam error, its central 90 % interval, and the probability that the error
 exceeds the acceptance limit (1.2 mrad) somewhere on the path. The fit is made again from the
 campaign's valid observations, as the campaign fits them (after a confirmed drift, only the points
-since it, centred on the model from before it: :mod:`helicalib.campaign.operation`).
+since it, centred on the model from before it; a campaign that went into year-round operation with
+operation's fits, which model a settling pedestal: :mod:`helicalib.campaign.operation`).
 """
 
 from __future__ import annotations
@@ -28,10 +29,8 @@ def year_predictions(data) -> dict | None:
     field config (the nominal geometry is needed)."""
     from helicalib.calibration.fit import SIGMA_MRAD
     from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
-    from helicalib.campaign import policy
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.sim.evaluate import year_sun_times
-    from helicalib.store import Store
 
     cfg = data.cfg
     if cfg is None or data.campaign is None:
@@ -42,32 +41,11 @@ def year_predictions(data) -> dict | None:
     if not ids:
         return out
     nominal = HeliostatModel.from_config(cfg, ids)
-    fitted, params, covs, unexplained = [], [], [], []
-    store = Store.open(data.db_path, data.images_dir, readonly=True)
-    try:
-        drifts = {}
-        for e in store.events(campaign_id=data.campaign.id, kind="drift"):
-            drifts[e.heliostat_id] = e.data
-        for i, hid in enumerate(ids):
-            since = float(drifts.get(hid, {}).get("since_s", -math.inf))
-            points = [o for o in store.observations(campaign_id=data.campaign.id, heliostat_id=hid)
-                      if o.valid and o.spot_enu_m is not None and all(map(math.isfinite, o.spot_enu_m))
-                      and o.capture_time_s >= since]
-            if not points:
-                continue
-            one = nominal.subset([i])
-            centre = drifts.get(hid, {}).get("prior_params")
-            centre = None if centre is None else np.asarray(centre, dtype=float)
-            model, fit = policy.refit(one, points, one if centre is None else one.with_params(centre[None, :]),
-                                      prior_mean=centre)
-            if fit is None:
-                continue
-            fitted.append(i)
-            params.append(model.params[0])
-            covs.append(fit.covariance)
-            unexplained.append(unexplained_mrad(fit.rms_mrad, SIGMA_MRAD))
-    finally:
-        store.close()
+    fits = stored_fits(data, ids, nominal)
+    fitted = [ids.index(hid) for hid in fits]
+    params = [model_params for model_params, _fit in fits.values()]
+    covs = [fit.covariance for _p, fit in fits.values()]
+    unexplained = [unexplained_mrad(fit.rms_mrad, SIGMA_MRAD) for _p, fit in fits.values()]
     if not fitted:
         return out
     year = int(np.datetime64(int(data.campaign.started_s), "s").astype("datetime64[Y]").astype(int) + 1970)
@@ -82,6 +60,49 @@ def year_predictions(data) -> dict | None:
             "expected_rms_mrad": _r(pred.expected_rms_mrad[k]), "interval_mrad": [_r(lo), _r(hi)],
             "p_exceed": _r(pred.p_exceed[k]), "reachable_share": _r(pred.reachable[k])}
     return out
+
+
+def stored_fits(data, ids: list[str], nominal) -> dict:
+    """``{id: (parameters (P,), FitResult)}``: each of ``ids`` (rows of ``nominal``) fitted again from
+    the campaign's valid located observations in ``data``'s database, as the run fits them (after a
+    confirmed drift only the points since it, centred on the model from before it; an operated
+    campaign with operation's fits). Heliostats without such a point are left out."""
+    from helicalib.campaign import operation as op_rules
+    from helicalib.campaign import policy
+    from helicalib.store import Store
+
+    out = {}
+    store = Store.open(data.db_path, data.images_dir, readonly=True)
+    try:
+        drifts = {}
+        for e in store.events(campaign_id=data.campaign.id, kind="drift"):
+            drifts[e.heliostat_id] = e.data
+        aging = op_rules.FIT_AGING if operated(data.campaign, store) else None
+        for i, hid in enumerate(ids):
+            since = float(drifts.get(hid, {}).get("since_s", -math.inf))
+            points = [o for o in store.observations(campaign_id=data.campaign.id, heliostat_id=hid)
+                      if o.valid and o.spot_enu_m is not None and all(map(math.isfinite, o.spot_enu_m))
+                      and o.capture_time_s >= since]
+            if not points:
+                continue
+            one = nominal.subset([i])
+            centre = drifts.get(hid, {}).get("prior_params")
+            centre = None if centre is None else np.asarray(centre, dtype=float)
+            model, fit = policy.refit(one, points, one if centre is None else one.with_params(centre[None, :]),
+                                      prior_mean=centre, aging=aging)
+            if fit is not None:
+                out[hid] = (model.params[0], fit)
+    finally:
+        store.close()
+    return out
+
+
+def operated(campaign, store) -> bool:
+    """Whether the campaign went into year-round operation: ``simulate --operate`` (its settings) or
+    ``helicalib operate`` (the command a ``campaign`` event records)."""
+    if (campaign.settings or {}).get("operation"):
+        return True
+    return any((e.data or {}).get("operation") for e in store.events(campaign_id=campaign.id, kind="campaign"))
 
 
 def _known(cfg, hid: str) -> bool:
