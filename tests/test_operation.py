@@ -92,6 +92,7 @@ def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drif
     cfg, result = drifted_run
     s = result.summary
     assert s["drifted"] == len(IDS)
+    assert s["true_sky_rms_undrifted_mrad"] is None  # every heliostat drifted: none left to say it over
     # every drift is seen, none invented
     assert s["drift_detected"] == len(IDS), s["drift_days_to_fix"]
     assert s["drift_false_alarms"] == 0

@@ -140,5 +140,7 @@ def test_each_fitted_heliostat_has_its_year_round_prediction_beside_the_verdict(
     # the same prediction as the simulation's summary made from the runner's own fits
     expected = float(np.median([p["expected_rms_mrad"] for p in yp["heliostats"].values()]))
     assert expected == pytest.approx(summary["predicted_year_rms_median_mrad"], abs=0.01)
+    # no drift injected: the sky over the undrifted heliostats is the sky over all
+    assert summary["drifted"] == 0 and summary["true_sky_rms_undrifted_mrad"] == summary["true_sky_rms_mrad"]
     page = index.read_text()
     assert "predicted year RMS [mrad] (90 % interval)" in page and "on the year's path" in page
