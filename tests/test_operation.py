@@ -223,14 +223,14 @@ def test_the_report_fits_an_operated_campaign_as_operation_does(drifted_run, dem
     fits predicted (the summary's median, from those fits)."""
     from helicalib.report.data import load_campaign
     from helicalib.geometry.heliostat import HeliostatModel
-    from helicalib.report.prediction import operated, stored_fits, year_predictions
+    from helicalib.report.prediction import stored_fits, year_predictions
     from helicalib.store.sqlite import Store
 
     _cfg, result = drifted_run
     data = load_campaign(result.database, field_config=demo_field_path)
     store = Store.open(result.database, "images", readonly=True)
     try:
-        assert operated(data.campaign, store)
+        assert op.was_operated(store, data.campaign.id)
     finally:
         store.close()
     # the report's fits are the runner's models (fitted from the same stored points, as operation fits)

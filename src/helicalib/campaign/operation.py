@@ -159,3 +159,12 @@ def check_budget_s(day_grid: np.ndarray, now_s: float) -> float:
 def days_to_fix(drift_start_s: float, fixed_s: float | None) -> float:
     """Days from a drift's start to the heliostat's acceptance after it (inf when not yet)."""
     return math.inf if fixed_s is None else max(0.0, (fixed_s - drift_start_s) / 86400.0)
+
+
+def was_operated(store, campaign_id: int) -> bool:
+    """Whether a stored campaign went into year-round operation, so that its fits are operation's
+    (:data:`FIT_AGING`): ``simulate --operate`` (its settings) or ``helicalib operate`` (the command
+    its ``campaign`` event records)."""
+    if (store.campaign(campaign_id).settings or {}).get("operation"):
+        return True
+    return any((e.data or {}).get("operation") for e in store.events(campaign_id=campaign_id, kind="campaign"))

@@ -208,6 +208,7 @@ def recheck_rows(cfg, runner) -> list[dict]:
     acceptance's limit ``acceptance.max_rms_mrad``. T/GRLM formula (1) on the board, which the loop
     uses, is given beside it. ``drift``: the same placement tested against the band the newest fit
     predicts for it (:mod:`helicalib.campaign.drift`); outside it, the heliostat changed since."""
+    from helicalib.campaign import operation as op_rules
     from helicalib.campaign.drift import drift_evidence, fit_points
     from helicalib.campaign.policy import prediction_error_mrad
 
@@ -229,7 +230,10 @@ def recheck_rows(cfg, runner) -> list[dict]:
                 points = fit_points(runner.store.observations(campaign_id=latest.campaign_id, heliostat_id=hid),
                                     hid, latest.time_s)
                 if len(points) == latest.n_points:  # the points the stored fit stood on, or no evidence
-                    row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first)
+                    # fitted as that fit was (an operated campaign's fits model a settling pedestal)
+                    aging = op_rules.FIT_AGING if op_rules.was_operated(runner.store, latest.campaign_id) else None
+                    row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first,
+                                                  aging=aging)
             drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),
                        verdict=("in spec" if err <= limit else

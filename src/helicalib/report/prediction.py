@@ -77,7 +77,7 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
         drifts = {}
         for e in store.events(campaign_id=data.campaign.id, kind="drift"):
             drifts[e.heliostat_id] = e.data
-        aging = op_rules.FIT_AGING if operated(data.campaign, store) else None
+        aging = op_rules.FIT_AGING if op_rules.was_operated(store, data.campaign.id) else None
         for i, hid in enumerate(ids):
             since = float(drifts.get(hid, {}).get("since_s", -math.inf))
             points = [o for o in store.observations(campaign_id=data.campaign.id, heliostat_id=hid)
@@ -95,14 +95,6 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
     finally:
         store.close()
     return out
-
-
-def operated(campaign, store) -> bool:
-    """Whether the campaign went into year-round operation: ``simulate --operate`` (its settings) or
-    ``helicalib operate`` (the command a ``campaign`` event records)."""
-    if (campaign.settings or {}).get("operation"):
-        return True
-    return any((e.data or {}).get("operation") for e in store.events(campaign_id=campaign.id, kind="campaign"))
 
 
 def _known(cfg, hid: str) -> bool:
