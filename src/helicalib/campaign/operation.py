@@ -60,8 +60,6 @@ import math
 
 import numpy as np
 
-from helicalib.campaign.policy import PointAging
-
 DRIFT_RATE_PER_YEAR = 0.05
 """Prior share of heliostats that drift in a year (settling, an actuator swapped, a storm)."""
 DRIFT_MRAD = 3.0
@@ -81,9 +79,9 @@ TREND_CHECKS = 3
 same way (:func:`helicalib.campaign.drift.trend_p_value`) ..."""
 TREND_ALPHA = 1e-3
 """... below this p-value make the heliostat suspected, as one check outside its band does."""
-FIT_AGING = PointAging(tau_s=None, tilt_rate=True)
-"""How operation's fits (either rule) treat points of other times (:class:`.policy.PointAging`):
-every point counts alike, and the fit has a steady pedestal tilt rate. Every heliostat drifts slowly
+TILT_RATE_IN_FITS = True
+"""Operation's fits (either rule) have a steady pedestal tilt rate (``tilt_rate`` of
+:func:`.policy.refit`), and every point counts alike. Every heliostat drifts slowly
 (foundations settle); a fit that weighs months of points alike without the rate lags it, and one
 that weighs old points down (σ × exp(age / 20 d), the rule until 2026-11-26) follows it but forgets
 the sun positions of past seasons: measured over 210 days, the models' error over the year's sky
@@ -163,7 +161,7 @@ def days_to_fix(drift_start_s: float, fixed_s: float | None) -> float:
 
 def was_operated(store, campaign_id: int) -> bool:
     """Whether a stored campaign went into year-round operation, so that its fits are operation's
-    (:data:`FIT_AGING`): ``simulate --operate`` (its settings) or ``helicalib operate`` (the command
+    (:data:`TILT_RATE_IN_FITS`): ``simulate --operate`` (its settings) or ``helicalib operate`` (the command
     its ``campaign`` event records)."""
     if (store.campaign(campaign_id).settings or {}).get("operation"):
         return True

@@ -35,8 +35,6 @@ COOLDOWN_INVALID_S = 1800.0
 COOLDOWN_VALID_S = 1200.0
 """After a valid visit the heliostat waits this long (the next point should see another sun)."""
 FIT_LOSS = "soft_l1"
-MAX_AGE_SIGMA_LOG = 7.0
-"""An old point's σ grows at most by e^7 (about 1100): it still counts, a millionth of a new one."""
 MAX_VISIT_POINTS = 60
 """A heliostat's fits and verdicts stand on at most this many visits' points (the database keeps
 every observation): a year of operation adds a check every few days, and memory and fit time must
@@ -484,44 +482,19 @@ def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, no
 
 
 # ---------------------------------------------------------------------------------- fit
-@dataclass(frozen=True)
-class PointAging:
-    """How year-round operation's fits treat a heliostat's points of other times (a campaign's fits
-    take none of this: their points are days apart).
-
-    Attributes
-    ----------
-    tau_s : float or None
-        Each point's noise σ grows as ``exp(age / tau_s)``, its age counted from the newest point
-        (at most by e^:data:`MAX_AGE_SIGMA_LOG`); None: all points weigh alike.
-    tilt_rate : bool
-        The fit adds a steady pedestal tilt rate (foundation settlement) and evaluates each point
-        with the tilts of its time (``point_age_days`` of
-        :func:`helicalib.calibration.fit.fit_error_model`), so points of past seasons stay
-        consistent with the heliostat now.
-    """
-
-    tau_s: float | None = None
-    tilt_rate: bool = False
-
-    def fit_inputs(self, points: list) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """``(point_sigma_scale, point_age_days)`` of the fit of ``points`` (None where unused)."""
-        t = np.array([p.capture_time_s for p in points], dtype=float)
-        age_s = t.max() - t
-        scale = np.exp(np.minimum(age_s / float(self.tau_s), MAX_AGE_SIGMA_LOG)) if self.tau_s else None
-        return scale, (age_s / 86400.0 if self.tilt_rate else None)
-
-
 def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method: str = "fast",
-          prior_mean: np.ndarray | None = None, aging: PointAging | None = None):
+          prior_mean: np.ndarray | None = None, tilt_rate: bool = False):
     """Refit one heliostat's error model to its valid points; returns (model, FitResult or None).
 
     The solver starts from ``current``'s parameters (the priors stay centred on the nominal
     heliostat, or on ``prior_mean`` (P,): after a confirmed drift, the model from before it), so a
     refit after one more point takes a few steps instead of a whole descent. ``method``: the fit's
     solver (:data:`helicalib.calibration.fit.FIT_METHODS`; the fast one by default, the same minimum
-    as ``"reference"``). ``aging``: how points of other times count (:class:`PointAging`; year-round
-    operation); the model returned is the heliostat as of the newest point."""
+    as ``"reference"``). ``tilt_rate`` (year-round operation): the fit adds a steady pedestal tilt rate
+    and fits each point with the tilts of its time (``point_age_days`` of
+    :func:`helicalib.calibration.fit.fit_error_model`, ages counted from the newest point), so points
+    of past seasons stay consistent with a settling foundation; the model returned is the heliostat
+    as of the newest point."""
     if not points:
         return current, None
     strokes, sun, spot = _arrays(points)
@@ -530,10 +503,12 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
     # parameters the fit leaves fixed (the dead bands when no approach is recorded) keep the start's values
     fixed_as_nominal = np.any(approach) or np.array_equal(start.params[:, _BACKLASH], nominal.params[:, _BACKLASH])
     model = nominal if fixed_as_nominal else nominal.with_params(start.params)
-    scale, age = aging.fit_inputs(points) if aging is not None else (None, None)
+    age = None
+    if tilt_rate:
+        t = np.array([p.capture_time_s for p in points], dtype=float)
+        age = (t.max() - t) / 86400.0
     fit = fit_error_model(model, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0, approach=approach,
-                          start=start.params[0], method=method, prior_mean=prior_mean, point_sigma_scale=scale,
-                          point_age_days=age)
+                          start=start.params[0], method=method, prior_mean=prior_mean, point_age_days=age)
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return fit.model, fit

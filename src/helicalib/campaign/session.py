@@ -214,6 +214,7 @@ def recheck_rows(cfg, runner) -> list[dict]:
 
     limit = float(cfg.acceptance.max_rms_mrad)
     rows = []
+    operated: dict[int, bool] = {}  # campaign id -> went into operation (one store read per campaign)
     for hid in runner.ids:
         first = next((p for p in runner.book.points(hid) if p.iteration == 0), None)
         latest = runner.store.latest_fit(hid)
@@ -231,9 +232,10 @@ def recheck_rows(cfg, runner) -> list[dict]:
                                     hid, latest.time_s)
                 if len(points) == latest.n_points:  # the points the stored fit stood on, or no evidence
                     # fitted as that fit was (an operated campaign's fits model a settling pedestal)
-                    aging = op_rules.FIT_AGING if op_rules.was_operated(runner.store, latest.campaign_id) else None
+                    if latest.campaign_id not in operated:
+                        operated[latest.campaign_id] = op_rules.was_operated(runner.store, latest.campaign_id)
                     row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first,
-                                                  aging=aging)
+                                                  tilt_rate=operated[latest.campaign_id] and op_rules.TILT_RATE_IN_FITS)
             drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),
                        verdict=("in spec" if err <= limit else

@@ -77,7 +77,7 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
         drifts = {}
         for e in store.events(campaign_id=data.campaign.id, kind="drift"):
             drifts[e.heliostat_id] = e.data
-        aging = op_rules.FIT_AGING if op_rules.was_operated(store, data.campaign.id) else None
+        tilt_rate = op_rules.was_operated(store, data.campaign.id) and op_rules.TILT_RATE_IN_FITS
         for i, hid in enumerate(ids):
             since = float(drifts.get(hid, {}).get("since_s", -math.inf))
             points = [o for o in store.observations(campaign_id=data.campaign.id, heliostat_id=hid)
@@ -89,7 +89,7 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
             centre = drifts.get(hid, {}).get("prior_params")
             centre = None if centre is None else np.asarray(centre, dtype=float)
             model, fit = policy.refit(one, points, one if centre is None else one.with_params(centre[None, :]),
-                                      prior_mean=centre, aging=aging)
+                                      prior_mean=centre, tilt_rate=tilt_rate)
             if fit is not None:
                 out[hid] = (model.params[0], fit)
     finally:
