@@ -140,6 +140,39 @@ def daily_accepted(start_s: float, timeline, days: float) -> list[int]:
     return out
 
 
+def band_throughput(db: Path, cfg, start_s: float, end_s: float, boards: int) -> dict:
+    """How the 5–15° bands were used: per band crossing of the run (sun rising or setting through
+    the acceptance's low band), the visits that started in it per board-hour and the heliostats
+    that got a valid point in it; and ``first_acceptance_days``, the start of the first setting band
+    (no heliostat can meet the paper's rule (1), a point while the sun sets through the band, before it)."""
+    from helicalib.calibration.sun_days import sun_days
+
+    acc = cfg.acceptance
+    days = [d for d in sun_days(cfg.site, start_s, end_s, acc.low_band_deg, acc.high_elevation_deg)
+            if d.set_band_end_s > start_s and d.rise_band_start_s < end_s]
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        cid = con.execute("SELECT id FROM campaigns ORDER BY id DESC LIMIT 1").fetchone()[0]
+        visits = con.execute("SELECT started_s FROM visits WHERE campaign_id = ?", (cid,)).fetchall()
+        points = con.execute("SELECT capture_time_s, heliostat_id FROM observations WHERE campaign_id = ? AND valid = 1 "
+                             "AND iteration >= 0", (cid,)).fetchall()
+    finally:
+        con.close()
+    bands = []
+    for d in days:
+        for name, a, b in (("rising", d.rise_band_start_s, d.rise_band_end_s),
+                           ("setting", d.set_band_start_s, d.set_band_end_s)):
+            a, b = max(a, start_s), min(b, end_s)
+            if b <= a:
+                continue
+            n_visits = sum(1 for (t,) in visits if a <= t < b)
+            bands.append({"day": int((a - start_s) // 86400), "band": name, "hours": round((b - a) / 3600.0, 3),
+                          "visits_per_board_hour": round(n_visits / ((b - a) / 3600.0) / max(boards, 1), 1),
+                          "heliostats_with_point": len({h for t, h in points if a <= t <= b})})
+    first = next((max(d.set_band_start_s, start_s) for d in days if d.set_band_end_s > start_s), None)
+    return {"bands": bands, "first_acceptance_days": None if first is None else round((first - start_s) / 86400.0, 3)}
+
+
 def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: Path, keep_frames: bool,
             start_s: float | None = None, fidelity: str = "render") -> dict:
     from helicalib.simulation import simulate_campaign
@@ -187,6 +220,8 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     start_s, timeline = acceptance_timeline(result.database, n)
     # the summary divides by every board of the field; count only the boards this run uses
     boards = {cfg.heliostat(h).target for h in (ids or [x.id for x in cfg.heliostats])}
+    bands = band_throughput(result.database, cfg, start_s, start_s + days * 86400.0,
+                            len(cfg.targets) if cfg.calibration.share_targets else len(boards))
     per_board = round(s["visits_per_target_hour"] * len(cfg.targets) / max(len(boards), 1), 3)
     if keep_frames:
         frame_bytes = sum(f.stat().st_size for f in frames.rglob("*.png")) if frames.exists() else 0
@@ -197,6 +232,9 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
         "planner": planner, "heliostats": s["heliostats"], "days_simulated": s["days"],
         "days_to_90": days_to(start_s, timeline, n, 0.90), "days_to_95": days_to(start_s, timeline, n, 0.95),
         "accepted_by_day": daily_accepted(start_s, timeline, days),
+        "band_visits_per_board_hour": [b["visits_per_board_hour"] for b in bands["bands"]],
+        "band_heliostats_with_point": [b["heliostats_with_point"] for b in bands["bands"]],
+        "bands": bands["bands"], "first_acceptance_days": bands["first_acceptance_days"],
         "acceptance_rate": s["acceptance_rate"], "accepted": s["accepted"],
         "visits": s["visits"], "valid_visits": s["valid_visits"], "visits_per_target_hour": per_board,
         "mean_iterations": s["mean_iterations"], "first_shot_rms_mrad": s["first_shot_rms_mrad"],
@@ -298,6 +336,14 @@ def table(results: dict, ratios: dict) -> str:
             lines.append(f"accepted {pair} at the end of each day: {ratio['accepted_ratio_by_day']}")
     for n in names:
         lines.append(f"accepted by day [{n}]: {results[n]['accepted_by_day']}")
+    for n in names:
+        bands = results[n].get("bands")
+        if bands:
+            lines.append(f"5–15° bands [{n}] (visits per board-hour / heliostats with a valid point): " + ", ".join(
+                f"day {b['day']} {b['band']} {b['visits_per_board_hour']:g} / {b['heliostats_with_point']}" for b in bands))
+    first = next((r.get("first_acceptance_days") for r in results.values() if r.get("first_acceptance_days")), None)
+    if first is not None:
+        lines.append(f"first possible acceptance (the sun first sets into the 5–15° band): day {first}")
     return "\n".join(lines)
 
 
