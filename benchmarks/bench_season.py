@@ -45,12 +45,14 @@ FIELD = ROOT / "simulations" / "fields" / "bench500.yaml"
 SCENARIO = ROOT / "simulations" / "scenarios" / "benchmark.yaml"
 OUT = ROOT / "benchmarks" / "out"
 NOISE_MRAD = 0.2
+"""Default spot noise of the real worlds, one component of the beam angle [mrad] (``--noise-mrad``)."""
 WITHOUT = {"real-nosag": ("sag_mrad",), "real-nobacklash": ("backlash_mm",)}
 """Worlds ``real`` less one unmodelled effect (the most a model term for it could win)."""
 WORLDS = ("ideal", "real", *WITHOUT)
 
 
-def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng) -> tuple:
+def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng,
+            noise_mrad: float = NOISE_MRAD) -> tuple:
     """Strokes (K, 2), suns (K, 3), spots (K, 3) of heliostat ``i``: the nominal model's strokes for
     each aim, the true beam's spot on that aim's board."""
     from helicalib.geometry.heliostat import tracking_approach
@@ -74,7 +76,7 @@ def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng)
         spot = hit[i]
         if world.startswith("real"):
             dist = np.linalg.norm(spot - truth.nominal.pivots_enu[i])
-            spot = spot + (rng.normal(size=2) * NOISE_MRAD * 1e-3 * dist) @ target.frame_enu[:2]
+            spot = spot + (rng.normal(size=2) * noise_mrad * 1e-3 * dist) @ target.frame_enu[:2]
         strokes.append(s)
         spots.append(spot)
         approaches.append(np.zeros(2) if approach is None else approach[i])
@@ -82,7 +84,10 @@ def observe(truth, cfg, i: int, times: np.ndarray, aims_by_obs, world: str, rng)
 
 
 def run_case(cfg, scenario, start: str, days: float, every_min: float, world: str, aims: str, rows, seed: int,
-             backlash_term: bool = True) -> dict:
+             backlash_term: bool = True, tilt_rate: bool = False, noise_mrad: float = NOISE_MRAD) -> dict:
+    """One case. ``tilt_rate``: the fit is given each point's age and fits a steady pedestal tilt
+    rate (as operation's fits do), and the models are judged against the heliostats as they are at
+    the end of the observations (the drift's state then); otherwise at the start."""
     from helicalib.calibration.fit import fit_error_model
     from helicalib.geometry import errors as em
     from helicalib.geometry.sun import sun_at_site, to_unix_seconds
@@ -99,24 +104,27 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
     times = t0 + np.arange(0.0, days * 86400.0, every_min * 60.0)
     times = times[sun_at_site(cfg.site, times).elevation_deg >= 5.0]
     rng = np.random.default_rng(seed)
+    t_eval = t0 + days * 86400.0 if tilt_rate else t0
     params = np.zeros((truth.n, em.P))
     for i in rows:
         own = cfg.target(cfg.heliostats[i].target)
         targets = [own] * len(times) if aims == "board" else [cfg.targets[k % len(cfg.targets)] for k in
                                                                range(len(times))]
-        strokes, suns, spots, approach = observe(truth, cfg, i, times, targets, world, rng)
+        strokes, suns, spots, approach = observe(truth, cfg, i, times, targets, world, rng, noise_mrad)
         params[i] = fit_error_model(truth.nominal.subset([i]), strokes, suns, spots, loss="soft_l1",
-                                    approach=approach if backlash_term else None).params
+                                    approach=approach if backlash_term else None,
+                                    point_age_days=(t_eval - times) / 86400.0 if tilt_rate else None).params
     backlash = "tracking" if world.startswith("real") else "none"
     year_t, year_sun = year_sun_times(cfg.site, int(start[:4]))
-    fitted = evaluate_model(truth, params, year_t, year_sun, backlash=backlash, t_eval_s=t0)
-    exact = evaluate_model(truth, truth.params0, year_t, year_sun, backlash=backlash, t_eval_s=t0)
+    fitted = evaluate_model(truth, params, year_t, year_sun, backlash=backlash, t_eval_s=t_eval)
+    exact = evaluate_model(truth, truth.params_at(t_eval), year_t, year_sun, backlash=backlash, t_eval_s=t_eval)
     rms = lambda e: round(float(np.sqrt(np.nanmean(e[rows] ** 2))), 3)  # noqa: E731
     months = (year_t - float(to_unix_seconds([f"{start[:4]}-01-01T00:00:00Z"])[0])) // (365.25 / 12 * 86400)
     by_month = [rms(fitted.errors_mrad[:, months == m]) for m in range(12)]
     own = np.abs(year_t - (t0 + days * 43200.0)) < 10 * 86400.0
     return {"start": start, "days": days, "world": world, "aims": aims,
-            "model": "backlash" if backlash_term else "geometric", "observations_per_heliostat": int(len(times)),
+            "model": "backlash" if backlash_term else "geometric", "tilt_rate": tilt_rate,
+            "noise_mrad": noise_mrad if world.startswith("real") else 0.0, "observations_per_heliostat": int(len(times)),
             "year_rms_mrad": rms(fitted.errors_mrad), "exact_params_year_rms_mrad": rms(exact.errors_mrad),
             "own_season_rms_mrad": rms(fitted.errors_mrad[:, own]), "by_month_rms_mrad": by_month}
 
@@ -132,6 +140,11 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default="backlash",
                     help="comma-separated, of backlash (the fit sees each observation's approach and fits the "
                          "dead bands), geometric (the 13 geometric parameters only)")
+    ap.add_argument("--tilt-rate", action="store_true",
+                    help="fit a steady pedestal tilt rate from the points' ages (as operation does) and judge "
+                         "the models at the end of the observations; for spans of weeks and more")
+    ap.add_argument("--noise-mrad", type=float, default=NOISE_MRAD,
+                    help=f"spot noise of the real worlds, per beam-angle component [mrad] (default {NOISE_MRAD})")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=OUT / "bench_season.json")
     args = ap.parse_args(argv)
@@ -152,14 +165,15 @@ def main(argv=None) -> int:
                 if model not in ("backlash", "geometric"):
                     ap.error(f"--models: unknown model {model!r}; known: backlash, geometric")
                 case = run_case(cfg, scenario, f"{start}T00:00:00Z" if "T" not in start else start, args.days,
-                                args.every_min, world, aims, rows, args.seed, backlash_term=model == "backlash")
+                                args.every_min, world, aims, rows, args.seed, backlash_term=model == "backlash",
+                                tilt_rate=args.tilt_rate, noise_mrad=args.noise_mrad)
                 cases.append(case)
                 print(f"{case['start'][:10]}  {world:5s}  {aims:6s}  {model:9s}  {case['observations_per_heliostat']:3d} obs  "
                       f"year {case['year_rms_mrad']:.3f}  (exact params {case['exact_params_year_rms_mrad']:.3f})  "
                       f"own season {case['own_season_rms_mrad']:.3f}  worst month "
                       f"{max(case['by_month_rms_mrad']):.3f}  months {case['by_month_rms_mrad']}", flush=True)
     doc = {"benchmark": "season", "field": str(FIELD), "scenario": str(SCENARIO), "heliostats": len(rows),
-           "noise_mrad": NOISE_MRAD, "cases": cases, "wall_s": round(time.perf_counter() - t_start, 1)}
+           "noise_mrad": args.noise_mrad, "cases": cases, "wall_s": round(time.perf_counter() - t_start, 1)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=2))
     print(f"written {args.out}")

@@ -233,14 +233,47 @@ def test_the_report_fits_an_operated_campaign_as_operation_does(drifted_run, dem
         assert op.was_operated(store, data.campaign.id)
     finally:
         store.close()
-    # the report's fits are the runner's models (fitted from the same stored points, as operation fits)
+    # the report's fits are the runner's models (fitted from the same stored points, as operation
+    # fits). The runner's solver started from its previous fit, the report's from the nominal
+    # heliostat: along the fits' flat directions (covariance condition ~1e9) they stop up to a few
+    # 1e-6 of a parameter's σ apart; a refit without the tilt rate lands 3e-3 to 1e-2 σ away.
     ids = sorted(IDS)
     fits = stored_fits(data, ids, HeliostatModel.from_config(data.cfg, ids))
     assert set(fits) == set(IDS)
     for hid, (params, fit) in fits.items():
         assert fit.tilt_rate_mrad_per_day is not None
-        np.testing.assert_allclose(params, result.runner.models[hid].params[0], atol=1e-6)
+        assert np.all(np.abs(params - result.runner.models[hid].params[0]) <= 1e-4 * fit.sigma), hid
     yp = year_predictions(data)
     assert set(yp["heliostats"]) == set(IDS)
     median = float(np.median([p["expected_rms_mrad"] for p in yp["heliostats"].values()]))
     assert median == pytest.approx(result.summary["predicted_year_rms_median_mrad"], abs=0.005)
+
+
+def test_a_check_averages_more_after_frames_than_a_campaign_visit(tmp_path, demo_field_path):
+    """Rendered frames over three plant days of one heliostat, none pruned: every valid measurement
+    of a check keeps ``operation.CHECK_AFTER_FRAMES`` after frames, every campaign visit's keeps the
+    config's ``calibration.after_frames``; the stored ``check`` events name the check visits."""
+    import json
+    import sqlite3
+
+    from helicalib.campaign import operation as op_rules
+
+    cfg = load_field_config(demo_field_path)
+    assert cfg.calibration.after_frames < op_rules.CHECK_AFTER_FRAMES  # otherwise the test shows nothing
+    result = simulate_campaign(cfg, tmp_path, 3.0, seed=2, heliostat_ids=["H0001"], fidelity="render",
+                               operation="ranked", monthly_tracking=False)
+    con = sqlite3.connect(result.database)
+    checks = {vid: n for vid, n in con.execute(
+        "SELECT json_extract(data_json, '$.visit_id'), json_extract(data_json, '$.after_frames') FROM events "
+        "WHERE kind = 'check'")}
+    visits = {vid for (vid,) in con.execute("SELECT id FROM visits")}
+    rows = con.execute("SELECT visit_id, after_frame_paths_json FROM observations WHERE valid = 1 AND iteration >= 0"
+                       ).fetchall()
+    con.close()
+    assert checks, "no check in three days"
+    assert set(checks) <= visits and set(checks.values()) == {op_rules.CHECK_AFTER_FRAMES}
+    frames = {vid in checks: set() for vid, _ in rows}
+    for vid, afters in rows:
+        frames[vid in checks].add(len(json.loads(afters)))
+    assert frames[True] == {op_rules.CHECK_AFTER_FRAMES}
+    assert frames[False] == {cfg.calibration.after_frames}

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 STORED = frozenset({"stow", "resume", "gated", "ungated", "fault", "note", "tracking_written", "off_tracking",
-                    "back_to_tracking", "campaign", "operator", "drift"})
+                    "back_to_tracking", "campaign", "operator", "drift", "check"})
 """Event kinds written to the store's events table (the others live in their own tables)."""
 
 KINDS = {
@@ -32,6 +32,7 @@ KINDS = {
     "tracking_written": "tracking corrections written to the plant (after the plant took them)",
     "off_tracking": "a heliostat could not be returned to tracking: retried until the plant confirms",
     "back_to_tracking": "the plant confirms a heliostat tracks again after a failed return",
+    "check": "operation: a visit is a check of a calibrated heliostat (its visit id and after frames)",
     "drift": "operation: a heliostat's checks lie outside its model's band: drift confirmed, calibration reopened",
     "operator": "a crew's action from the console applied (pause, resume, re-check, repaired, out of service)",
     "status": "a periodic snapshot (JSON lines only)",

@@ -177,6 +177,9 @@ class CampaignRunner:
                         if self.share else {})
         self.armed = armed
         self.settings = VisitSettings.from_config(cfg)
+        # an operation's checks average more after frames (operation.CHECK_AFTER_FRAMES)
+        self.check_settings = replace(self.settings,
+                                      after_frames=max(self.settings.after_frames, op_rules.CHECK_AFTER_FRAMES))
         self.sun_table = SunTable(cfg.site)
         base = model if model is not None else HeliostatModel.from_config(cfg, self.ids)
         self.nominal = HeliostatModel.from_config(cfg, self.ids)
@@ -587,7 +590,7 @@ class CampaignRunner:
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
             index=index, target=self.cfg.target(target_id), board=board,
             sensor=self.sensors[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
-            model=self.models[hid], settings=self.settings,
+            model=self.models[hid], settings=self.check_settings if check else self.settings,
             time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
         self.book.visiting(hid, now)
@@ -606,6 +609,11 @@ class CampaignRunner:
             why += " (check: suspected drift)" if hid in self.ops.suspects else " (check)"
         self.event("visit", f"{hid} onto {target_id}{why}", hid, target_id, time_s=now,
                    data={"check": True} if check else None)
+        if check:  # stored: which visits were checks, and how many frames their measurements average
+            suspect = hid in self.ops.suspects
+            self.event("check", f"{hid}: visit {visit_id} is a {'suspected drift ' if suspect else ''}check, "
+                       f"{ctx.settings.after_frames} after frames per measurement", hid, target_id, time_s=now,
+                       data={"visit_id": visit_id, "after_frames": ctx.settings.after_frames, "suspect": suspect})
         return True
 
     def _reaches(self, hid: str, target_id: str, now: float) -> bool:
