@@ -220,8 +220,9 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     start_s, timeline = acceptance_timeline(result.database, n)
     # the summary divides by every board of the field; count only the boards this run uses
     boards = {cfg.heliostat(h).target for h in (ids or [x.id for x in cfg.heliostats])}
+    shares = bool(cfg.calibration.share_targets) and base in ("gaps", "round-robin-shared")  # as the runner decides
     bands = band_throughput(result.database, cfg, start_s, start_s + days * 86400.0,
-                            len(cfg.targets) if cfg.calibration.share_targets else len(boards))
+                            len(cfg.targets) if shares else len(boards))
     per_board = round(s["visits_per_target_hour"] * len(cfg.targets) / max(len(boards), 1), 3)
     if keep_frames:
         frame_bytes = sum(f.stat().st_size for f in frames.rglob("*.png")) if frames.exists() else 0

@@ -158,11 +158,7 @@ def main(argv=None) -> int:
                          and all(map(math.isfinite, o.spot_enu_m))), key=lambda o: o.capture_time_s)
         if not points:
             continue
-        kept = []
-        for o in points:  # the book's cap, applied point by point as the runner does
-            kept.append(o)
-            if len({p.visit_id for p in kept}) > policy.MAX_VISIT_POINTS:
-                kept = policy.thin_visits(kept, policy.MAX_VISIT_POINTS)
+        kept = policy.book_points(points)  # the book's cap, applied point by point as the runner does
         exact = {id(o): beam_spot(i, o, jitter=False) for o in points}
         shake = {}
         for o in points:

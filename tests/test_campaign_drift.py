@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from helicalib.campaign import policy
-from helicalib.campaign.drift import drift_evidence, fit_points
+from helicalib.campaign.drift import drift_evidence
 from helicalib.geometry.heliostat import HeliostatModel
 from test_calibration_fit_fast import CFG, recorded  # noqa: F401  (the fixture)
 
@@ -55,11 +55,13 @@ def test_without_a_fit_there_is_no_evidence(fitted):
     assert drift_evidence(nominal, model, [], points[31]) is None
 
 
-def test_fit_points_are_the_valid_ones_captured_by_the_fit():
-    base = SimpleNamespace(heliostat_id="H0001", valid=True, capture_time_s=10.0, spot_enu_m=(1.0, 2.0, 3.0))
-    rows = [base,
-            SimpleNamespace(**{**vars(base), "capture_time_s": 11.0}),
+def test_book_points_are_the_located_ones_since_the_epoch():
+    base = SimpleNamespace(heliostat_id="H0001", visit_id=1, valid=True, capture_time_s=10.0, spot_enu_m=(1.0, 2.0, 3.0),
+                           sun_enu=(0.0, 0.6, 0.8))
+    later = SimpleNamespace(**{**vars(base), "capture_time_s": 11.0})
+    rows = [base, later,
             SimpleNamespace(**{**vars(base), "valid": False}),
-            SimpleNamespace(**{**vars(base), "spot_enu_m": (np.nan, 0.0, 0.0)}),
-            SimpleNamespace(**{**vars(base), "heliostat_id": "H0002"})]
-    assert fit_points(rows, "H0001", 10.5) == [base]
+            SimpleNamespace(**{**vars(base), "spot_enu_m": None}),
+            SimpleNamespace(**{**vars(base), "spot_enu_m": (np.nan, 0.0, 0.0)})]
+    assert policy.book_points(rows) == [base, later]
+    assert policy.book_points(rows, since_s=10.5) == [later]

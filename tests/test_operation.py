@@ -277,3 +277,48 @@ def test_a_check_averages_more_after_frames_than_a_campaign_visit(tmp_path, demo
         frames[vid in checks].add(len(json.loads(afters)))
     assert frames[True] == {op_rules.CHECK_AFTER_FRAMES}
     assert frames[False] == {cfg.calibration.after_frames}
+
+
+def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_path, monkeypatch, demo_field_path):
+    """With the visit cap at 8 (the heliostats make 27-34 valid visits; below about 8 thinning takes the
+    points acceptance needs, and unaccepted heliostats get no drift test), the drifted run's books are thinned before and after the drift: the
+    points the store gives back for each heliostat's newest fit (``policy.stored_basis``: what a
+    resumed runner, the report's refit and ``helicalib check``'s drift test stand on) are the live
+    book's, the report's refit is the runner's model, and each stored fit's point count is found again."""
+    from helicalib.campaign import policy
+    from helicalib.geometry.heliostat import HeliostatModel
+    from helicalib.report.data import load_campaign
+    from helicalib.report.prediction import stored_fits
+    from helicalib.store.sqlite import Store
+
+    monkeypatch.setattr(policy, "MAX_VISIT_POINTS", 8)
+    cfg = load_field_config(demo_field_path)
+    scenario = parse_scenario({"seed": 4, "drift": {"share": 1.0, "kinds": {"settle": 1.0},
+                                                    "settle_mrad": [4.0, 5.0], "after_days": 2.4,
+                                                    "within_days": 0.2}})
+    result = simulate_campaign(cfg, tmp_path, 6.0, seed=4, scenario=scenario, heliostat_ids=IDS, fidelity="fast",
+                               operation="ranked", monthly_tracking=False)
+    runner = result.runner
+    assert len(runner.drifts) == len(IDS), "drifts not confirmed: the test shows little of the epochs"
+    store = Store.open(result.database, "images", readonly=True)
+    try:
+        cid = runner.campaign_id
+        thinned = 0
+        for hid in IDS:
+            live = runner.book.points(hid)
+            assert len({p.visit_id for p in live}) <= 8
+            located = [o for o in store.observations(campaign_id=cid, heliostat_id=hid) if policy.located(o)]
+            thinned += len({o.visit_id for o in located}) > len({p.visit_id for p in live})
+            points, centre = policy.stored_basis(store, cid, hid)
+            assert [p.id for p in points] == [p.id for p in live], hid
+            prior = runner.prior_mean(hid)
+            assert (centre is None) == (prior is None) and (prior is None or np.allclose(centre, prior)), hid
+            latest = store.latest_fit(hid, campaign_id=cid)
+            assert len(policy.stored_basis(store, cid, hid, latest.time_s)[0]) == latest.n_points, hid
+        assert thinned == len(IDS)  # every heliostat had more visits than the cap
+    finally:
+        store.close()
+    data = load_campaign(result.database, field_config=demo_field_path)
+    fits = stored_fits(data, sorted(IDS), HeliostatModel.from_config(data.cfg, sorted(IDS)))
+    for hid, (params, fit) in fits.items():
+        assert np.all(np.abs(params - runner.models[hid].params[0]) <= 1e-4 * fit.sigma), hid

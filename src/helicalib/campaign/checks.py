@@ -270,7 +270,10 @@ class OperationChecks:
         prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
                                     tilt_rate=self.tilt_rate)[0] if earlier else started_with)
         b = self.r.book.h[hid]
-        b.points = [p for p in b.points if p.capture_time_s >= since]
+        # the points since, from the store: as a resumed runner and the report rebuild them (a point the
+        # cap thinned away while the earlier points filled the book comes back)
+        b.points = policy.book_points(self.r.store.observations(campaign_id=self.r.campaign_id, heliostat_id=hid),
+                                      since)
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
         self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
                                              tilt_rate=self.tilt_rate)

@@ -11,7 +11,6 @@ above the acceptance limit but inside the band is a model that was never good en
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -23,14 +22,6 @@ DRIFT_ALPHA = 1e-3
 """p-value below which a re-check is evidence of drift (1 check in 1000 of an unchanged heliostat)."""
 
 
-def fit_points(observations, heliostat_id: str, until_s: float) -> list:
-    """The observations a fit of ``heliostat_id`` made at ``until_s`` stood on: valid ones with a
-    finite spot, captured by then (as the campaign's book keeps them)."""
-    return [o for o in observations
-            if o.heliostat_id == heliostat_id and o.valid and o.capture_time_s <= until_s
-            and o.spot_enu_m is not None and all(map(math.isfinite, o.spot_enu_m))]
-
-
 def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = SIGMA_MRAD,
                    alpha: float = DRIFT_ALPHA, prior_mean=None, tilt_rate: bool = False) -> dict | None:
     """Test a re-check's observation ``check`` against the fit over ``points`` (module docstring).
@@ -39,7 +30,7 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     ----------
     nominal : HeliostatModel of the heliostat (one row, nominal geometry)
     model : HeliostatModel, one row: the model the check placed it with (its newest fit)
-    points : the fit's observations (:func:`fit_points`)
+    points : the fit's observations (:func:`.policy.stored_basis`)
     check : the check's observation (strokes, sun, spot, approach)
     prior_mean : (P,), optional, the fits' prior centre (after a confirmed drift: the model before it)
     tilt_rate : the fit has a pedestal tilt rate, as the model's own fit (:func:`.policy.refit`)

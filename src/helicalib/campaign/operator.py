@@ -114,7 +114,7 @@ class OperatorDesk:
             if hid not in runner.book.h:
                 continue
             b = runner.book.h[hid]
-            b.points[:] = [p for p in b.points if p.capture_time_s > t]
+            b.points = policy.stored_basis(runner.store, runner.campaign_id, hid)[0]  # those after the repair
             b.fit, b.last_first_error_mrad = None, None
             # repaired after its drift: the nominal again (a drift confirmed after the repair keeps its prior)
             runner.ops.forget(hid, prior_too=any(d["heliostat_id"] == hid and d["since_s"] < t

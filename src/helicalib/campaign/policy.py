@@ -78,11 +78,8 @@ class Book:
 
     def add(self, obs) -> None:
         b = self.h[obs.heliostat_id]
-        if obs.valid and obs.spot_enu_m is not None and all(map(math.isfinite, obs.spot_enu_m)):
-            b.points.append(obs)
-            if len({p.visit_id for p in b.points}) > MAX_VISIT_POINTS:
-                b.points = thin_visits(b.points, MAX_VISIT_POINTS)
-            self.table.update(self.table.row[obs.heliostat_id], b)
+        if located(obs):
+            b.points = keep_point(b.points, obs)  # assigned: the book's planning arrays follow
         measured = getattr(obs, "cleanliness_measured", None)
         if measured is not None and obs.capture_time_s >= b.measured_at_s:
             b.measured_cleanliness, b.measured_at_s = float(measured), obs.capture_time_s
@@ -123,6 +120,59 @@ class Book:
     def first_time(self, default: float) -> float:
         times = [p.capture_time_s for b in self.h.values() for p in b.points]
         return min(times + [default])
+
+
+def located(obs) -> bool:
+    """Whether ``obs`` is a point for the fits: valid, with a finite spot on the board."""
+    return bool(obs.valid and obs.spot_enu_m is not None and all(map(math.isfinite, obs.spot_enu_m)))
+
+
+def keep_point(points: list, obs) -> list:
+    """``points`` (a heliostat's book) with the point ``obs`` added, thinned to
+    :data:`MAX_VISIT_POINTS` visits (:func:`thin_visits`) when it makes one visit too many."""
+    points = points + [obs]
+    if len({p.visit_id for p in points}) > MAX_VISIT_POINTS:
+        points = thin_visits(points, MAX_VISIT_POINTS)
+    return points
+
+
+def book_points(observations, since_s: float = -math.inf) -> list:
+    """The points a campaign's book holds of one heliostat, from its stored ``observations`` (in
+    the store's order, the order they came in): the located ones (:func:`located`) captured at or
+    after ``since_s`` (the epoch of its newest confirmed drift or repair), each added as
+    :meth:`Book.add` adds it, so thinned where the running book was thinned. The runner's book after
+    a drift or a repair, the report's refit and ``helicalib check``'s drift test all stand on these."""
+    points: list = []
+    for o in observations:
+        if o.capture_time_s >= since_s and located(o):
+            points = keep_point(points, o)
+    return points
+
+
+def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = math.inf):
+    """``(points, prior_mean)``: what the fit of ``heliostat_id`` that campaign ``campaign_id``
+    made at ``until_s`` stood on, from the store, as the runner rebuilds it on resume: the points
+    of :func:`book_points` since the newest confirmed drift (its ``drift`` event) or operator repair
+    by then, and the centre of the fit's prior (the model from before that drift; None for the
+    nominal heliostat, also when a repair came after the drift)."""
+    from helicalib.campaign.operator import replay
+
+    since, prior, drift_since = -math.inf, None, []
+    for e in store.events(campaign_id=campaign_id, kind="drift"):
+        if e.heliostat_id == heliostat_id and "since_s" in e.data and e.time_s <= until_s:
+            since = float(e.data["since_s"])
+            drift_since.append(since)
+            p = e.data.get("prior_params")
+            prior = None if p is None else np.asarray(p, dtype=float)
+    done = [a for a in store.actions(campaign_id, pending=False) if a.done_s <= until_s]
+    repaired = replay(done).repaired_s.get(heliostat_id)
+    if repaired is not None:  # points from after the repair only (the runner keeps those captured later)
+        since = max(since, math.nextafter(float(repaired), math.inf))
+        if any(s < repaired for s in drift_since):
+            prior = None
+    obs = [o for o in store.observations(campaign_id=campaign_id, heliostat_id=heliostat_id)
+           if o.capture_time_s <= until_s]
+    return book_points(obs, since), prior
 
 
 def thin_visits(points: list, keep: int) -> list:

@@ -209,8 +209,8 @@ def recheck_rows(cfg, runner) -> list[dict]:
     uses, is given beside it. ``drift``: the same placement tested against the band the newest fit
     predicts for it (:mod:`helicalib.campaign.drift`); outside it, the heliostat changed since."""
     from helicalib.campaign import operation as op_rules
-    from helicalib.campaign.drift import drift_evidence, fit_points
-    from helicalib.campaign.policy import prediction_error_mrad
+    from helicalib.campaign.drift import drift_evidence
+    from helicalib.campaign.policy import prediction_error_mrad, stored_basis
 
     limit = float(cfg.acceptance.max_rms_mrad)
     rows = []
@@ -228,13 +228,15 @@ def recheck_rows(cfg, runner) -> list[dict]:
         else:
             err = prediction_error_mrad(runner.models[hid], first, cfg.target(first.target_id))
             if latest is not None:
-                points = fit_points(runner.store.observations(campaign_id=latest.campaign_id, heliostat_id=hid),
-                                    hid, latest.time_s)
-                if len(points) == latest.n_points:  # the points the stored fit stood on, or no evidence
+                # the points the stored fit stood on (its campaign's book then: since a drift or repair,
+                # thinned to the visit cap), or no evidence
+                points, centre = stored_basis(runner.store, latest.campaign_id, hid, latest.time_s)
+                if len(points) == latest.n_points:
                     # fitted as that fit was (an operated campaign's fits model a settling pedestal)
                     if latest.campaign_id not in operated:
                         operated[latest.campaign_id] = op_rules.was_operated(runner.store, latest.campaign_id)
                     row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first,
+                                                  prior_mean=centre,
                                                   tilt_rate=operated[latest.campaign_id] and op_rules.TILT_RATE_IN_FITS)
             drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),

@@ -64,9 +64,10 @@ def year_predictions(data) -> dict | None:
 
 def stored_fits(data, ids: list[str], nominal) -> dict:
     """``{id: (parameters (P,), FitResult)}``: each of ``ids`` (rows of ``nominal``) fitted again from
-    the campaign's valid located observations in ``data``'s database, as the run fits them (after a
-    confirmed drift only the points since it, centred on the model from before it; an operated
-    campaign with operation's fits). Heliostats without such a point are left out."""
+    the points the run's book held of it at the end (:func:`helicalib.campaign.policy.stored_basis`:
+    the valid located observations since its newest confirmed drift or repair, thinned to the visit
+    cap as they came in; after a drift centred on the model from before it) and as the run fits them
+    (an operated campaign with operation's fits). Heliostats without such a point are left out."""
     from helicalib.campaign import operation as op_rules
     from helicalib.campaign import policy
     from helicalib.store import Store
@@ -74,20 +75,12 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
     out = {}
     store = Store.open(data.db_path, data.images_dir, readonly=True)
     try:
-        drifts = {}
-        for e in store.events(campaign_id=data.campaign.id, kind="drift"):
-            drifts[e.heliostat_id] = e.data
         tilt_rate = op_rules.was_operated(store, data.campaign.id) and op_rules.TILT_RATE_IN_FITS
         for i, hid in enumerate(ids):
-            since = float(drifts.get(hid, {}).get("since_s", -math.inf))
-            points = [o for o in store.observations(campaign_id=data.campaign.id, heliostat_id=hid)
-                      if o.valid and o.spot_enu_m is not None and all(map(math.isfinite, o.spot_enu_m))
-                      and o.capture_time_s >= since]
+            points, centre = policy.stored_basis(store, data.campaign.id, hid)
             if not points:
                 continue
             one = nominal.subset([i])
-            centre = drifts.get(hid, {}).get("prior_params")
-            centre = None if centre is None else np.asarray(centre, dtype=float)
             model, fit = policy.refit(one, points, one if centre is None else one.with_params(centre[None, :]),
                                       prior_mean=centre, tilt_rate=tilt_rate)
             if fit is not None:
