@@ -280,8 +280,9 @@ def test_a_check_averages_more_after_frames_than_a_campaign_visit(tmp_path, demo
 
 
 def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_path, monkeypatch, demo_field_path):
-    """With the visit cap at 8 (the heliostats make 27-34 valid visits; below about 8 thinning takes the
-    points acceptance needs, and unaccepted heliostats get no drift test), the drifted run's books are thinned before and after the drift: the
+    """With the visit cap at 8, and 6 after a drift (the heliostats make 27-34 valid visits; below about
+    8 thinning takes the points acceptance needs, and unaccepted heliostats get no drift test), the
+    drifted run's books are thinned before and after the drift: the
     points the store gives back for each heliostat's newest fit (``policy.stored_basis``: what a
     resumed runner, the report's refit and ``helicalib check``'s drift test stand on) are the live
     book's, the report's refit is the runner's model, and each stored fit's point count is found again."""
@@ -292,6 +293,7 @@ def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_
     from helicalib.store.sqlite import Store
 
     monkeypatch.setattr(policy, "MAX_VISIT_POINTS", 8)
+    monkeypatch.setattr(policy, "MAX_VISIT_POINTS_AFTER_DRIFT", 6)
     cfg = load_field_config(demo_field_path)
     scenario = parse_scenario({"seed": 4, "drift": {"share": 1.0, "kinds": {"settle": 1.0},
                                                     "settle_mrad": [4.0, 5.0], "after_days": 2.4,
@@ -306,7 +308,8 @@ def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_
         thinned = 0
         for hid in IDS:
             live = runner.book.points(hid)
-            assert len({p.visit_id for p in live}) <= 8
+            assert runner.book.h[hid].drifted
+            assert len({p.visit_id for p in live}) <= 6
             located = [o for o in store.observations(campaign_id=cid, heliostat_id=hid) if policy.located(o)]
             thinned += len({o.visit_id for o in located}) > len({p.visit_id for p in live})
             points, centre = policy.stored_basis(store, cid, hid)

@@ -272,8 +272,9 @@ class OperationChecks:
         b = self.r.book.h[hid]
         # the points since, from the store: as a resumed runner and the report rebuild them (a point the
         # cap thinned away while the earlier points filled the book comes back)
+        b.drifted = True  # the smaller cap from now on (policy.MAX_VISIT_POINTS_AFTER_DRIFT)
         b.points = policy.book_points(self.r.store.observations(campaign_id=self.r.campaign_id, heliostat_id=hid),
-                                      since)
+                                      since, policy.visit_cap(True))
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
         self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
                                              tilt_rate=self.tilt_rate)

@@ -114,11 +114,12 @@ class OperatorDesk:
             if hid not in runner.book.h:
                 continue
             b = runner.book.h[hid]
+            # repaired after its drift: the nominal again (a drift confirmed after the repair keeps its prior)
+            forgot = any(d["heliostat_id"] == hid and d["since_s"] < t for d in runner.drifts)
+            b.drifted = b.drifted and not forgot
             b.points = policy.stored_basis(runner.store, runner.campaign_id, hid)[0]  # those after the repair
             b.fit, b.last_first_error_mrad = None, None
-            # repaired after its drift: the nominal again (a drift confirmed after the repair keeps its prior)
-            runner.ops.forget(hid, prior_too=any(d["heliostat_id"] == hid and d["since_s"] < t
-                                                 for d in runner.drifts))
+            runner.ops.forget(hid, prior_too=forgot)
             runner.models[hid] = runner.nominal_of(hid)
             if b.points:
                 runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid],
@@ -188,7 +189,7 @@ class OperatorDesk:
 
     def _reset(self, runner, hid: str, now: float, who: str) -> None:
         b = runner.book.h[hid]
-        b.points.clear()
+        b.points, b.drifted = [], False
         b.fit = b.verdict = b.last_first_error_mrad = None
         b.cooldown_until_s = 0.0
         runner.ops.forget(hid)  # a repaired heliostat starts from the nominal again, drift or not

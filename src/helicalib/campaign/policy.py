@@ -35,12 +35,20 @@ COOLDOWN_INVALID_S = 1800.0
 COOLDOWN_VALID_S = 1200.0
 """After a valid visit the heliostat waits this long (the next point should see another sun)."""
 FIT_LOSS = "soft_l1"
-MAX_VISIT_POINTS = 60
+MAX_VISIT_POINTS = 240
 """A heliostat's fits and verdicts stand on at most this many visits' points (the database keeps
 every observation): a year of operation adds a check every few days, and memory and fit time must
 not grow without end. Past it, the visit whose sun position lies nearest another's goes (the oldest
 of a tie; never the newest): the spread of sun positions, which matters more to a fit than the
-count or the age of its points, is kept."""
+count or the age of its points, is kept. Measured over 210 days of operation (docs/benchmarks.md):
+60 visits held the undrifted heliostats' sky-wide error at 0.66 mrad, 240 at 0.39."""
+MAX_VISIT_POINTS_AFTER_DRIFT = 60
+"""The cap for a heliostat since its confirmed drift (until a repair resets it): a drift may go on
+after it is confirmed (a creep), and a steady tilt rate does not model a creep that stops, so the
+points of the moving heliostat must leave the fit. Under the smaller cap the thinning, which drops
+the older of two visits at the same sun position, replaces them by newer ones within weeks; under
+240 they stayed and pulled the drifted heliostats' models 2-8 mrad off over the sky (measured,
+docs/benchmarks.md)."""
 _BACKLASH = [em.index(n) for n in em.BACKLASH]
 
 
@@ -55,6 +63,7 @@ class HeliostatBook:
     measured_at_s: float = -math.inf
     fit: object | None = None                       # newest FitResult over ``points``; None before one
     last_visit_s: float = -math.inf                 # start of its newest visit (operation: time since a check)
+    drifted: bool = False                           # since a confirmed drift (until a repair): the smaller cap
 
     def __setattr__(self, name: str, value) -> None:
         object.__setattr__(self, name, value)
@@ -79,7 +88,7 @@ class Book:
     def add(self, obs) -> None:
         b = self.h[obs.heliostat_id]
         if located(obs):
-            b.points = keep_point(b.points, obs)  # assigned: the book's planning arrays follow
+            b.points = keep_point(b.points, obs, visit_cap(b.drifted))  # assigned: the planning arrays follow
         measured = getattr(obs, "cleanliness_measured", None)
         if measured is not None and obs.capture_time_s >= b.measured_at_s:
             b.measured_cleanliness, b.measured_at_s = float(measured), obs.capture_time_s
@@ -127,25 +136,33 @@ def located(obs) -> bool:
     return bool(obs.valid and obs.spot_enu_m is not None and all(map(math.isfinite, obs.spot_enu_m)))
 
 
-def keep_point(points: list, obs) -> list:
-    """``points`` (a heliostat's book) with the point ``obs`` added, thinned to
-    :data:`MAX_VISIT_POINTS` visits (:func:`thin_visits`) when it makes one visit too many."""
+def visit_cap(drifted: bool) -> int:
+    """The visits a heliostat's book keeps: :data:`MAX_VISIT_POINTS`, or since a confirmed drift
+    :data:`MAX_VISIT_POINTS_AFTER_DRIFT`."""
+    return MAX_VISIT_POINTS_AFTER_DRIFT if drifted else MAX_VISIT_POINTS
+
+
+def keep_point(points: list, obs, cap: int | None = None) -> list:
+    """``points`` (a heliostat's book) with the point ``obs`` added, thinned to ``cap`` visits
+    (default :data:`MAX_VISIT_POINTS`; :func:`thin_visits`) when it makes one visit too many."""
+    cap = MAX_VISIT_POINTS if cap is None else int(cap)
     points = points + [obs]
-    if len({p.visit_id for p in points}) > MAX_VISIT_POINTS:
-        points = thin_visits(points, MAX_VISIT_POINTS)
+    if len({p.visit_id for p in points}) > cap:
+        points = thin_visits(points, cap)
     return points
 
 
-def book_points(observations, since_s: float = -math.inf) -> list:
+def book_points(observations, since_s: float = -math.inf, cap: int | None = None) -> list:
     """The points a campaign's book holds of one heliostat, from its stored ``observations`` (in
     the store's order, the order they came in): the located ones (:func:`located`) captured at or
     after ``since_s`` (the epoch of its newest confirmed drift or repair), each added as
-    :meth:`Book.add` adds it, so thinned where the running book was thinned. The runner's book after
-    a drift or a repair, the report's refit and ``helicalib check``'s drift test all stand on these."""
+    :meth:`Book.add` adds it under ``cap`` (:func:`visit_cap`), so thinned where the running book
+    was thinned. The runner's book after a drift or a repair, the report's refit and ``helicalib
+    check``'s drift test all stand on these."""
     points: list = []
     for o in observations:
         if o.capture_time_s >= since_s and located(o):
-            points = keep_point(points, o)
+            points = keep_point(points, o, cap)
     return points
 
 
@@ -153,7 +170,7 @@ def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = ma
     """``(points, prior_mean)``: what the fit of ``heliostat_id`` that campaign ``campaign_id``
     made at ``until_s`` stood on, from the store, as the runner rebuilds it on resume: the points
     of :func:`book_points` since the newest confirmed drift (its ``drift`` event) or operator repair
-    by then, and the centre of the fit's prior (the model from before that drift; None for the
+    by then (under the cap after a drift, :func:`visit_cap`), and the centre of the fit's prior (the model from before that drift; None for the
     nominal heliostat, also when a repair came after the drift)."""
     from helicalib.campaign.operator import replay
 
@@ -164,20 +181,21 @@ def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = ma
             drift_since.append(since)
             p = e.data.get("prior_params")
             prior = None if p is None else np.asarray(p, dtype=float)
+    drifted = bool(drift_since)
     done = [a for a in store.actions(campaign_id, pending=False) if a.done_s <= until_s]
     repaired = replay(done).repaired_s.get(heliostat_id)
     if repaired is not None:  # points from after the repair only (the runner keeps those captured later)
         since = max(since, math.nextafter(float(repaired), math.inf))
-        if any(s < repaired for s in drift_since):
-            prior = None
+        if any(s < repaired for s in drift_since):  # as OperatorDesk.restore: the nominal again
+            prior, drifted = None, False
     obs = [o for o in store.observations(campaign_id=campaign_id, heliostat_id=heliostat_id)
            if o.capture_time_s <= until_s]
-    return book_points(obs, since), prior
+    return book_points(obs, since, visit_cap(drifted)), prior
 
 
 def thin_visits(points: list, keep: int) -> list:
     """``points`` without the visits that are most redundant in sun position, down to ``keep``
-    visits (:data:`MAX_VISIT_POINTS`); the newest visit always stays."""
+    visits (:func:`visit_cap`); the newest visit always stays."""
     by_visit: dict = {}
     for p in points:
         by_visit.setdefault(p.visit_id, []).append(p)

@@ -242,6 +242,7 @@ class CampaignRunner:
         now = self.clock.now_s()
         epochs = self.ops.load_drifts()
         for hid in self.ids:
+            self.book.h[hid].drifted = hid in epochs  # its book under the cap after a drift
             for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid):
                 if obs.capture_time_s >= epochs.get(hid, -math.inf):
                     self.book.add(obs)
