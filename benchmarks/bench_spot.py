@@ -15,7 +15,13 @@ Throughput: frame pairs per second of ``measure_spot`` (marks found once on the 
 as the campaign does) on one core at 1280×1024 and 2448×2048, against the floor cost of one
 ``cv2.absdiff`` + ``cv2.integral`` pass over the same frames. Goal: ≥ 15 fps (T/GRLM 5.3).
 
-    .venv/bin/python benchmarks/bench_spot.py [--quick]
+    .venv/bin/python benchmarks/bench_spot.py [--quick] [--frames N]
+    .venv/bin/python benchmarks/bench_spot.py --boards-only --frames 200
+
+``--boards-only`` renders only the mark boards against black (6 %) and mid-grey (50 %) dot boards,
+both views, on the same spots, and compares them spot by spot (the ratio of RMS errors and the mean
+difference of squared errors with its standard error, which tells a real difference from the
+sampling noise of 40 spots); JSON ``benchmarks/out/bench_spot_boards.json``.
 """
 
 from __future__ import annotations
@@ -82,7 +88,7 @@ def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAM
     else:
         truth_v = project_board_points(pose, target, np.array(target.marks.vertices_m))
     truth_c = project_board_points(pose, target, np.zeros((1, 2)))[0]
-    errs = {m: {"mm": [], "px": [], "on_dot": []} for m in METHODS}
+    errs = {m: {"mm": [], "px": [], "on_dot": [], "all": []} for m in METHODS}
     invalid = {m: 0 for m in METHODS}
     for _ in range(n_frames):
         shape = str(rng.choice(["gaussian", "flat"]))
@@ -96,10 +102,13 @@ def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAM
             r = measure_spot(before, afters, target, method=m, marks=marks)
             if not r.valid:
                 invalid[m] += 1
+                errs[m]["all"].append(float("nan"))  # per spot, so two boards' spots pair up by index
                 continue
             errs[m]["mm"].append(1000 * np.linalg.norm(r.offset_m - centre))
+            errs[m]["all"].append(errs[m]["mm"][-1])
             errs[m]["px"].append(np.linalg.norm(board_to_image(marks, r.offset_m[None])[0] - true_px))
             errs[m]["on_dot"].append(_touches_a_dot(target, spot))
+
     out = {"frames": n_frames, "frame_px": [1280, 1024], "board_px_per_m": round(marks.px_per_m, 2),
            "marks_kind": target.marks.kind,
            "marks_vertex_error_rms_px": float(np.sqrt(np.mean(np.sum((marks.vertices_px - truth_v) ** 2, axis=1)))),
@@ -109,7 +118,7 @@ def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAM
         mm, px, on = np.array(errs[m]["mm"]), np.array(errs[m]["px"]), np.array(errs[m]["on_dot"], dtype=bool)
         out["methods"][m] = {"rms_mm": float(np.sqrt(np.mean(mm**2))), "max_mm": float(mm.max()),
                              "rms_px": float(np.sqrt(np.mean(px**2))), "max_px": float(px.max()),
-                             "invalid": invalid[m]}
+                             "invalid": invalid[m], "errors_mm": errs[m]["all"]}
         if target.marks.kind == "dots":  # spots that reach a dot and spots that do not
             for key, sel in (("on_dot", on), ("off_dots", ~on)):
                 out["methods"][m][f"{key}_frames"] = int(sel.sum())
@@ -151,12 +160,59 @@ def throughput(resolution: tuple[int, int], fx: float, repeats: int) -> dict:
             "ratio_to_floor": {m: res[m]["ms_per_pair"] / (1000 * t_floor) for m in METHODS}}
 
 
+def paired(marks: dict, dots: dict) -> dict:
+    """Dot board against mark board on the same spots (same seed, same order): the ratio of their
+    RMS errors and the mean difference of squared errors with its standard error [mm²]."""
+    a, b = np.array(marks["errors_mm"]), np.array(dots["errors_mm"])
+    ok = np.isfinite(a) & np.isfinite(b)
+    d = b[ok] ** 2 - a[ok] ** 2
+    return {"spots": int(ok.sum()), "marks_rms_mm": float(np.sqrt(np.mean(a[ok] ** 2))),
+            "dots_rms_mm": float(np.sqrt(np.mean(b[ok] ** 2))),
+            "ratio": float(np.sqrt(np.mean(b[ok] ** 2) / np.mean(a[ok] ** 2))),
+            "mean_sq_diff_mm2": float(d.mean()), "mean_sq_diff_se_mm2": float(d.std(ddof=1) / np.sqrt(ok.sum()))}
+
+
+def boards_only(n: int) -> int:
+    """``--boards-only``: marks against black (6 %) and mid-grey (50 %) dots on the same ``n`` spots,
+    in both views, paired spot by spot; writes ``benchmarks/out/bench_spot_boards.json``."""
+    out, rows = {}, []
+    for view in ("demo view", "side of the cylinder"):
+        marks_t, cam = boards()[f"marks, {view}"]
+        dots_t, _ = boards()[f"dots, {view}"]
+        print(f"rendering {n} frames: marks, {view} ...", flush=True)
+        m = accuracy(n, target=marks_t, camera_enu_m=cam)["methods"]["grlm-centroid"]
+        for albedo in (0.06, 0.5):
+            print(f"rendering {n} frames: dots ({albedo:g}), {view} ...", flush=True)
+            d = accuracy(n, target=dots_t, camera_enu_m=cam, lighting=Lighting(mark_albedo=albedo))["methods"]["grlm-centroid"]
+            row = dict(paired(m, d), view=view, dot_albedo=albedo, on_dot_rms_mm=d["on_dot_rms_mm"],
+                       off_dots_rms_mm=d["off_dots_rms_mm"], on_dot_frames=d["on_dot_frames"])
+            rows.append(row)
+    out = {"frames": n, "method": "grlm-centroid", "paired": rows}
+    path = OUT.with_name("bench_spot_boards.json")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=2))
+    print(f"marks against dots, the same {n} spots (grlm-centroid):")
+    for r in rows:
+        print(f"  {r['view']:<22} dots {r['dot_albedo']:4.2f}: {r['dots_rms_mm']:5.2f} mm against marks "
+              f"{r['marks_rms_mm']:5.2f} mm (ratio {r['ratio']:.3f}); mean squared difference "
+              f"{r['mean_sq_diff_mm2']:.2f} ± {r['mean_sq_diff_se_mm2']:.2f} mm²; reaching a dot "
+              f"{r['on_dot_rms_mm']:.2f} mm ({r['on_dot_frames']}), off the dots {r['off_dots_rms_mm']:.2f} mm")
+    print(f"wrote {path}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer frames and repeats")
+    ap.add_argument("--frames", type=int, default=None, help="rendered spots per case (default 40; 12 with --quick)")
+    ap.add_argument("--boards-only", action="store_true",
+                    help="only the mark-against-dot boards (black and mid-grey dots): no demo suite, sweep or throughput")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     n, reps = (12, 10) if args.quick else (40, 30)
+    n = args.frames or n
+    if args.boards_only:
+        return boards_only(n)
     acc = accuracy(n)
     cases = {}
     for name, (target, cam) in boards().items():

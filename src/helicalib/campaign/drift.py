@@ -11,7 +11,6 @@ above the acceptance limit but inside the band is a model that was never good en
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from helicalib.calibration.fit import SIGMA_MRAD

@@ -42,13 +42,14 @@ not grow without end. Past it, the visit whose sun position lies nearest another
 of a tie; never the newest): the spread of sun positions, which matters more to a fit than the
 count or the age of its points, is kept. Measured over 210 days of operation (docs/benchmarks.md):
 60 visits held the undrifted heliostats' sky-wide error at 0.66 mrad, 240 at 0.39."""
-MAX_VISIT_POINTS_AFTER_DRIFT = 60
-"""The cap for a heliostat since its confirmed drift (until a repair resets it): a drift may go on
-after it is confirmed (a creep), and a steady tilt rate does not model a creep that stops, so the
-points of the moving heliostat must leave the fit. Under the smaller cap the thinning, which drops
-the older of two visits at the same sun position, replaces them by newer ones within weeks; under
-240 they stayed and pulled the drifted heliostats' models 2-8 mrad off over the sky (measured,
-docs/benchmarks.md)."""
+MAX_VISIT_POINTS_AFTER_DRIFT = 30
+"""The cap for a heliostat since its confirmed drift (until a repair resets it). A drift may go on
+after it is confirmed (a creep), and the fits' steady tilt rate cannot follow it, so the points of
+the moving heliostat must leave the fit. Under a small cap the thinning, which drops the older of
+two visits at the same sun position, replaces them by newer ones. Measured over 210 days with four
+creeps (docs/benchmarks.md): under 240 the creep's last days held the drifted models 2-8 mrad off
+over the sky (field 1.47 mrad); 60 after a drift still left one at 6.9 (field 1.24); 30 gave
+1.0-2.3 (field 0.67)."""
 _BACKLASH = [em.index(n) for n in em.BACKLASH]
 
 
@@ -170,8 +171,9 @@ def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = ma
     """``(points, prior_mean)``: what the fit of ``heliostat_id`` that campaign ``campaign_id``
     made at ``until_s`` stood on, from the store, as the runner rebuilds it on resume: the points
     of :func:`book_points` since the newest confirmed drift (its ``drift`` event) or operator repair
-    by then (under the cap after a drift, :func:`visit_cap`), and the centre of the fit's prior (the model from before that drift; None for the
-    nominal heliostat, also when a repair came after the drift)."""
+    by then (under the cap after a drift, :func:`visit_cap`), and the centre of the fit's prior (the
+    model from before that drift; None for the nominal heliostat, also when a repair came after the
+    drift)."""
     from helicalib.campaign.operator import replay
 
     since, prior, drift_since = -math.inf, None, []
