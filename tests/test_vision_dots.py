@@ -8,8 +8,6 @@ board→pixel homography).
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import pytest
 import yaml
