@@ -1,0 +1,128 @@
+"""The book's visit cap against drift: one operated run with the caps set, per drifted heliostat.
+
+Runs the campaign and ranked operation on ``--field`` for ``--days`` from ``--start`` (fast
+fidelity, drift on ``--drift-share`` of the heliostats, as ``bench_year.py``'s ``ranked`` policy),
+with ``policy.MAX_VISIT_POINTS`` set to ``--cap`` and ``policy.MAX_VISIT_POINTS_AFTER_DRIFT`` to
+``--cap-after-drift``. Prints the summary's figures and, for each heliostat with an injected drift,
+its model's sky-wide error at the end (the simulator's truth at the last instant, over the year's sun
+positions), the drift confirmations, and the same book refitted offline on its points after the
+drift's end only (what a fit that saw the drift stop would have). Keeps the run under ``--work``
+and writes JSON (default ``benchmarks/out/bench_cap.json``).
+
+    .venv/bin/python benchmarks/bench_cap.py --days 210 --cap 240 --cap-after-drift 30
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "out"
+
+
+def main(argv=None) -> int:
+    from helicalib.campaign import policy
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--field", default=str(ROOT / "field_config" / "demo_north.yaml"))
+    ap.add_argument("--days", type=float, default=210.0)
+    ap.add_argument("--start", default="2026-06-01T00:00:00+06:18")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--drift-share", type=float, default=0.2)
+    ap.add_argument("--cap", type=int, default=policy.MAX_VISIT_POINTS)
+    ap.add_argument("--cap-after-drift", type=int, default=policy.MAX_VISIT_POINTS_AFTER_DRIFT)
+    ap.add_argument("--work", type=Path, default=None, help="keep the run here (default under benchmarks/out)")
+    ap.add_argument("--out", type=Path, default=OUT / "bench_cap.json")
+    args = ap.parse_args(argv)
+
+    policy.MAX_VISIT_POINTS, policy.MAX_VISIT_POINTS_AFTER_DRIFT = args.cap, args.cap_after_drift
+    from helicalib.commands.simulate import with_drift_share
+    from helicalib.config import load_field_config
+    from helicalib.geometry.heliostat import HeliostatModel
+    from helicalib.geometry.sun import parse_time, to_unix_seconds
+    from helicalib.sim.evaluate import evaluate_model
+    from helicalib.sim.scenario import load_scenario
+    from helicalib.sim.truth import TrueField
+    from helicalib.simulation import simulate_campaign
+    from helicalib.store import Store
+
+    cfg = load_field_config(args.field)
+    scenario = with_drift_share(load_scenario(None), args.drift_share, args.days)
+    start_s = float(to_unix_seconds([parse_time(args.start)])[0])
+    work = args.work or OUT / f"cap_{args.cap}_{args.cap_after_drift}_{args.days:g}d"
+    work.mkdir(parents=True, exist_ok=True)
+    print(f"bench_cap: {args.field}, {args.days:g} days from {args.start}, drift on {args.drift_share:g}, "
+          f"cap {args.cap} visits, {args.cap_after_drift} after a drift; run in {work}", flush=True)
+    last = {"t": time.monotonic()}
+
+    def progress(now_s: float) -> None:
+        if time.monotonic() - last["t"] >= 30.0:
+            last["t"] = time.monotonic()
+            print(f"  day {(now_s - start_s) / 86400:.1f} of {args.days:g}", flush=True)
+
+    t0 = time.perf_counter()
+    result = simulate_campaign(cfg, work, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
+                               fidelity="fast", operation="ranked", progress=progress)
+    wall = time.perf_counter() - t0
+    s, runner = result.summary, result.runner
+    ids = [h.id for h in cfg.heliostats]
+    params = np.array([runner.models[h].params[0] for h in ids])
+    truth = TrueField(cfg, scenario.model_copy(update={"seed": args.seed}), start_s)
+    t_end = runner.clock.now_s()
+
+    def sky(rows_params: np.ndarray) -> np.ndarray:
+        ev = evaluate_model(truth, rows_params, backlash="tracking", t_eval_s=t_end)
+        return np.sqrt(np.nanmean(ev.errors_mrad ** 2, axis=1))
+
+    per = sky(params)
+    day = lambda t: round((t - start_s) / 86400.0, 1)  # noqa: E731
+    nominal = HeliostatModel.from_config(cfg, ids)
+    drifted = []
+    store = Store.open(result.database, work / "images", readonly=True)
+    try:
+        for e in truth.drift_events:
+            i = ids.index(e.heliostat_id)
+            points, centre = policy.stored_basis(store, runner.campaign_id, e.heliostat_id)
+            row = {"heliostat": e.heliostat_id, "kind": e.kind, "start_day": day(e.start_s), "end_day": day(e.end_s),
+                   "sky_mrad": round(float(per[i]), 3), "book_visits": len({p.visit_id for p in points}),
+                   "confirmed": [[day(d["since_s"]), day(d["confirmed_s"])] for d in runner.drifts
+                                 if d["heliostat_id"] == e.heliostat_id],
+                   "after_end_sky_mrad": None}
+            after = [p for p in points if p.capture_time_s >= e.end_s + 86400.0]
+            if after and len(after) < len(points):
+                one = nominal.subset([i])
+                model, _fit = policy.refit(one, after, one if centre is None else one.with_params(centre[None, :]),
+                                           prior_mean=centre, tilt_rate=runner.ops.tilt_rate)
+                p2 = params.copy()
+                p2[i] = model.params[0]
+                row["after_end_sky_mrad"] = round(float(sky(p2)[i]), 3)
+            drifted.append(row)
+    finally:
+        store.close()
+    doc = {"benchmark": "cap", "field": args.field, "days": args.days, "start": args.start, "seed": args.seed,
+           "cap": args.cap, "cap_after_drift": args.cap_after_drift, "wall_s": round(wall, 1),
+           **{k: s.get(k) for k in ("true_sky_rms_mrad", "true_sky_rms_undrifted_mrad", "monthly_plant_tracking_rms_mrad",
+                                    "accepted", "heliostats", "drifted", "drift_detected", "drift_false_alarms",
+                                    "drift_median_days_to_fix", "board_time_share_after_commissioning", "checks")},
+           "drifted_heliostats": drifted}
+    print(f"  {wall:.0f} s wall; sky at the end {doc['true_sky_rms_mrad']} mrad (without injected drift "
+          f"{doc['true_sky_rms_undrifted_mrad']}); monthly plant tracking {doc['monthly_plant_tracking_rms_mrad']}; "
+          f"{doc['accepted']}/{doc['heliostats']} accepted; drifts found {doc['drift_detected']} of {doc['drifted']} "
+          f"({doc['drift_false_alarms']} false), median {doc['drift_median_days_to_fix']} days to fix")
+    for r in drifted:
+        print(f"  {r['heliostat']} {r['kind']} days {r['start_day']}-{r['end_day']}: sky {r['sky_mrad']} mrad, "
+              f"{r['book_visits']} visits in its book, confirmed (since, on) {r['confirmed']}; refitted on its "
+              f"points after the drift's end only: {r['after_end_sky_mrad']}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(doc, indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
