@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -41,34 +40,17 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     policy.MAX_VISIT_POINTS, policy.MAX_VISIT_POINTS_AFTER_DRIFT = args.cap, args.cap_after_drift
-    from helicalib.commands.simulate import with_drift_share
-    from helicalib.config import load_field_config
+    from bench_sky_budget import operated_run
     from helicalib.geometry.heliostat import HeliostatModel
-    from helicalib.geometry.sun import parse_time, to_unix_seconds
     from helicalib.sim.evaluate import evaluate_model
-    from helicalib.sim.scenario import load_scenario
     from helicalib.sim.truth import TrueField
-    from helicalib.simulation import simulate_campaign
     from helicalib.store import Store
 
-    cfg = load_field_config(args.field)
-    scenario = with_drift_share(load_scenario(None), args.drift_share, args.days)
-    start_s = float(to_unix_seconds([parse_time(args.start)])[0])
     work = args.work or OUT / f"cap_{args.cap}_{args.cap_after_drift}_{args.days:g}d"
-    work.mkdir(parents=True, exist_ok=True)
     print(f"bench_cap: {args.field}, {args.days:g} days from {args.start}, drift on {args.drift_share:g}, "
           f"cap {args.cap} visits, {args.cap_after_drift} after a drift; run in {work}", flush=True)
-    last = {"t": time.monotonic()}
-
-    def progress(now_s: float) -> None:
-        if time.monotonic() - last["t"] >= 30.0:
-            last["t"] = time.monotonic()
-            print(f"  day {(now_s - start_s) / 86400:.1f} of {args.days:g}", flush=True)
-
-    t0 = time.perf_counter()
-    result = simulate_campaign(cfg, work, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
-                               fidelity="fast", operation="ranked", progress=progress)
-    wall = time.perf_counter() - t0
+    cfg, scenario, start_s, result, wall = operated_run(args.field, args.days, args.start, args.seed,
+                                                        args.drift_share, work)
     s, runner = result.summary, result.runner
     ids = [h.id for h in cfg.heliostats]
     params = np.array([runner.models[h].params[0] for h in ids])

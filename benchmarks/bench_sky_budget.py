@@ -46,6 +46,34 @@ OUT = ROOT / "benchmarks" / "out"
 WIND_BINS = ((0, 2), (2, 4), (4, 6), (6, 10), (10, 30))
 
 
+def operated_run(field: str, days: float, start: str, seed: int, drift_share: float, work: Path,
+                 monthly_tracking: bool = True):
+    """A campaign and ranked operation of ``field`` for ``days`` from ``start`` (fast fidelity, drift
+    on ``drift_share``), its database under ``work``, with a progress line every 30 s. Returns
+    ``(cfg, scenario, start_s, result, wall_s)``."""
+    from helicalib.commands.simulate import with_drift_share
+    from helicalib.config import load_field_config
+    from helicalib.geometry.sun import parse_time, to_unix_seconds
+    from helicalib.sim.scenario import load_scenario
+    from helicalib.simulation import simulate_campaign
+
+    cfg = load_field_config(field)
+    scenario = with_drift_share(load_scenario(None), drift_share, days)
+    start_s = float(to_unix_seconds([parse_time(start)])[0])
+    work.mkdir(parents=True, exist_ok=True)
+    last = {"t": time.monotonic()}
+
+    def progress(now_s: float) -> None:
+        if time.monotonic() - last["t"] >= 30.0:
+            last["t"] = time.monotonic()
+            print(f"  day {(now_s - start_s) / 86400:.1f} of {days:g}", flush=True)
+
+    t0 = time.perf_counter()
+    result = simulate_campaign(cfg, work, days, seed=seed, scenario=scenario, start_s=start_s, fidelity="fast",
+                               operation="ranked", monthly_tracking=monthly_tracking, progress=progress)
+    return cfg, scenario, start_s, result, time.perf_counter() - t0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--field", default=str(ROOT / "field_config" / "demo_north.yaml"))
@@ -63,37 +91,19 @@ def main(argv=None) -> int:
     from helicalib.calibration.fit import fit_error_model
     from helicalib.campaign import operation as op_rules
     from helicalib.campaign import policy
-    from helicalib.commands.simulate import with_drift_share
-    from helicalib.config import load_field_config
     from helicalib.geometry import errors as em
     from helicalib.geometry import optics
-    from helicalib.geometry.sun import parse_time, to_unix_seconds
     from helicalib.sim.evaluate import evaluate_model
-    from helicalib.sim.scenario import load_scenario
     from helicalib.sim.truth import TrueField
-    from helicalib.simulation import simulate_campaign
     from helicalib.store import Store
 
     if args.check_frames is not None:
         op_rules.CHECK_AFTER_FRAMES = int(args.check_frames)
-    cfg = load_field_config(args.field)
-    scenario = with_drift_share(load_scenario(None), 0.0, args.days)
-    start_s = float(to_unix_seconds([parse_time(args.start)])[0])
     work = args.work or OUT / f"sky_budget_{args.days:g}d_{op_rules.CHECK_AFTER_FRAMES}f"
-    work.mkdir(parents=True, exist_ok=True)
     print(f"bench_sky_budget: {args.field}, {args.days:g} days from {args.start}, ranked operation, "
           f"{op_rules.CHECK_AFTER_FRAMES} after frames per check; run in {work}", flush=True)
-    last = {"t": time.monotonic()}
-
-    def progress(now_s: float) -> None:
-        if time.monotonic() - last["t"] >= 30.0:
-            last["t"] = time.monotonic()
-            print(f"  day {(now_s - start_s) / 86400:.1f} of {args.days:g}", flush=True)
-
-    t0 = time.perf_counter()
-    result = simulate_campaign(cfg, work, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
-                               fidelity="fast", operation="ranked", monthly_tracking=False, progress=progress)
-    run_wall = time.perf_counter() - t0
+    cfg, scenario, start_s, result, run_wall = operated_run(args.field, args.days, args.start, args.seed, 0.0, work,
+                                                             monthly_tracking=False)
     summary = result.summary
     print(f"  run: {run_wall:.0f} s wall; sky at the end {summary['true_sky_rms_mrad']} mrad, "
           f"{summary['accepted']}/{summary['heliostats']} accepted, {summary.get('checks', 0)} checks", flush=True)
