@@ -27,11 +27,10 @@ OUT = ROOT / "benchmarks" / "out"
 def main(argv=None) -> int:
     from helicalib.campaign import policy
 
+    from bench_sky_budget import operated_args, operated_run
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--field", default=str(ROOT / "field_config" / "demo_north.yaml"))
-    ap.add_argument("--days", type=float, default=210.0)
-    ap.add_argument("--start", default="2026-06-01T00:00:00+06:18")
-    ap.add_argument("--seed", type=int, default=1)
+    operated_args(ap, days=210.0)
     ap.add_argument("--drift-share", type=float, default=0.2)
     ap.add_argument("--cap", type=int, default=policy.MAX_VISIT_POINTS)
     ap.add_argument("--cap-after-drift", type=int, default=policy.MAX_VISIT_POINTS_AFTER_DRIFT)
@@ -40,7 +39,6 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     policy.MAX_VISIT_POINTS, policy.MAX_VISIT_POINTS_AFTER_DRIFT = args.cap, args.cap_after_drift
-    from bench_sky_budget import operated_run
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.sim.evaluate import evaluate_model
     from helicalib.sim.truth import TrueField

@@ -46,6 +46,14 @@ OUT = ROOT / "benchmarks" / "out"
 WIND_BINS = ((0, 2), (2, 4), (4, 6), (6, 10), (10, 30))
 
 
+def operated_args(ap: argparse.ArgumentParser, days: float) -> None:
+    """The options of :func:`operated_run`'s field, span and seed (the demo field from 1 June)."""
+    ap.add_argument("--field", default=str(ROOT / "field_config" / "demo_north.yaml"))
+    ap.add_argument("--days", type=float, default=days)
+    ap.add_argument("--start", default="2026-06-01T00:00:00+06:18")
+    ap.add_argument("--seed", type=int, default=1)
+
+
 def operated_run(field: str, days: float, start: str, seed: int, drift_share: float, work: Path,
                  monthly_tracking: bool = True):
     """A campaign and ranked operation of ``field`` for ``days`` from ``start`` (fast fidelity, drift
@@ -76,10 +84,7 @@ def operated_run(field: str, days: float, start: str, seed: int, drift_share: fl
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--field", default=str(ROOT / "field_config" / "demo_north.yaml"))
-    ap.add_argument("--days", type=float, default=90.0)
-    ap.add_argument("--start", default="2026-06-01T00:00:00+06:18")
-    ap.add_argument("--seed", type=int, default=1)
+    operated_args(ap, days=90.0)
     ap.add_argument("--check-frames", type=int, default=None,
                     help="after frames per check for this run (default operation.CHECK_AFTER_FRAMES)")
     ap.add_argument("--white-mrad", type=float, default=0.33,

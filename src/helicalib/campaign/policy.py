@@ -167,29 +167,40 @@ def book_points(observations, since_s: float = -math.inf, cap: int | None = None
     return points
 
 
-def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = math.inf):
-    """``(points, prior_mean)``: what the fit of ``heliostat_id`` that campaign ``campaign_id``
-    made at ``until_s`` stood on, from the store, as the runner rebuilds it on resume: the points
-    of :func:`book_points` since the newest confirmed drift (its ``drift`` event) or operator repair
-    by then (under the cap after a drift, :func:`visit_cap`), and the centre of the fit's prior (the
-    model from before that drift; None for the nominal heliostat, also when a repair came after the
-    drift)."""
+def stored_epochs(store, campaign_id: int, until_s: float = math.inf) -> dict:
+    """``{heliostat id: (since_s, prior_mean, drifted)}`` for the heliostats of campaign
+    ``campaign_id`` with a confirmed drift (its ``drift`` events) or an operator repair by
+    ``until_s``, as the runner applies them on resume: points count from ``since_s`` (the newest
+    drift's epoch, or just after the repair), the fits' prior centres on ``prior_mean`` (the model
+    from before the drift; None for the nominal heliostat, also when a repair came after the drift),
+    and ``drifted`` selects the cap after a drift (:func:`visit_cap`). Read once for a whole field."""
     from helicalib.campaign.operator import replay
 
-    since, prior, drift_since = -math.inf, None, []
+    drifts: dict[str, list] = {}
     for e in store.events(campaign_id=campaign_id, kind="drift"):
-        if e.heliostat_id == heliostat_id and "since_s" in e.data and e.time_s <= until_s:
-            since = float(e.data["since_s"])
-            drift_since.append(since)
-            p = e.data.get("prior_params")
-            prior = None if p is None else np.asarray(p, dtype=float)
-    drifted = bool(drift_since)
+        if e.heliostat_id is not None and "since_s" in e.data and e.time_s <= until_s:
+            drifts.setdefault(e.heliostat_id, []).append(e.data)
+    out = {}
+    for hid, ds in drifts.items():
+        p = ds[-1].get("prior_params")
+        out[hid] = (float(ds[-1]["since_s"]), None if p is None else np.asarray(p, dtype=float), True)
     done = [a for a in store.actions(campaign_id, pending=False) if a.done_s <= until_s]
-    repaired = replay(done).repaired_s.get(heliostat_id)
-    if repaired is not None:  # points from after the repair only (the runner keeps those captured later)
-        since = max(since, math.nextafter(float(repaired), math.inf))
-        if any(s < repaired for s in drift_since):  # as OperatorDesk.restore: the nominal again
+    for hid, repaired in replay(done).repaired_s.items():
+        since, prior, drifted = out.get(hid, (-math.inf, None, False))
+        if any(float(d["since_s"]) < repaired for d in drifts.get(hid, ())):  # as OperatorDesk.restore
             prior, drifted = None, False
+        out[hid] = (max(since, math.nextafter(float(repaired), math.inf)), prior, drifted)
+    return out
+
+
+def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = math.inf, epochs: dict | None = None):
+    """``(points, prior_mean)``: what the fit of ``heliostat_id`` that campaign ``campaign_id``
+    made at ``until_s`` stood on, from the store, as the runner rebuilds it on resume: the points
+    of :func:`book_points` since its epoch (:func:`stored_epochs`, pass them when asking for many
+    heliostats) under its cap, and the centre of the fit's prior."""
+    if epochs is None:
+        epochs = stored_epochs(store, campaign_id, until_s)
+    since, prior, drifted = epochs.get(heliostat_id, (-math.inf, None, False))
     obs = [o for o in store.observations(campaign_id=campaign_id, heliostat_id=heliostat_id)
            if o.capture_time_s <= until_s]
     return book_points(obs, since, visit_cap(drifted)), prior

@@ -76,8 +76,9 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
     store = Store.open(data.db_path, data.images_dir, readonly=True)
     try:
         tilt_rate = op_rules.was_operated(store, data.campaign.id) and op_rules.TILT_RATE_IN_FITS
+        epochs = policy.stored_epochs(store, data.campaign.id)  # drifts and repairs, read once
         for i, hid in enumerate(ids):
-            points, centre = policy.stored_basis(store, data.campaign.id, hid)
+            points, centre = policy.stored_basis(store, data.campaign.id, hid, epochs=epochs)
             if not points:
                 continue
             one = nominal.subset([i])
