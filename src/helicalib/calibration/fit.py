@@ -79,6 +79,9 @@ class Linearisation:
         are then the last two of ``x``, whitened by it, and ``jacobian``, ``residual`` and the weights
         have two more columns or prior rows); 0 without
     age_days : (K,) each observation's age [days] (with a tilt rate), else None
+    epoch : (K,) each observation's epoch (0 the newest; with ``point_epoch``), else None; the
+        offsets of the E older epochs are then the last ``E · len(EPOCH_PARAMS)`` unknowns of ``x``,
+        epoch by epoch, each whitened by ``epoch_scale`` (len(EPOCH_PARAMS),)
     """
 
     jacobian: np.ndarray
@@ -91,6 +94,8 @@ class Linearisation:
     centre: np.ndarray
     tilt_rate_scale: float = 0.0
     age_days: np.ndarray | None = None
+    epoch: np.ndarray | None = None
+    epoch_scale: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -115,6 +120,8 @@ class FitResult:
         had one (``point_age_days``), else None; ``tilt_rate_sigma`` (2,) its posterior σ.
         ``params`` are then the parameters at age 0; an observation of age ``a`` was made with
         the pedestal tilts ``params − a · rate``
+    epoch_offsets : (E + 1, P) with ``point_epoch``: each epoch's parameters less ``params`` (row 0,
+        the newest epoch, zero; nonzero only in :data:`EPOCH_PARAMS`), else None
     """
 
     params: np.ndarray
@@ -133,6 +140,13 @@ class FitResult:
     linearisation: Linearisation | None = None
     tilt_rate_mrad_per_day: np.ndarray | None = None
     tilt_rate_sigma: np.ndarray | None = None
+    epoch_offsets: np.ndarray | None = None
+
+    def params_of_epoch(self, epoch: int) -> np.ndarray:
+        """The parameters (P,) of an earlier epoch (0: ``params``): ``params + epoch_offsets[epoch]``."""
+        if epoch == 0 or self.epoch_offsets is None:
+            return self.params.copy()
+        return self.params + self.epoch_offsets[epoch]
 
     def as_dict(self) -> dict:
         """Parameters with σ by name, and the summary figures (plain data for JSON)."""
@@ -215,6 +229,17 @@ TILT_RATE_SIGMA_MRAD_PER_DAY = 0.02
 a week, 7 mrad a year (foundations settle by a few mrad in their first years; the data of a few
 weeks determine the rate far more tightly)."""
 _TILT = np.array([em.index("pedestal_tilt_e_mrad"), em.index("pedestal_tilt_n_mrad")])
+EPOCH_PARAMS = ("stroke_offset_1_mm", "stroke_offset_2_mm", "pedestal_tilt_e_mrad", "pedestal_tilt_n_mrad")
+"""The parameters a drift changes, which a fit with ``point_epoch`` gives each earlier epoch its own
+offset of: the pedestal's tilts (a foundation settles or creeps) and the actuators' zero offsets (an
+actuator or its encoder is swapped). The others (canting, axes, pivot, arms) are the heliostat's
+build and stay one for all epochs."""
+EPOCH_SIGMA = {"stroke_offset_1_mm": 5.0, "stroke_offset_2_mm": 5.0, "pedestal_tilt_e_mrad": 5.0,
+               "pedestal_tilt_n_mrad": 5.0}
+"""Prior σ of an earlier epoch's offset from the next, per :data:`EPOCH_PARAMS` (mean 0): wider than
+the drifts helicalib is built to find (steps of 2-5 mrad, creeps of a few mrad, zero offsets of
+1-3 mm), so the data, not the prior, size them."""
+_EPOCH = np.array([em.index(n) for n in EPOCH_PARAMS])
 
 
 def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mapping[str, float] | None = None,
@@ -224,7 +249,8 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
                     approach: np.ndarray | None = None, start: np.ndarray | None = None,
                     method: str = "fast", prior_mean: np.ndarray | None = None,
                     point_sigma_scale: np.ndarray | None = None, point_age_days: np.ndarray | None = None,
-                    tilt_rate_sigma_mrad_per_day: float = TILT_RATE_SIGMA_MRAD_PER_DAY) -> FitResult:
+                    tilt_rate_sigma_mrad_per_day: float = TILT_RATE_SIGMA_MRAD_PER_DAY,
+                    point_epoch: np.ndarray | None = None) -> FitResult:
     """Fit the error model of one heliostat to its observations.
 
     Parameters
@@ -272,6 +298,13 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
         tilting 2.6 mrad over 120 days their beams agree to 0.002 mrad).
     tilt_rate_sigma_mrad_per_day : float
         The rate's prior σ (:data:`TILT_RATE_SIGMA_MRAD_PER_DAY`).
+    point_epoch : (K,) int, optional
+        Each observation's epoch: 0 for the newest (the heliostat as it is now), 1, 2, ... for the
+        ones before each confirmed drift, counting back. Given, every earlier epoch gets its own
+        offset of the :data:`EPOCH_PARAMS` (the tilts and zero offsets a drift changes; prior σ
+        :data:`EPOCH_SIGMA`), and the other parameters stay one for all epochs: the points from
+        before a drift keep determining the heliostat's build, and ``params`` are the newest
+        epoch's. Both solvers evaluate each epoch with its own parameters exactly.
     """
     if len(model) != 1:
         raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
@@ -302,23 +335,45 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
         age = np.asarray(point_age_days, dtype=float).reshape(prob.k)
         x0 = np.concatenate([x0, np.zeros(2)])  # the rate, whitened by its prior σ
     rate_scale = float(tilt_rate_sigma_mrad_per_day) if age is not None else 0.0
+    nr = 2 if age is not None else 0
+    epoch, n_ep, ep_scale = None, 0, None
+    if point_epoch is not None:
+        epoch = np.asarray(point_epoch, dtype=int).reshape(prob.k)
+        if np.any(epoch < 0):
+            raise ValueError("point_epoch must be 0 (the newest epoch) or more")
+        if not np.all(np.isin(_EPOCH, free_idx)):
+            raise ValueError(f"epochs (point_epoch) need {', '.join(EPOCH_PARAMS)} free")
+        n_ep = int(epoch.max()) if prob.k else 0
+        ep_scale = np.array([EPOCH_SIGMA[n] for n in EPOCH_PARAMS])
+        x0 = np.concatenate([x0, np.zeros(n_ep * len(_EPOCH))])
+    m_ep = len(_EPOCH)
 
     def params_of(xs: np.ndarray) -> np.ndarray:
         out = np.repeat(base[None, :], len(xs), axis=0)
         out[:, free_idx] = centre[free_idx] + xs[:, :f] * sig_prior
         return out
 
+    def offsets_of(xs: np.ndarray) -> np.ndarray:
+        """(M, E + 1, m): each epoch's offsets of the EPOCH_PARAMS (row 0 zero)."""
+        d = xs[:, f + nr:].reshape(len(xs), n_ep, m_ep) * ep_scale
+        return np.concatenate([np.zeros((len(xs), 1, m_ep)), d], axis=1)
+
     def rows_of(xs: np.ndarray) -> np.ndarray:
-        """(M, K, P): each observation's parameters (the tilts of its age)."""
+        """(M, K, P): each observation's parameters (the tilts of its age, the offsets of its epoch)."""
         out = np.repeat(params_of(xs)[:, None, :], prob.k, axis=1)
-        out[:, :, _TILT] -= age[None, :, None] * (xs[:, None, f:] * rate_scale)
+        if age is not None:
+            out[:, :, _TILT] -= age[None, :, None] * (xs[:, None, f:f + nr] * rate_scale)
+        if epoch is not None:
+            out[:, :, _EPOCH] += offsets_of(xs)[:, epoch, :]
         return out
 
     solved = None
     if method == "fast":
-        solved = _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age, rate_scale)
+        solved = _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age, rate_scale,
+                             epoch, ep_scale)
     if solved is None:
-        solved = _solve_reference(prob, params_of if age is None else rows_of, x0, row_sigma, loss, f_scale)
+        plain = age is None and epoch is None
+        solved = _solve_reference(prob, params_of if plain else rows_of, x0, row_sigma, loss, f_scale)
     x, j, res_vec, success, message, nfev = solved
     jd = j[: 2 * prob.k]
     info = j.T @ j
@@ -335,21 +390,24 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     fitted = model.with_params(params)
     ident = _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x[:f, :f], sigma_eff,
                              residual_kind, candidate_sun_enu, aim_enu, n_suggestions)
-    rate = rate_sigma = None
+    rate = rate_sigma = offsets = None
     if age is not None:
-        rate, rate_sigma = x[f:] * rate_scale, np.sqrt(np.diag(cov_x)[f:]) * rate_scale
+        rate, rate_sigma = x[f:f + nr] * rate_scale, np.sqrt(np.diag(cov_x)[f:f + nr]) * rate_scale
+    if epoch is not None:
+        offsets = np.zeros((n_ep + 1, em.P))
+        offsets[:, _EPOCH] = offsets_of(x[None, :])[0]
     mag = np.linalg.norm(res_vec, axis=-1)
     r_all = np.concatenate([res_vec.ravel() / row_sigma, x])
     z = (r_all / f_scale) ** 2
     weights, hessian_weights = _loss_weights(loss, z)
     lin = Linearisation(jacobian=j, residual=r_all, weights=weights, hessian_weights=hessian_weights, x=x.copy(),
                         free_idx=free_idx, scale=sig_prior, centre=centre[free_idx].copy(),
-                        tilt_rate_scale=rate_scale, age_days=age)
+                        tilt_rate_scale=rate_scale, age_days=age, epoch=epoch, epoch_scale=ep_scale)
     return FitResult(params=params, covariance=cov, sigma=sigma, residual_mrad=mag, residual_vec_mrad=res_vec,
                      rms_mrad=float(np.sqrt(np.mean(mag**2))) if len(mag) else float("nan"),
                      residual_kind=residual_kind, free=free_names, identifiability=ident, model=fitted,
                      success=success, message=message, nfev=nfev, linearisation=lin,
-                     tilt_rate_mrad_per_day=rate, tilt_rate_sigma=rate_sigma)
+                     tilt_rate_mrad_per_day=rate, tilt_rate_sigma=rate_sigma, epoch_offsets=offsets)
 
 
 def _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale):
@@ -378,26 +436,47 @@ def _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale):
     return x, jac(x), prob.residuals(params_of(x[None, :]))[0], bool(sol.success), str(sol.message), int(sol.nfev)
 
 
-def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age=None, rate_scale=0.0):
+def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age=None, rate_scale=0.0,
+                epoch=None, ep_scale=None):
     """Damped Gauss-Newton with the analytic Jacobian (:mod:`.fit_solver`); None if it does not
     converge (the caller then solves with the reference solver). ``row_sigma`` (2K,): the σ of
-    each residual component. With ``age`` (K,) [days] the last two unknowns are the tilt rate
-    (whitened by ``rate_scale``), taken to first order: ``r(p − a·rate) ≈ r(p) − a · ∂r/∂tilt · rate``."""
-    bj = fit_solver.BeamJacobian(prob.model.drives, prob.model.pivots_enu[0], prob.strokes, prob.approach,
-                                 prob.sun, prob.spot, prob.basis, prob.kind)
+    each residual component. With ``age`` (K,) [days] the next two unknowns are the tilt rate
+    (whitened by ``rate_scale``), taken to first order: ``r(p − a·rate) ≈ r(p) − a · ∂r/∂tilt · rate``.
+    With ``epoch`` (K,) the last unknowns are the earlier epochs' offsets (whitened by ``ep_scale``);
+    each epoch's observations are evaluated with their own parameters."""
     n_x = len(x0)
     f = len(free_idx)
+    nr = 2 if age is not None else 0
+    m = len(_EPOCH)
+    groups = [np.arange(prob.k)] if epoch is None else [np.flatnonzero(epoch == e) for e in range(int(epoch.max()) + 1)]
+    bjs = [fit_solver.BeamJacobian(prob.model.drives, prob.model.pivots_enu[0], prob.strokes[g],
+                                   None if prob.approach is None else prob.approach[g], prob.sun[g], prob.spot[g],
+                                   prob.basis[g], prob.kind) for g in groups]
     eye = np.eye(n_x)
     inv_sigma = 1.0 / row_sigma
 
     def fun_jac(x):
-        res, jac = bj.evaluate(params_of(x[None, :])[0])
-        jd = jac[:, :, free_idx].reshape(-1, f) * sig_prior * inv_sigma[:, None]
+        p = params_of(x[None, :])[0]
+        if epoch is None:
+            res, jac = bjs[0].evaluate(p)
+        else:
+            res, jac = np.empty((prob.k, 2)), np.empty((prob.k, 2, em.P))
+            for e, (g, bj) in enumerate(zip(groups, bjs)):
+                pe = p.copy()
+                if e:
+                    pe[_EPOCH] += x[f + nr + (e - 1) * m: f + nr + e * m] * ep_scale
+                res[g], jac[g] = bj.evaluate(pe)
+        blocks = [jac[:, :, free_idx].reshape(-1, f) * sig_prior * inv_sigma[:, None]]
         if age is not None:
             d_rate = -age[:, None, None] * jac[:, :, _TILT] * rate_scale  # (K, 2, 2) per whitened rate
-            res = res + d_rate @ x[f:]
-            jd = np.hstack([jd, d_rate.reshape(-1, 2) * inv_sigma[:, None]])
-        return np.concatenate([res.ravel() * inv_sigma, x]), np.vstack([jd, eye])
+            res = res + d_rate @ x[f:f + nr]
+            blocks.append(d_rate.reshape(-1, 2) * inv_sigma[:, None])
+        if epoch is not None and len(groups) > 1:
+            d_ep = np.zeros((prob.k, 2, (len(groups) - 1) * m))
+            for e, g in enumerate(groups[1:], start=1):
+                d_ep[g, :, (e - 1) * m: e * m] = jac[g][:, :, _EPOCH] * ep_scale
+            blocks.append(d_ep.reshape(-1, d_ep.shape[-1]) * inv_sigma[:, None])
+        return np.concatenate([res.ravel() * inv_sigma, x]), np.vstack([np.hstack(blocks), eye])
 
     with np.errstate(divide="ignore", invalid="ignore"):
         x, r, j, converged, nfev = fit_solver.gauss_newton(fun_jac, x0, loss, f_scale)
@@ -433,8 +512,14 @@ def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndar
         dx = np.linalg.solve(a - jg.T @ (jg * vg[:, None]), jg.T @ (wg * rg))
         xg = lin.x + dx
         out[g, lin.free_idx] = lin.centre + xg[:f] * lin.scale
+        nr = 2 if lin.age_days is not None else 0
         if lin.age_days is not None and len(idx):  # the tilts at the group's own time
-            out[g, _TILT] -= float(np.mean(lin.age_days[list(idx)])) * xg[f:] * lin.tilt_rate_scale
+            out[g, _TILT] -= float(np.mean(lin.age_days[list(idx)])) * xg[f:f + nr] * lin.tilt_rate_scale
+        if lin.epoch is not None and len(idx):  # and the offsets of its epoch (a visit lies in one)
+            e = int(np.bincount(lin.epoch[list(idx)]).argmax())
+            if e:
+                m = len(_EPOCH)
+                out[g, _EPOCH] += xg[f + nr + (e - 1) * m: f + nr + e * m] * lin.epoch_scale
     return out
 
 
