@@ -79,7 +79,7 @@ def main(argv=None) -> int:
             if after and len(after) < len(points):
                 one = nominal.subset([i])
                 model, _fit = policy.refit(one, after, one if centre is None else one.with_params(centre[None, :]),
-                                           prior_mean=centre, tilt_rate=runner.ops.tilt_rate)
+                                           prior_mean=centre, tilt_rate=runner.ops.tilt_rate_of(e.heliostat_id))
                 p2 = params.copy()
                 p2[i] = model.params[0]
                 row["after_end_sky_mrad"] = round(float(sky(p2)[i]), 3)

@@ -107,11 +107,13 @@ def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drif
         # the fits after it stand on points since the first suspicious check only
         assert all(p.capture_time_s >= d["since_s"] for p in runner.book.points(hid))
     assert s["checks"] > 0
-    # operation's fits model a settling pedestal (a tilt rate); every point counts alike
-    assert runner.ops.tilt_rate
+    # operation's fits model a settling pedestal (a tilt rate), but not since a confirmed drift (a creep
+    # must leave the band again rather than be followed): here every heliostat drifted
+    assert runner.ops.tilt_rate and not op.TILT_RATE_AFTER_DRIFT
     for hid in IDS:
-        fit = runner.book.h[hid].fit
-        assert fit.tilt_rate_mrad_per_day is not None and np.all(np.isfinite(fit.tilt_rate_sigma))
+        b = runner.book.h[hid]
+        assert b.drifted and not runner.ops.tilt_rate_of(hid)
+        assert b.fit.tilt_rate_mrad_per_day is None
     assert 0.0 < s["board_time_share_after_commissioning"] < 0.5
     assert s["monthly_plant_tracking_rms_mrad"] and all(m > 0 for m in s["monthly_plant_tracking_rms_mrad"])
 
@@ -234,14 +236,15 @@ def test_the_report_fits_an_operated_campaign_as_operation_does(drifted_run, dem
     finally:
         store.close()
     # the report's fits are the runner's models (fitted from the same stored points, as operation
-    # fits). The runner's solver started from its previous fit, the report's from the nominal
-    # heliostat: along the fits' flat directions (covariance condition ~1e9) they stop up to a few
-    # 1e-6 of a parameter's σ apart; a refit without the tilt rate lands 3e-3 to 1e-2 σ away.
+    # fits: a tilt rate, none since a confirmed drift). The runner's solver started from its previous
+    # fit, the report's from the nominal heliostat: along the fits' flat directions (covariance
+    # condition ~1e9) they stop up to a few 1e-6 of a parameter's σ apart; a refit with the other
+    # tilt-rate rule lands 3e-3 to 1e-2 σ away.
     ids = sorted(IDS)
     fits = stored_fits(data, ids, HeliostatModel.from_config(data.cfg, ids))
     assert set(fits) == set(IDS)
     for hid, (params, fit) in fits.items():
-        assert fit.tilt_rate_mrad_per_day is not None
+        assert (fit.tilt_rate_mrad_per_day is not None) == result.runner.ops.tilt_rate_of(hid), hid
         assert np.all(np.abs(params - result.runner.models[hid].params[0]) <= 1e-4 * fit.sigma), hid
     yp = year_predictions(data)
     assert set(yp["heliostats"]) == set(IDS)

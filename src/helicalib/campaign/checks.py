@@ -109,6 +109,11 @@ class OperationChecks:
             self.drifts.append(dict(e.data, heliostat_id=hid, confirmed_s=e.time_s))
         return epochs
 
+    def tilt_rate_of(self, hid: str) -> bool:
+        """Whether ``hid``'s fits have the steady tilt rate (:func:`.operation.fits_tilt_rate`: in
+        operation, not since a confirmed drift)."""
+        return op_rules.fits_tilt_rate(bool(self.mode), self.r.book.h[hid].drifted)
+
     def prior_mean(self, hid: str) -> np.ndarray | None:
         """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
         heliostat, or after a confirmed drift the model from before it (:mod:`.operation`)."""
@@ -225,11 +230,11 @@ class OperationChecks:
             before = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
                                       alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
-                                      tilt_rate=self.tilt_rate)
+                                      tilt_rate=self.tilt_rate_of(hid))
         else:
             before = [p for p in self.r.book.points(hid) if p.visit_id != visit_id]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
-                                      prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate)
+                                      prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate_of(hid))
         if evidence is None:
             return
         lean = None
@@ -268,7 +273,7 @@ class OperationChecks:
         earlier = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
         nominal = self.r.nominal_of(hid)
         prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
-                                    tilt_rate=self.tilt_rate)[0] if earlier else started_with)
+                                    tilt_rate=self.tilt_rate_of(hid))[0] if earlier else started_with)
         b = self.r.book.h[hid]
         # the points since, from the store: as a resumed runner and the report rebuild them (a point the
         # cap thinned away while the earlier points filled the book comes back)
@@ -277,7 +282,7 @@ class OperationChecks:
                                       since, policy.visit_cap(True))
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
         self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
-                                             tilt_rate=self.tilt_rate)
+                                             tilt_rate=self.tilt_rate_of(hid))
         b.fit = fit
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
                   "points_dropped": len(earlier), "points_kept": len(b.points),

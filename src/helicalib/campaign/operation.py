@@ -87,6 +87,22 @@ that weighs old points down (σ × exp(age / 20 d), the rule until 2026-11-26) f
 the sun positions of past seasons: measured over 210 days, the models' error over the year's sky
 fell from 1.50 to 0.79 mrad with the rate and all points alike (docs/benchmarks.md). A step change
 (a drift confirmed by checks) still drops the points before it."""
+TILT_RATE_AFTER_DRIFT = False
+"""Whether the fits of a heliostat since its confirmed drift (until a repair) keep the steady tilt
+rate. They do not: a creeping pedestal tilts by 0.1-0.3 mrad a day, and a rate fitted to the few
+points since a confirmation follows it, so the checks stay inside their band while it creeps on and
+its last days after the last confirmation stay in the book for months (measured over 210 days:
+2-8 mrad of sky error under 240 visits, docs/benchmarks.md). Without the rate the model stands
+still, the checks leave the band every few days while the creep goes on, and each confirmation
+drops the moving points before it."""
+
+
+def fits_tilt_rate(operated: bool, drifted: bool) -> bool:
+    """Whether a heliostat's fits have the steady pedestal tilt rate: in operation
+    (:data:`TILT_RATE_IN_FITS`), and since a confirmed drift only with :data:`TILT_RATE_AFTER_DRIFT`."""
+    return bool(operated) and TILT_RATE_IN_FITS and (TILT_RATE_AFTER_DRIFT or not drifted)
+
+
 PREFERRED_STEP_S = 1800.0
 """Each solar day the runner evaluates every fitted model's predicted error on the day's sun every
 this many seconds; a heliostat's check waits for the time its model is least sure (its preferred

@@ -124,7 +124,7 @@ class OperatorDesk:
             if b.points:
                 runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid],
                                                          prior_mean=runner.prior_mean(hid),
-                                                         tilt_rate=runner.ops.tilt_rate)
+                                                         tilt_rate=runner.ops.tilt_rate_of(hid))
                 b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
                                            runner.models[hid])
             else:

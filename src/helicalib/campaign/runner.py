@@ -256,7 +256,7 @@ class CampaignRunner:
             if self.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
                 _model, self.book.h[hid].fit = policy.refit(self.nominal_of(hid), self.book.points(hid),
                                                             self.models[hid], prior_mean=self.ops.prior_mean(hid),
-                                                            tilt_rate=self.ops.tilt_rate)
+                                                            tilt_rate=self.ops.tilt_rate_of(hid))
             if visits:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
@@ -838,7 +838,7 @@ class CampaignRunner:
         if self.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
             return self.models[hid]
         model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid],
-                                  prior_mean=self.ops.prior_mean(hid), tilt_rate=self.ops.tilt_rate)
+                                  prior_mean=self.ops.prior_mean(hid), tilt_rate=self.ops.tilt_rate_of(hid))
         self.models[hid] = model
         if fit is not None:
             self.book.h[hid].fit = fit

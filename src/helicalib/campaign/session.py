@@ -210,7 +210,7 @@ def recheck_rows(cfg, runner) -> list[dict]:
     predicts for it (:mod:`helicalib.campaign.drift`); outside it, the heliostat changed since."""
     from helicalib.campaign import operation as op_rules
     from helicalib.campaign.drift import drift_evidence
-    from helicalib.campaign.policy import prediction_error_mrad, stored_basis
+    from helicalib.campaign.policy import prediction_error_mrad, stored_basis, stored_epochs
 
     limit = float(cfg.acceptance.max_rms_mrad)
     rows = []
@@ -230,14 +230,17 @@ def recheck_rows(cfg, runner) -> list[dict]:
             if latest is not None:
                 # the points the stored fit stood on (its campaign's book then: since a drift or repair,
                 # thinned to the visit cap), or no evidence
-                points, centre = stored_basis(runner.store, latest.campaign_id, hid, latest.time_s)
+                epochs = stored_epochs(runner.store, latest.campaign_id, latest.time_s)
+                points, centre = stored_basis(runner.store, latest.campaign_id, hid, latest.time_s, epochs)
                 if len(points) == latest.n_points:
                     # fitted as that fit was (an operated campaign's fits model a settling pedestal)
                     if latest.campaign_id not in operated:
                         operated[latest.campaign_id] = op_rules.was_operated(runner.store, latest.campaign_id)
+                    drifted_then = epochs.get(hid, (None, None, False))[2]
                     row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first,
                                                   prior_mean=centre,
-                                                  tilt_rate=operated[latest.campaign_id] and op_rules.TILT_RATE_IN_FITS)
+                                                  tilt_rate=op_rules.fits_tilt_rate(operated[latest.campaign_id],
+                                                                                    drifted_then))
             drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),
                        verdict=("in spec" if err <= limit else

@@ -75,15 +75,16 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
     out = {}
     store = Store.open(data.db_path, data.images_dir, readonly=True)
     try:
-        tilt_rate = op_rules.was_operated(store, data.campaign.id) and op_rules.TILT_RATE_IN_FITS
+        operated = op_rules.was_operated(store, data.campaign.id)
         epochs = policy.stored_epochs(store, data.campaign.id)  # drifts and repairs, read once
         for i, hid in enumerate(ids):
             points, centre = policy.stored_basis(store, data.campaign.id, hid, epochs=epochs)
             if not points:
                 continue
             one = nominal.subset([i])
+            drifted = epochs.get(hid, (None, None, False))[2]
             model, fit = policy.refit(one, points, one if centre is None else one.with_params(centre[None, :]),
-                                      prior_mean=centre, tilt_rate=tilt_rate)
+                                      prior_mean=centre, tilt_rate=op_rules.fits_tilt_rate(operated, drifted))
             if fit is not None:
                 out[hid] = (model.params[0], fit)
     finally:
