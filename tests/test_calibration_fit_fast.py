@@ -415,3 +415,20 @@ def test_epochs_need_their_parameters_free(recorded):
     with pytest.raises(ValueError, match="pedestal_tilt_e_mrad"):
         fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_epoch=epoch,
                         free=[n for n in em.NAMES if n != "pedestal_tilt_e_mrad"])
+
+
+def test_an_epoch_without_observations_rests_on_its_prior(recorded):
+    """Epochs 0 and 2 hold the points, epoch 1 none (a drift confirmed twice with no point between):
+    the fit still solves, epoch 1's offsets stay at their prior's centre, and the fast and
+    reference solvers agree."""
+    hid = "H0001"
+    nominal, _truth, (strokes, sun, spot, approach), epoch = _drifted(recorded, hid, {"pedestal_tilt_e_mrad": 3.0})
+    epoch = 2 * epoch  # the points before the drift are two epochs back
+    kw = dict(approach=approach, n_suggestions=0, point_epoch=epoch)
+    fast = fit_error_model(nominal, strokes, sun, spot, **kw)
+    ref = fit_error_model(nominal, strokes, sun, spot, method="reference", **kw)
+    assert fast.message == "Gauss-Newton converged"
+    assert fast.epoch_offsets.shape == (3, em.P)
+    np.testing.assert_allclose(fast.epoch_offsets[1], 0.0, atol=1e-9)
+    assert fast.epoch_offsets[2, em.index("pedestal_tilt_e_mrad")] > 1.0  # one day shares the 3 mrad with the zero offsets
+    assert _beam_difference_mrad(fast, ref, hid) < BEAM_TOL_MRAD

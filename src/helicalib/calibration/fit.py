@@ -448,10 +448,11 @@ def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_sca
     f = len(free_idx)
     nr = 2 if age is not None else 0
     m = len(_EPOCH)
-    groups = [np.arange(prob.k)] if epoch is None else [np.flatnonzero(epoch == e) for e in range(int(epoch.max()) + 1)]
+    n_groups = 1 if epoch is None or not len(epoch) else int(epoch.max()) + 1
+    groups = [np.arange(prob.k)] if epoch is None else [np.flatnonzero(epoch == e) for e in range(n_groups)]
     bjs = [fit_solver.BeamJacobian(prob.model.drives, prob.model.pivots_enu[0], prob.strokes[g],
                                    None if prob.approach is None else prob.approach[g], prob.sun[g], prob.spot[g],
-                                   prob.basis[g], prob.kind) for g in groups]
+                                   prob.basis[g], prob.kind) if len(g) else None for g in groups]
     eye = np.eye(n_x)
     inv_sigma = 1.0 / row_sigma
 
@@ -462,6 +463,8 @@ def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_sca
         else:
             res, jac = np.empty((prob.k, 2)), np.empty((prob.k, 2, em.P))
             for e, (g, bj) in enumerate(zip(groups, bjs)):
+                if bj is None:  # an epoch without observations: its offsets rest on their prior
+                    continue
                 pe = p.copy()
                 if e:
                     pe[_EPOCH] += x[f + nr + (e - 1) * m: f + nr + e * m] * ep_scale
