@@ -107,15 +107,25 @@ def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drif
         # the fits after it stand on points since the first suspicious check only
         assert all(p.capture_time_s >= d["since_s"] for p in runner.book.points(hid))
     assert s["checks"] > 0
-    # operation's fits model a settling pedestal (a tilt rate), but not since a confirmed drift (a creep
-    # must leave the band again rather than be followed): here every heliostat drifted
-    assert runner.ops.tilt_rate and not op.TILT_RATE_AFTER_DRIFT
+    # operation's fits model a settling pedestal (a tilt rate), but not in the first
+    # STILL_DAYS_AFTER_DRIFT after a confirmed drift (a creep must leave the band again rather than be
+    # followed): here every heliostat drifted a few days before the end
+    assert runner.ops.tilt_rate
     for hid in IDS:
         b = runner.book.h[hid]
         assert b.drifted and not runner.ops.tilt_rate_of(hid)
         assert b.fit.tilt_rate_mrad_per_day is None
     assert 0.0 < s["board_time_share_after_commissioning"] < 0.5
     assert s["monthly_plant_tracking_rms_mrad"] and all(m > 0 for m in s["monthly_plant_tracking_rms_mrad"])
+
+
+def test_the_tilt_rate_comes_back_once_a_drifted_heliostat_is_still():
+    day = 86400.0
+    still = op.STILL_DAYS_AFTER_DRIFT * day
+    assert not op.fits_tilt_rate(False, False)                  # a campaign: no rate
+    assert op.fits_tilt_rate(True, False)                       # operation: a rate
+    assert not op.fits_tilt_rate(True, True, 100 * day + still - 1.0, 100 * day)  # days after a drift: none
+    assert op.fits_tilt_rate(True, True, 100 * day + still, 100 * day)            # still for long enough
 
 
 def test_a_drifted_heliostat_is_accepted_again_on_points_after_the_drift(drifted_run):

@@ -109,10 +109,15 @@ class OperationChecks:
             self.drifts.append(dict(e.data, heliostat_id=hid, confirmed_s=e.time_s))
         return epochs
 
-    def tilt_rate_of(self, hid: str) -> bool:
-        """Whether ``hid``'s fits have the steady tilt rate (:func:`.operation.fits_tilt_rate`: in
-        operation, not since a confirmed drift)."""
-        return op_rules.fits_tilt_rate(bool(self.mode), self.r.book.h[hid].drifted)
+    def tilt_rate_of(self, hid: str, points: list | None = None) -> bool:
+        """Whether ``hid``'s fit of ``points`` (default its book's) has the steady tilt rate
+        (:func:`.operation.fits_tilt_rate`: in operation, but not from a confirmed drift until
+        the points reach :data:`.operation.STILL_DAYS_AFTER_DRIFT` past the newest confirmation)."""
+        b = self.r.book.h[hid]
+        points = b.points if points is None else points
+        newest = max((p.capture_time_s for p in points), default=-math.inf)
+        confirmed = max((d["confirmed_s"] for d in self.drifts if d["heliostat_id"] == hid), default=-math.inf)
+        return op_rules.fits_tilt_rate(bool(self.mode), b.drifted, newest, confirmed)
 
     def prior_mean(self, hid: str) -> np.ndarray | None:
         """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
@@ -230,11 +235,11 @@ class OperationChecks:
             before = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
                                       alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
-                                      tilt_rate=self.tilt_rate_of(hid))
+                                      tilt_rate=self.tilt_rate_of(hid, before))
         else:
             before = [p for p in self.r.book.points(hid) if p.visit_id != visit_id]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
-                                      prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate_of(hid))
+                                      prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate_of(hid, before))
         if evidence is None:
             return
         lean = None
@@ -273,7 +278,7 @@ class OperationChecks:
         earlier = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
         nominal = self.r.nominal_of(hid)
         prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
-                                    tilt_rate=self.tilt_rate_of(hid))[0] if earlier else started_with)
+                                    tilt_rate=self.tilt_rate_of(hid, earlier))[0] if earlier else started_with)
         b = self.r.book.h[hid]
         # the points since, from the store: as a resumed runner and the report rebuild them (a point the
         # cap thinned away while the earlier points filled the book comes back)
@@ -281,8 +286,9 @@ class OperationChecks:
         b.points = policy.book_points(self.r.store.observations(campaign_id=self.r.campaign_id, heliostat_id=hid),
                                       since, policy.visit_cap(True))
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
+        newest = max((p.capture_time_s for p in b.points), default=-math.inf)
         self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
-                                             tilt_rate=self.tilt_rate_of(hid))
+                                             tilt_rate=op_rules.fits_tilt_rate(bool(self.mode), True, newest, now))
         b.fit = fit
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
                   "points_dropped": len(earlier), "points_kept": len(b.points),

@@ -87,20 +87,27 @@ that weighs old points down (σ × exp(age / 20 d), the rule until 2026-11-26) f
 the sun positions of past seasons: measured over 210 days, the models' error over the year's sky
 fell from 1.50 to 0.79 mrad with the rate and all points alike (docs/benchmarks.md). A step change
 (a drift confirmed by checks) still drops the points before it."""
-TILT_RATE_AFTER_DRIFT = False
-"""Whether the fits of a heliostat since its confirmed drift (until a repair) keep the steady tilt
-rate. They do not: a creeping pedestal tilts by 0.1-0.3 mrad a day, and a rate fitted to the few
-points since a confirmation follows it, so the checks stay inside their band while it creeps on and
-its last days after the last confirmation stay in the book for months (measured over 210 days:
-2-8 mrad of sky error under 240 visits, docs/benchmarks.md). Without the rate the model stands
-still, the checks leave the band every few days while the creep goes on, and each confirmation
-drops the moving points before it."""
+STILL_DAYS_AFTER_DRIFT = 14.0
+"""After a confirmed drift a heliostat's fits have no steady tilt rate until its book holds a point
+this many days after the newest confirmation. A creeping pedestal tilts by 0.1-0.3 mrad a day, and a
+rate fitted to the few points since a confirmation follows it, so the checks stay inside their band
+while it creeps on and its last days stay in the book (measured over 210 days, docs/benchmarks.md).
+Without the rate the model stands still, the checks leave the band every few days while the creep
+goes on (every 4-7 days on the measured creeps), and each confirmation drops the moving points
+before it. Once none has come for this long the heliostat is taken to be still, and the rate comes
+back for the slow settling of the months ahead (without it a settled heliostat's model drifted to
+2.3 mrad over the sky in 145 days)."""
 
 
-def fits_tilt_rate(operated: bool, drifted: bool) -> bool:
+def fits_tilt_rate(operated: bool, drifted: bool, newest_point_s: float = math.inf,
+                   confirmed_s: float = -math.inf) -> bool:
     """Whether a heliostat's fits have the steady pedestal tilt rate: in operation
-    (:data:`TILT_RATE_IN_FITS`), and since a confirmed drift only with :data:`TILT_RATE_AFTER_DRIFT`."""
-    return bool(operated) and TILT_RATE_IN_FITS and (TILT_RATE_AFTER_DRIFT or not drifted)
+    (:data:`TILT_RATE_IN_FITS`), but not since a confirmed drift (confirmed at ``confirmed_s``)
+    until the newest point of the fit (``newest_point_s``) lies :data:`STILL_DAYS_AFTER_DRIFT`
+    after it."""
+    if not (operated and TILT_RATE_IN_FITS):
+        return False
+    return not drifted or newest_point_s - confirmed_s >= STILL_DAYS_AFTER_DRIFT * 86400.0
 
 
 PREFERRED_STEP_S = 1800.0

@@ -168,29 +168,36 @@ def book_points(observations, since_s: float = -math.inf, cap: int | None = None
 
 
 def stored_epochs(store, campaign_id: int, until_s: float = math.inf) -> dict:
-    """``{heliostat id: (since_s, prior_mean, drifted)}`` for the heliostats of campaign
+    """``{heliostat id: (since_s, prior_mean, drifted, confirmed_s)}`` for the heliostats of campaign
     ``campaign_id`` with a confirmed drift (its ``drift`` events) or an operator repair by
     ``until_s``, as the runner applies them on resume: points count from ``since_s`` (the newest
     drift's epoch, or just after the repair), the fits' prior centres on ``prior_mean`` (the model
     from before the drift; None for the nominal heliostat, also when a repair came after the drift),
-    and ``drifted`` selects the cap after a drift (:func:`visit_cap`). Read once for a whole field."""
+    ``drifted`` selects the cap after a drift (:func:`visit_cap`) and, with ``confirmed_s`` (the
+    newest drift's confirmation), the fits' tilt rate (:func:`.operation.fits_tilt_rate`). Read
+    once for a whole field."""
     from helicalib.campaign.operator import replay
 
     drifts: dict[str, list] = {}
     for e in store.events(campaign_id=campaign_id, kind="drift"):
         if e.heliostat_id is not None and "since_s" in e.data and e.time_s <= until_s:
-            drifts.setdefault(e.heliostat_id, []).append(e.data)
+            drifts.setdefault(e.heliostat_id, []).append(dict(e.data, confirmed_s=e.time_s))
     out = {}
     for hid, ds in drifts.items():
         p = ds[-1].get("prior_params")
-        out[hid] = (float(ds[-1]["since_s"]), None if p is None else np.asarray(p, dtype=float), True)
+        out[hid] = (float(ds[-1]["since_s"]), None if p is None else np.asarray(p, dtype=float), True,
+                    max(float(d["confirmed_s"]) for d in ds))
     done = [a for a in store.actions(campaign_id, pending=False) if a.done_s <= until_s]
     for hid, repaired in replay(done).repaired_s.items():
-        since, prior, drifted = out.get(hid, (-math.inf, None, False))
+        since, prior, drifted, confirmed = out.get(hid, (-math.inf, None, False, -math.inf))
         if any(float(d["since_s"]) < repaired for d in drifts.get(hid, ())):  # as OperatorDesk.restore
             prior, drifted = None, False
-        out[hid] = (max(since, math.nextafter(float(repaired), math.inf)), prior, drifted)
+        out[hid] = (max(since, math.nextafter(float(repaired), math.inf)), prior, drifted, confirmed)
     return out
+
+
+NO_EPOCH = (-math.inf, None, False, -math.inf)
+""":func:`stored_epochs`' entry of a heliostat without a confirmed drift or a repair."""
 
 
 def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = math.inf, epochs: dict | None = None):
@@ -200,7 +207,7 @@ def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = ma
     heliostats) under its cap, and the centre of the fit's prior."""
     if epochs is None:
         epochs = stored_epochs(store, campaign_id, until_s)
-    since, prior, drifted = epochs.get(heliostat_id, (-math.inf, None, False))
+    since, prior, drifted, _confirmed = epochs.get(heliostat_id, NO_EPOCH)
     obs = [o for o in store.observations(campaign_id=campaign_id, heliostat_id=heliostat_id)
            if o.capture_time_s <= until_s]
     return book_points(obs, since, visit_cap(drifted)), prior

@@ -210,7 +210,7 @@ def recheck_rows(cfg, runner) -> list[dict]:
     predicts for it (:mod:`helicalib.campaign.drift`); outside it, the heliostat changed since."""
     from helicalib.campaign import operation as op_rules
     from helicalib.campaign.drift import drift_evidence
-    from helicalib.campaign.policy import prediction_error_mrad, stored_basis, stored_epochs
+    from helicalib.campaign.policy import NO_EPOCH, prediction_error_mrad, stored_basis, stored_epochs
 
     limit = float(cfg.acceptance.max_rms_mrad)
     rows = []
@@ -236,11 +236,12 @@ def recheck_rows(cfg, runner) -> list[dict]:
                     # fitted as that fit was (an operated campaign's fits model a settling pedestal)
                     if latest.campaign_id not in operated:
                         operated[latest.campaign_id] = op_rules.was_operated(runner.store, latest.campaign_id)
-                    drifted_then = epochs.get(hid, (None, None, False))[2]
+                    _since, _prior, drifted_then, confirmed = epochs.get(hid, NO_EPOCH)
+                    newest = max(p.capture_time_s for p in points) if points else -math.inf
                     row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first,
                                                   prior_mean=centre,
                                                   tilt_rate=op_rules.fits_tilt_rate(operated[latest.campaign_id],
-                                                                                    drifted_then))
+                                                                                    drifted_then, newest, confirmed))
             drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),
                        verdict=("in spec" if err <= limit else

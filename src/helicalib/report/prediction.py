@@ -82,9 +82,11 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
             if not points:
                 continue
             one = nominal.subset([i])
-            drifted = epochs.get(hid, (None, None, False))[2]
+            _since, _prior, drifted, confirmed = epochs.get(hid, policy.NO_EPOCH)
+            newest = max(p.capture_time_s for p in points)
             model, fit = policy.refit(one, points, one if centre is None else one.with_params(centre[None, :]),
-                                      prior_mean=centre, tilt_rate=op_rules.fits_tilt_rate(operated, drifted))
+                                      prior_mean=centre,
+                                      tilt_rate=op_rules.fits_tilt_rate(operated, drifted, newest, confirmed))
             if fit is not None:
                 out[hid] = (model.params[0], fit)
     finally:
