@@ -286,14 +286,13 @@ class OperationChecks:
         b.points = policy.book_points(self.r.store.observations(campaign_id=self.r.campaign_id, heliostat_id=hid),
                                       since, policy.visit_cap(True))
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
-        newest = max((p.capture_time_s for p in b.points), default=-math.inf)
-        self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
-                                             tilt_rate=op_rules.fits_tilt_rate(bool(self.mode), True, newest, now))
-        b.fit = fit
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
                   "points_dropped": len(earlier), "points_kept": len(b.points),
                   "prior_params": [float(x) for x in np.asarray(prior_model.params)[0]]}
-        self.drifts.append(dict(record, heliostat_id=hid))
+        self.drifts.append(dict(record, heliostat_id=hid))  # before the refit: its tilt rate counts from now
+        self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
+                                             tilt_rate=self.tilt_rate_of(hid))
+        b.fit = fit
         self.r.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
                    f"({len(earlier)} earlier points left out, {len(b.points)} kept)", hid, data=record, time_s=now)
         if fit is not None:
