@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     try:
         for e in truth.drift_events:
             i = ids.index(e.heliostat_id)
-            points, centre = policy.stored_basis(store, runner.campaign_id, e.heliostat_id)
+            points, centre, _earlier = policy.stored_basis(store, runner.campaign_id, e.heliostat_id)
             row = {"heliostat": e.heliostat_id, "kind": e.kind, "start_day": day(e.start_s), "end_day": day(e.end_s),
                    "sky_mrad": round(float(per[i]), 3), "book_visits": len({p.visit_id for p in points}),
                    "confirmed": [[day(d["since_s"]), day(d["confirmed_s"])] for d in runner.drifts

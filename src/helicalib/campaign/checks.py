@@ -89,6 +89,7 @@ class OperationChecks:
         fits centred on the nominal again."""
         if prior_too:
             self._prior.pop(hid, None)
+            self.r.book.h[hid].earlier = None
         self.suspects.pop(hid, None)
         self._suspect_ref.pop(hid, None)
         self._recent.pop(hid, None)
@@ -117,12 +118,13 @@ class OperationChecks:
         points = b.points if points is None else points
         newest = max((p.capture_time_s for p in points), default=-math.inf)
         confirmed = max((d["confirmed_s"] for d in self.drifts if d["heliostat_id"] == hid), default=-math.inf)
-        return op_rules.fits_tilt_rate(bool(self.mode), b.drifted, newest, confirmed)
+        return op_rules.fits_tilt_rate(bool(self.mode), b.drifted, newest, confirmed, epochs=b.earlier is not None)
 
     def prior_mean(self, hid: str) -> np.ndarray | None:
         """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
-        heliostat, or after a confirmed drift the model from before it (:mod:`.operation`)."""
-        return self._prior.get(hid)
+        heliostat, also after a confirmed drift whose fits carry the points from before it
+        (:data:`.policy.EPOCHS_AFTER_DRIFT`), else after a drift the model from before it (:mod:`.operation`)."""
+        return None if self.r.book.h[hid].earlier is not None else self._prior.get(hid)
 
     # ------------------------------------------------------------------ choosing a check
     def eligible(self, hids, now: float, busy) -> list[str]:
@@ -235,11 +237,12 @@ class OperationChecks:
             before = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
                                       alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
-                                      tilt_rate=self.tilt_rate_of(hid, before))
+                                      tilt_rate=self.tilt_rate_of(hid, before), earlier=self.r.book.h[hid].earlier)
         else:
             before = [p for p in self.r.book.points(hid) if p.visit_id != visit_id]
             evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
-                                      prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate_of(hid, before))
+                                      prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate_of(hid, before),
+                                      earlier=self.r.book.h[hid].earlier)
         if evidence is None:
             return
         lean = None
@@ -275,25 +278,33 @@ class OperationChecks:
         del self.suspects[hid]
         self._recent.pop(hid, None)
         started_with = self._suspect_ref.pop(hid)[0]
-        earlier = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
+        b = self.r.book.h[hid]
+        earlier = [p for p in b.points if p.capture_time_s < since]
         nominal = self.r.nominal_of(hid)
         prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
-                                    tilt_rate=self.tilt_rate_of(hid, earlier))[0] if earlier else started_with)
-        b = self.r.book.h[hid]
+                                    tilt_rate=self.tilt_rate_of(hid, earlier), earlier=b.earlier)[0]
+                       if earlier else started_with)
         # the points since, from the store: as a resumed runner and the report rebuild them (a point the
-        # cap thinned away while the earlier points filled the book comes back)
+        # cap thinned away while the earlier points filled the book comes back); and those before it, in
+        # epochs of their own (policy.EPOCHS_AFTER_DRIFT), from the newest repair on
+        stored = self.r.store.observations(campaign_id=self.r.campaign_id, heliostat_id=hid)
+        ep = policy.stored_epochs(self.r.store, self.r.campaign_id).get(hid, policy.NO_EPOCH)
         b.drifted = True  # the smaller cap from now on (policy.MAX_VISIT_POINTS_AFTER_DRIFT)
-        b.points = policy.book_points(self.r.store.observations(campaign_id=self.r.campaign_id, heliostat_id=hid),
-                                      since, policy.visit_cap(True))
+        b.points = policy.book_points(stored, since, policy.visit_cap(True))
+        b.earlier = policy.earlier_points(stored, ep.floor_s, ep.boundaries + (since,))
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
+        kept_before = 0 if b.earlier is None else len(b.earlier.points)
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
-                  "points_dropped": len(earlier), "points_kept": len(b.points),
+                  "points_dropped": len(earlier) if b.earlier is None else 0, "points_kept": len(b.points),
+                  "points_before_kept": kept_before,
                   "prior_params": [float(x) for x in np.asarray(prior_model.params)[0]]}
         self.drifts.append(dict(record, heliostat_id=hid))  # before the refit: its tilt rate counts from now
-        self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self._prior[hid],
-                                             tilt_rate=self.tilt_rate_of(hid))
+        self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self.prior_mean(hid),
+                                             tilt_rate=self.tilt_rate_of(hid), earlier=b.earlier)
         b.fit = fit
+        kept = (f"{len(earlier)} earlier points left out" if b.earlier is None else
+                f"{kept_before} points from before it kept in epochs of their own")
         self.r.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
-                   f"({len(earlier)} earlier points left out, {len(b.points)} kept)", hid, data=record, time_s=now)
+                   f"({kept}, {len(b.points)} since)", hid, data=record, time_s=now)
         if fit is not None:
             self.r.store.record_fit(campaign_id=self.r.campaign_id, heliostat_id=hid, time_s=now, **policy.fit_record(fit))

@@ -22,7 +22,8 @@ DRIFT_ALPHA = 1e-3
 
 
 def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = SIGMA_MRAD,
-                   alpha: float = DRIFT_ALPHA, prior_mean=None, tilt_rate: bool = False) -> dict | None:
+                   alpha: float = DRIFT_ALPHA, prior_mean=None, tilt_rate: bool = False,
+                   earlier=None) -> dict | None:
     """Test a re-check's observation ``check`` against the fit over ``points`` (module docstring).
 
     Parameters
@@ -33,6 +34,8 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     check : the check's observation (strokes, sun, spot, approach)
     prior_mean : (P,), optional, the fits' prior centre (after a confirmed drift: the model before it)
     tilt_rate : the fit has a pedestal tilt rate, as the model's own fit (:func:`.policy.refit`)
+    earlier : :class:`.policy.Earlier`, optional, the points from before a confirmed drift, in
+        epochs of their own (as the model's own fit)
 
     Returns
     -------
@@ -41,7 +44,7 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     """
     if not points or check.spot_enu_m is None:
         return None
-    _model, fit = policy.refit(nominal, points, model, prior_mean=prior_mean, tilt_rate=tilt_rate)
+    _model, fit = policy.refit(nominal, points, model, prior_mean=prior_mean, tilt_rate=tilt_rate, earlier=earlier)
     if fit is None:
         return None
     strokes, sun, spot = policy._arrays([check])
@@ -50,7 +53,7 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
                              alpha=alpha)
     return {"residual_mrad": round(float(np.linalg.norm(test.residual_mrad[0])), 3),
             "band_mrad": round(float(test.band_mrad[0]), 3), "p_value": float(f"{test.p_value[0]:.3g}"),
-            "drift": bool(test.outside[0]), "fit_points": len(points),
+            "drift": bool(test.outside[0]), "fit_points": policy.fit_size(points, earlier),
             "whitened": [round(float(x), 4) for x in test.whitened[0]]}
 
 

@@ -100,14 +100,16 @@ back for the slow settling of the months ahead (without it a settled heliostat's
 
 
 def fits_tilt_rate(operated: bool, drifted: bool, newest_point_s: float = math.inf,
-                   confirmed_s: float = -math.inf) -> bool:
+                   confirmed_s: float = -math.inf, epochs: bool = False) -> bool:
     """Whether a heliostat's fits have the steady pedestal tilt rate: in operation
     (:data:`TILT_RATE_IN_FITS`), but not since a confirmed drift (confirmed at ``confirmed_s``)
     until the newest point of the fit (``newest_point_s``) lies :data:`STILL_DAYS_AFTER_DRIFT`
-    after it."""
+    after it, unless the fit carries the points from before the drift in epochs of their own
+    (``epochs``, :data:`.policy.EPOCHS_AFTER_DRIFT`): their months then pin the rate, and the few
+    points since the drift cannot bend it to follow a creep."""
     if not (operated and TILT_RATE_IN_FITS):
         return False
-    return not drifted or newest_point_s - confirmed_s >= STILL_DAYS_AFTER_DRIFT * 86400.0
+    return not drifted or epochs or newest_point_s - confirmed_s >= STILL_DAYS_AFTER_DRIFT * 86400.0
 
 
 PREFERRED_STEP_S = 1800.0

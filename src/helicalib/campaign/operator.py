@@ -117,14 +117,15 @@ class OperatorDesk:
             # repaired after its drift: the nominal again (a drift confirmed after the repair keeps its prior)
             forgot = any(d["heliostat_id"] == hid and d["since_s"] < t for d in runner.drifts)
             b.drifted = b.drifted and not forgot
-            b.points = policy.stored_basis(runner.store, runner.campaign_id, hid)[0]  # those after the repair
-            b.fit, b.last_first_error_mrad = None, None
             runner.ops.forget(hid, prior_too=forgot)
+            # those after the repair (and, after a drift since, those between the repair and the drift)
+            b.points, _prior, b.earlier = policy.stored_basis(runner.store, runner.campaign_id, hid)
+            b.fit, b.last_first_error_mrad = None, None
             runner.models[hid] = runner.nominal_of(hid)
             if b.points:
                 runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid],
                                                          prior_mean=runner.prior_mean(hid),
-                                                         tilt_rate=runner.ops.tilt_rate_of(hid))
+                                                         tilt_rate=runner.ops.tilt_rate_of(hid), earlier=b.earlier)
                 b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
                                            runner.models[hid])
             else:
@@ -189,7 +190,7 @@ class OperatorDesk:
 
     def _reset(self, runner, hid: str, now: float, who: str) -> None:
         b = runner.book.h[hid]
-        b.points, b.drifted = [], False
+        b.points, b.drifted, b.earlier = [], False, None
         b.fit = b.verdict = b.last_first_error_mrad = None
         b.cooldown_until_s = 0.0
         runner.ops.forget(hid)  # a repaired heliostat starts from the nominal again, drift or not

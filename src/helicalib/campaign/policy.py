@@ -50,6 +50,16 @@ two visits at the same sun position, replaces them by newer ones. Measured over 
 creeps (docs/benchmarks.md): under 240 the creep's last days held the drifted models 2-8 mrad off
 over the sky (field 1.47 mrad); 60 after a drift still left one at 6.9 (field 1.24); 30 gave
 1.0-2.3 (field 0.67)."""
+EPOCHS_AFTER_DRIFT = True
+"""After a confirmed drift a heliostat's fits keep its points from before the drift (up to
+:data:`MAX_VISIT_POINTS` less :data:`MAX_VISIT_POINTS_AFTER_DRIFT` visits, :class:`Earlier`), each
+epoch between two confirmed drifts with its own pedestal tilts and actuator zero offsets
+(``point_epoch`` of :func:`helicalib.calibration.fit.fit_error_model`): a drift changes those, not
+the heliostat's build, so the months of points before it keep informing the rest of the model. The
+fits are then centred on the nominal heliostat (the earlier points carry what the model before the
+drift knew) and keep the steady tilt rate, which the earlier epochs' points pin down. The acceptance
+verdict and the drift tests still judge the visits since the drift. False: the points before the
+newest drift are dropped, as until version 2026-11-27 (docs/operation.md)."""
 _BACKLASH = [em.index(n) for n in em.BACKLASH]
 
 
@@ -65,6 +75,7 @@ class HeliostatBook:
     fit: object | None = None                       # newest FitResult over ``points``; None before one
     last_visit_s: float = -math.inf                 # start of its newest visit (operation: time since a check)
     drifted: bool = False                           # since a confirmed drift (until a repair): the smaller cap
+    earlier: Earlier | None = None                  # after a drift: the points before it, for the fits (epochs)
 
     def __setattr__(self, name: str, value) -> None:
         object.__setattr__(self, name, value)
@@ -167,15 +178,63 @@ def book_points(observations, since_s: float = -math.inf, cap: int | None = None
     return points
 
 
+@dataclass(frozen=True)
+class Epochs:
+    """What a heliostat's confirmed drifts and operator repairs leave for its fits (:func:`stored_epochs`)."""
+
+    since_s: float = -math.inf
+    """The book's points count from here: the newest drift's epoch, or just after the newest repair."""
+    prior: np.ndarray | None = None
+    """The model from before the newest drift (P,) (None for the nominal heliostat, also when a repair
+    came after the drift): the fits' prior centre when :data:`EPOCHS_AFTER_DRIFT` is off."""
+    drifted: bool = False
+    """Since a confirmed drift (until a repair): the book's smaller cap (:func:`visit_cap`)."""
+    confirmed_s: float = -math.inf
+    """The newest drift's confirmation (:func:`.operation.fits_tilt_rate`)."""
+    floor_s: float = -math.inf
+    """Just after the newest repair: no point before it counts."""
+    boundaries: tuple = ()
+    """The epochs (``since_s``) of the drifts confirmed after ``floor_s``, oldest first."""
+
+
+NO_EPOCH = Epochs()
+""":func:`stored_epochs`' entry of a heliostat without a confirmed drift or a repair."""
+
+
+@dataclass(frozen=True)
+class Earlier:
+    """A drifted heliostat's points from before its newest confirmed drift (after its newest repair),
+    thinned as they came in to :data:`MAX_VISIT_POINTS` less :data:`MAX_VISIT_POINTS_AFTER_DRIFT`
+    visits, with the epoch of each (1: between the two newest drifts, 2: the one before, ...)."""
+
+    points: list
+    epoch: np.ndarray
+
+
+def earlier_points(observations, floor_s: float, boundaries) -> Earlier | None:
+    """:class:`Earlier` from a heliostat's stored ``observations`` (in the store's order): the located
+    ones from ``floor_s`` up to the newest of ``boundaries`` (the confirmed drifts' epochs, oldest
+    first). None without a boundary, without such a point, or with :data:`EPOCHS_AFTER_DRIFT` off."""
+    if not EPOCHS_AFTER_DRIFT or not boundaries:
+        return None
+    bounds = np.sort(np.asarray(boundaries, dtype=float))
+    points = book_points([o for o in observations if o.capture_time_s < bounds[-1]], floor_s,
+                         MAX_VISIT_POINTS - MAX_VISIT_POINTS_AFTER_DRIFT)
+    if not points:
+        return None
+    t = np.array([p.capture_time_s for p in points], dtype=float)
+    return Earlier(points, (bounds[None, :] > t[:, None]).sum(axis=1).astype(int))
+
+
+def fit_size(points: list, earlier: Earlier | None) -> int:
+    """The observations a fit of ``points`` (and ``earlier``) stands on (a stored fit's ``n_points``)."""
+    return len(points) + (len(earlier.points) if earlier is not None else 0)
+
+
 def stored_epochs(store, campaign_id: int, until_s: float = math.inf) -> dict:
-    """``{heliostat id: (since_s, prior_mean, drifted, confirmed_s)}`` for the heliostats of campaign
-    ``campaign_id`` with a confirmed drift (its ``drift`` events) or an operator repair by
-    ``until_s``, as the runner applies them on resume: points count from ``since_s`` (the newest
-    drift's epoch, or just after the repair), the fits' prior centres on ``prior_mean`` (the model
-    from before the drift; None for the nominal heliostat, also when a repair came after the drift),
-    ``drifted`` selects the cap after a drift (:func:`visit_cap`) and, with ``confirmed_s`` (the
-    newest drift's confirmation), the fits' tilt rate (:func:`.operation.fits_tilt_rate`). Read
-    once for a whole field."""
+    """``{heliostat id: Epochs}`` for the heliostats of campaign ``campaign_id`` with a confirmed drift
+    (its ``drift`` events) or an operator repair by ``until_s``, as the runner applies them on
+    resume (:class:`Epochs`). Read once for a whole field."""
     from helicalib.campaign.operator import replay
 
     drifts: dict[str, list] = {}
@@ -185,32 +244,34 @@ def stored_epochs(store, campaign_id: int, until_s: float = math.inf) -> dict:
     out = {}
     for hid, ds in drifts.items():
         p = ds[-1].get("prior_params")
-        out[hid] = (float(ds[-1]["since_s"]), None if p is None else np.asarray(p, dtype=float), True,
-                    max(float(d["confirmed_s"]) for d in ds))
+        out[hid] = Epochs(since_s=float(ds[-1]["since_s"]), prior=None if p is None else np.asarray(p, dtype=float),
+                          drifted=True, confirmed_s=max(float(d["confirmed_s"]) for d in ds),
+                          boundaries=tuple(sorted(float(d["since_s"]) for d in ds)))
     done = [a for a in store.actions(campaign_id, pending=False) if a.done_s <= until_s]
     for hid, repaired in replay(done).repaired_s.items():
-        since, prior, drifted, confirmed = out.get(hid, (-math.inf, None, False, -math.inf))
+        ep = out.get(hid, NO_EPOCH)
+        prior, drifted = ep.prior, ep.drifted
         if any(float(d["since_s"]) < repaired for d in drifts.get(hid, ())):  # as OperatorDesk.restore
             prior, drifted = None, False
-        out[hid] = (max(since, math.nextafter(float(repaired), math.inf)), prior, drifted, confirmed)
+        floor = math.nextafter(float(repaired), math.inf)
+        out[hid] = Epochs(since_s=max(ep.since_s, floor), prior=prior, drifted=drifted, confirmed_s=ep.confirmed_s,
+                          floor_s=floor, boundaries=tuple(b for b in ep.boundaries if b >= floor))
     return out
 
 
-NO_EPOCH = (-math.inf, None, False, -math.inf)
-""":func:`stored_epochs`' entry of a heliostat without a confirmed drift or a repair."""
-
-
 def stored_basis(store, campaign_id: int, heliostat_id: str, until_s: float = math.inf, epochs: dict | None = None):
-    """``(points, prior_mean)``: what the fit of ``heliostat_id`` that campaign ``campaign_id``
+    """``(points, prior_mean, earlier)``: what the fit of ``heliostat_id`` that campaign ``campaign_id``
     made at ``until_s`` stood on, from the store, as the runner rebuilds it on resume: the points
     of :func:`book_points` since its epoch (:func:`stored_epochs`, pass them when asking for many
-    heliostats) under its cap, and the centre of the fit's prior."""
+    heliostats) under its cap, the centre of the fit's prior (None: the nominal heliostat), and the
+    points from before its newest drift (:func:`earlier_points`; None without)."""
     if epochs is None:
         epochs = stored_epochs(store, campaign_id, until_s)
-    since, prior, drifted, _confirmed = epochs.get(heliostat_id, NO_EPOCH)
+    ep = epochs.get(heliostat_id, NO_EPOCH)
     obs = [o for o in store.observations(campaign_id=campaign_id, heliostat_id=heliostat_id)
            if o.capture_time_s <= until_s]
-    return book_points(obs, since, visit_cap(drifted)), prior
+    earlier = earlier_points(obs, ep.floor_s, ep.boundaries)
+    return book_points(obs, ep.since_s, visit_cap(ep.drifted)), (ep.prior if earlier is None else None), earlier
 
 
 def thin_visits(points: list, keep: int) -> list:
@@ -571,7 +632,7 @@ def model_spreads(cfg, book: Book, models: dict, nominal_rows, hids, sun_enu, no
 
 # ---------------------------------------------------------------------------------- fit
 def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method: str = "fast",
-          prior_mean: np.ndarray | None = None, tilt_rate: bool = False):
+          prior_mean: np.ndarray | None = None, tilt_rate: bool = False, earlier: Earlier | None = None):
     """Refit one heliostat's error model to its valid points; returns (model, FitResult or None).
 
     The solver starts from ``current``'s parameters (the priors stay centred on the nominal
@@ -582,9 +643,15 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
     and fits each point with the tilts of its time (``point_age_days`` of
     :func:`helicalib.calibration.fit.fit_error_model`, ages counted from the newest point), so points
     of past seasons stay consistent with a settling foundation; the model returned is the heliostat
-    as of the newest point."""
+    as of the newest point. ``earlier`` (after a confirmed drift, :data:`EPOCHS_AFTER_DRIFT`): the
+    points from before it join the fit after ``points``, each with its epoch's own tilts and zero
+    offsets; the model returned is the heliostat of ``points``' epoch."""
     if not points:
         return current, None
+    epoch = None
+    if earlier is not None:
+        epoch = np.concatenate([np.zeros(len(points), dtype=int), earlier.epoch])
+        points = list(points) + list(earlier.points)
     strokes, sun, spot = _arrays(points)
     approach = _approaches(points)
     start = current if np.all(np.isfinite(current.params)) else nominal
@@ -596,7 +663,8 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
         t = np.array([p.capture_time_s for p in points], dtype=float)
         age = (t.max() - t) / 86400.0
     fit = fit_error_model(model, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0, approach=approach,
-                          start=start.params[0], method=method, prior_mean=prior_mean, point_age_days=age)
+                          start=start.params[0], method=method, prior_mean=prior_mean, point_age_days=age,
+                          point_epoch=epoch)
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return fit.model, fit
@@ -634,26 +702,28 @@ def _visit_points(points: list) -> list:
 
 def loo_errors_mrad(cfg, nominal: HeliostatModel, points: list, visit_points: list,
                     start: HeliostatModel | None = None, exact: bool = False, full=None,
-                    method: str = "fast") -> np.ndarray:
+                    method: str = "fast", earlier: Earlier | None = None) -> np.ndarray:
     """Leave-one-visit-out prediction error [mrad] of each visit point (formula 1 on its board).
 
     The model without a visit comes from one Gauss-Newton step from the fit to all points
     (:func:`~helicalib.calibration.fit.leave_out_params`; ``full``: that fit when the caller has
     it, e.g. the refit after the visit's last point), or with ``exact`` from a full refit per
-    visit. Refits start from ``start`` (default nominal) and use the fit's solver ``method``."""
+    visit. Refits start from ``start`` (default nominal) and use the fit's solver ``method``.
+    ``earlier``: the points from before a confirmed drift, in every fit (:func:`refit`); only the
+    visits of ``points`` are left out."""
     start = start if start is not None else nominal
     if not visit_points:
         return np.zeros(0)
     if not exact:
-        if full is None or len(full.residual_mrad) != len(points):
-            _model, full = refit(nominal, points, start, method)
+        if full is None or len(full.residual_mrad) != fit_size(points, earlier):
+            _model, full = refit(nominal, points, start, method, earlier=earlier)
         if full is not None and full.linearisation is not None:
             groups = [[k for k, p in enumerate(points) if p.visit_id == vp.visit_id] for vp in visit_points]
             return _prediction_errors_mrad(cfg, nominal, leave_out_params(full, groups), visit_points)
     params = []
     for vp in visit_points:
         rest = [p for p in points if p.visit_id != vp.visit_id]
-        model, _fit = refit(nominal, rest, start, method)
+        model, _fit = refit(nominal, rest, start, method, earlier=earlier)
         params.append(model.params[0])
     return _prediction_errors_mrad(cfg, nominal, np.array(params), visit_points)
 
@@ -693,7 +763,7 @@ def _verdict_of(cfg, book: Book, hid: str, nominal: HeliostatModel | None, now_s
     if nominal is None or not coverage_ok:
         return base
     # coverage met: judge the accuracy honestly, out of sample
-    errs = loo_errors_mrad(cfg, nominal, points, vps, start, full=book.h[hid].fit)
+    errs = loo_errors_mrad(cfg, nominal, points, vps, start, full=book.h[hid].fit, earlier=book.h[hid].earlier)
     return acceptance.evaluate_observations(vps, cfg.acceptance, days, now_s=now_s, errors_mrad=errs)
 
 

@@ -241,11 +241,16 @@ class CampaignRunner:
         """
         now = self.clock.now_s()
         epochs = self.ops.load_drifts()
+        stored = policy.stored_epochs(self.store, self.campaign_id) if epochs else {}
         for hid in self.ids:
             self.book.h[hid].drifted = hid in epochs  # its book under the cap after a drift
-            for obs in self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid):
+            observations = self.store.observations(campaign_id=self.campaign_id, heliostat_id=hid)
+            for obs in observations:
                 if obs.capture_time_s >= epochs.get(hid, -math.inf):
                     self.book.add(obs)
+            if hid in epochs:  # the points before its drifts, for the fits (a repair's floor: OperatorDesk.restore)
+                ep = stored.get(hid, policy.NO_EPOCH)
+                self.book.h[hid].earlier = policy.earlier_points(observations, ep.floor_s, ep.boundaries)
             visits = self.store.visits(campaign_id=self.campaign_id, heliostat_id=hid)
             self.book.h[hid].visits = len(visits)
             if visits:
@@ -256,7 +261,8 @@ class CampaignRunner:
             if self.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
                 _model, self.book.h[hid].fit = policy.refit(self.nominal_of(hid), self.book.points(hid),
                                                             self.models[hid], prior_mean=self.ops.prior_mean(hid),
-                                                            tilt_rate=self.ops.tilt_rate_of(hid))
+                                                            tilt_rate=self.ops.tilt_rate_of(hid),
+                                                            earlier=self.book.h[hid].earlier)
             if visits:
                 self.book.set_verdict(hid, policy.verdict(self.cfg, self.book, hid, self.nominal_of(hid), now,
                                                           self.models[hid]))
@@ -838,7 +844,8 @@ class CampaignRunner:
         if self.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
             return self.models[hid]
         model, fit = policy.refit(self.nominal_of(hid), self.book.points(hid), self.models[hid],
-                                  prior_mean=self.ops.prior_mean(hid), tilt_rate=self.ops.tilt_rate_of(hid))
+                                  prior_mean=self.ops.prior_mean(hid), tilt_rate=self.ops.tilt_rate_of(hid),
+                                  earlier=self.book.h[hid].earlier)
         self.models[hid] = model
         if fit is not None:
             self.book.h[hid].fit = fit

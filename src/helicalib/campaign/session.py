@@ -210,7 +210,7 @@ def recheck_rows(cfg, runner) -> list[dict]:
     predicts for it (:mod:`helicalib.campaign.drift`); outside it, the heliostat changed since."""
     from helicalib.campaign import operation as op_rules
     from helicalib.campaign.drift import drift_evidence
-    from helicalib.campaign.policy import NO_EPOCH, prediction_error_mrad, stored_basis, stored_epochs
+    from helicalib.campaign.policy import NO_EPOCH, fit_size, prediction_error_mrad, stored_basis, stored_epochs
 
     limit = float(cfg.acceptance.max_rms_mrad)
     rows = []
@@ -231,17 +231,18 @@ def recheck_rows(cfg, runner) -> list[dict]:
                 # the points the stored fit stood on (its campaign's book then: since a drift or repair,
                 # thinned to the visit cap), or no evidence
                 epochs = stored_epochs(runner.store, latest.campaign_id, latest.time_s)
-                points, centre = stored_basis(runner.store, latest.campaign_id, hid, latest.time_s, epochs)
-                if len(points) == latest.n_points:
+                points, centre, earlier = stored_basis(runner.store, latest.campaign_id, hid, latest.time_s, epochs)
+                if fit_size(points, earlier) == latest.n_points:
                     # fitted as that fit was (an operated campaign's fits model a settling pedestal)
                     if latest.campaign_id not in operated:
                         operated[latest.campaign_id] = op_rules.was_operated(runner.store, latest.campaign_id)
-                    _since, _prior, drifted_then, confirmed = epochs.get(hid, NO_EPOCH)
+                    ep = epochs.get(hid, NO_EPOCH)
                     newest = max(p.capture_time_s for p in points) if points else -math.inf
                     row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first,
-                                                  prior_mean=centre,
+                                                  prior_mean=centre, earlier=earlier,
                                                   tilt_rate=op_rules.fits_tilt_rate(operated[latest.campaign_id],
-                                                                                    drifted_then, newest, confirmed))
+                                                                                    ep.drifted, newest, ep.confirmed_s,
+                                                                                    epochs=earlier is not None))
             drifted = bool(row["drift"] and row["drift"]["drift"])
             row.update(present_error_mrad=round(err, 3), formula1_error_mrad=round(float(first.error_mrad), 3),
                        verdict=("in spec" if err <= limit else
