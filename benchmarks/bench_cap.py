@@ -3,12 +3,14 @@
 Runs the campaign and ranked operation on ``--field`` for ``--days`` from ``--start`` (fast
 fidelity, drift on ``--drift-share`` of the heliostats, as ``bench_year.py``'s ``ranked`` policy),
 with ``policy.MAX_VISIT_POINTS`` set to ``--cap`` and ``policy.MAX_VISIT_POINTS_AFTER_DRIFT`` to
-``--cap-after-drift``. Prints the summary's figures and, for each heliostat with an injected drift,
+``--cap-after-drift`` (and with ``--no-epochs``, ``policy.EPOCHS_AFTER_DRIFT`` off: the points
+before a drift leave the fits, as until version 2026-11-27). Prints the summary's figures and, for each heliostat with an injected drift,
 its model's sky-wide error at the end (the simulator's truth at the last instant, over the year's sun
 positions), the drift confirmations, and the same book refitted offline on its points after the
 drift's end only (what a fit that saw the drift stop would have), and refitted on all its located
-points under ``--cap`` with each drift epoch's own tilts and zero offsets (``point_epoch`` of the
-fit; epochs from the run's drift confirmations, no prior centre). Keeps the run under ``--work``
+points thinned together to ``--cap`` with each drift epoch's own tilts and zero offsets
+(``point_epoch`` of the fit; epochs from the run's drift confirmations, no prior centre; the runner's
+own epoch fits keep the newest epoch under ``--cap-after-drift``). Keeps the run under ``--work``
 and writes JSON (default ``benchmarks/out/bench_cap.json``).
 
     .venv/bin/python benchmarks/bench_cap.py --days 210 --cap 240 --cap-after-drift 30
@@ -36,11 +38,13 @@ def main(argv=None) -> int:
     ap.add_argument("--drift-share", type=float, default=0.2)
     ap.add_argument("--cap", type=int, default=policy.MAX_VISIT_POINTS)
     ap.add_argument("--cap-after-drift", type=int, default=policy.MAX_VISIT_POINTS_AFTER_DRIFT)
+    ap.add_argument("--no-epochs", action="store_true", help="drop the points before a drift from the fits")
     ap.add_argument("--work", type=Path, default=None, help="keep the run here (default under benchmarks/out)")
     ap.add_argument("--out", type=Path, default=OUT / "bench_cap.json")
     args = ap.parse_args(argv)
 
     policy.MAX_VISIT_POINTS, policy.MAX_VISIT_POINTS_AFTER_DRIFT = args.cap, args.cap_after_drift
+    policy.EPOCHS_AFTER_DRIFT = not args.no_epochs
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.sim.evaluate import evaluate_model
     from helicalib.sim.truth import TrueField
@@ -48,7 +52,8 @@ def main(argv=None) -> int:
 
     work = args.work or OUT / f"cap_{args.cap}_{args.cap_after_drift}_{args.days:g}d"
     print(f"bench_cap: {args.field}, {args.days:g} days from {args.start}, drift on {args.drift_share:g}, "
-          f"cap {args.cap} visits, {args.cap_after_drift} after a drift; run in {work}", flush=True)
+          f"cap {args.cap} visits, {args.cap_after_drift} after a drift, "
+          f"{'no epochs' if args.no_epochs else 'an epoch per drift'}; run in {work}", flush=True)
     cfg, scenario, start_s, result, wall = operated_run(args.field, args.days, args.start, args.seed,
                                                         args.drift_share, work)
     s, runner = result.summary, result.runner
@@ -89,7 +94,7 @@ def main(argv=None) -> int:
     finally:
         store.close()
     doc = {"benchmark": "cap", "field": args.field, "days": args.days, "start": args.start, "seed": args.seed,
-           "cap": args.cap, "cap_after_drift": args.cap_after_drift, "wall_s": round(wall, 1),
+           "cap": args.cap, "cap_after_drift": args.cap_after_drift, "epochs": not args.no_epochs, "wall_s": round(wall, 1),
            **{k: s.get(k) for k in ("true_sky_rms_mrad", "true_sky_rms_undrifted_mrad", "monthly_plant_tracking_rms_mrad",
                                     "accepted", "heliostats", "drifted", "drift_detected", "drift_false_alarms",
                                     "drift_median_days_to_fix", "board_time_share_after_commissioning", "checks")},

@@ -258,8 +258,8 @@ def test_the_report_fits_an_operated_campaign_as_operation_does(drifted_run, dem
     # fits: a tilt rate, the points from before a confirmed drift in an epoch of their own). Both
     # solvers start from the run's newest fit: along the fits' flat directions (covariance condition
     # ~1e9) they stop a few 1e-6 of a parameter's σ apart (from the nominal heliostat the fast solver
-    # stopped up to 4e-4 σ away on the epoch fits); a refit with the other tilt-rate rule lands 3e-3
-    # to 1e-2 σ away.
+    # stopped up to 4e-4 σ away on the epoch fits); a refit with the other tilt-rate rule lands 4e-3
+    # to 3e-2 σ away.
     ids = sorted(IDS)
     fits = stored_fits(data, ids, HeliostatModel.from_config(data.cfg, ids))
     assert set(fits) == set(IDS)

@@ -43,9 +43,10 @@ of a tie; never the newest): the spread of sun positions, which matters more to 
 count or the age of its points, is kept. Measured over 210 days of operation (docs/benchmarks.md):
 60 visits held the undrifted heliostats' sky-wide error at 0.66 mrad, 240 at 0.39."""
 MAX_VISIT_POINTS_AFTER_DRIFT = 30
-"""The cap for a heliostat since its confirmed drift (until a repair resets it). A drift may go on
-after it is confirmed (a creep), and the fits' steady tilt rate cannot follow it, so the points of
-the moving heliostat must leave the fit. Under a small cap the thinning, which drops the older of
+"""The cap of a heliostat's book since its confirmed drift (until a repair resets it); the points from
+before the drift join its fits apart (:data:`EPOCHS_AFTER_DRIFT`). A drift may go on after it is
+confirmed (a creep), and the fits' steady tilt rate cannot follow it, so the points of the moving
+heliostat must leave the newest epoch. Under a small cap the thinning, which drops the older of
 two visits at the same sun position, replaces them by newer ones. Measured over 210 days with four
 creeps (docs/benchmarks.md): under 240 the creep's last days held the drifted models 2-8 mrad off
 over the sky (field 1.47 mrad); 60 after a drift still left one at 6.9 (field 1.24); 30 gave
