@@ -86,7 +86,7 @@ class OperationChecks:
 
     def forget(self, hid: str, prior_too: bool = True) -> None:
         """A repaired or replaced heliostat: no suspicion, no creep record, and (``prior_too``) its
-        fits centred on the nominal again."""
+        fits centred on the nominal again, without the points from before its drifts."""
         if prior_too:
             self._prior.pop(hid, None)
             self.r.book.h[hid].earlier = None
@@ -95,9 +95,10 @@ class OperationChecks:
         self._recent.pop(hid, None)
 
     def load_drifts(self) -> dict[str, float]:
-        """Confirmed drifts of this campaign (its ``drift`` events): each heliostat's points before its
-        newest one are left out, and its fit is centred on the model from before it. Returns the
-        epochs (plant time from which points count) by heliostat."""
+        """Confirmed drifts of this campaign (its ``drift`` events): each heliostat's book counts from
+        its newest one (the points before it join the fits in epochs of their own,
+        :data:`.policy.EPOCHS_AFTER_DRIFT`; with those off the fit is centred on the model from before
+        it). Returns the epochs (plant time from which the book's points count) by heliostat."""
         epochs: dict[str, float] = {}
         for e in self.r.store.events(campaign_id=self.r.campaign_id, kind="drift"):
             hid = e.heliostat_id

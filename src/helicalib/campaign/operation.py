@@ -86,9 +86,10 @@ TILT_RATE_IN_FITS = True
 that weighs old points down (σ × exp(age / 20 d), the rule until 2026-11-26) follows it but forgets
 the sun positions of past seasons: measured over 210 days, the models' error over the year's sky
 fell from 1.50 to 0.79 mrad with the rate and all points alike (docs/benchmarks.md). A step change
-(a drift confirmed by checks) still drops the points before it."""
+(a drift confirmed by checks) opens a new epoch of the fits (:data:`.policy.EPOCHS_AFTER_DRIFT`)."""
 STILL_DAYS_AFTER_DRIFT = 14.0
-"""After a confirmed drift a heliostat's fits have no steady tilt rate until its book holds a point
+"""With :data:`.policy.EPOCHS_AFTER_DRIFT` off (the fits drop the points before a drift; the rule
+until version 2026-11-27): after a confirmed drift a heliostat's fits have no steady tilt rate until its book holds a point
 this many days after the newest confirmation. A creeping pedestal tilts by 0.1-0.3 mrad a day, and a
 rate fitted to the few points since a confirmation follows it, so the checks stay inside their band
 while it creeps on and its last days stay in the book (measured over 210 days, docs/benchmarks.md).

@@ -248,7 +248,7 @@ class CampaignRunner:
             for obs in observations:
                 if obs.capture_time_s >= epochs.get(hid, -math.inf):
                     self.book.add(obs)
-            if hid in epochs:  # the points before its drifts, for the fits (a repair's floor: OperatorDesk.restore)
+            if hid in epochs:  # the points before its drifts (after its newest repair), for the fits
                 ep = stored.get(hid, policy.NO_EPOCH)
                 self.book.h[hid].earlier = policy.earlier_points(observations, ep.floor_s, ep.boundaries)
             visits = self.store.visits(campaign_id=self.campaign_id, heliostat_id=hid)
