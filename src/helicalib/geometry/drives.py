@@ -217,18 +217,18 @@ def normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1
     low, high = angle_interval_rad(drives)
     half = 0.5 * (high - low)
     mid = 0.5 * (high + low)
-    cands, scores = [], []
-    for sgn in (1.0, -1.0):
-        c = alpha[..., None] * a1 + beta[..., None] * a2 + (sgn * g)[..., None] * w
-        th2 = _rotation_angle(a2, n0, c)
-        th1 = _rotation_angle(a1, c, n)
-        th = _wrap_into_interval(np.stack([th1, th2], axis=-1), low, high)
-        dist = np.abs(th - mid) / half  # < 1 inside the linkage range
-        inside = np.all(dist < 1.0, axis=-1)
-        cands.append(th)
-        scores.append(np.where(inside, 0.0, 10.0) + np.max(dist, axis=-1))
-    pick = scores[1] < scores[0]
-    angles = np.where(pick[..., None], cands[1], cands[0])
+    # both solutions at once, on a new axis before the vector's: (..., 2, 3), sign +1 then −1
+    sg = np.array([1.0, -1.0])[:, None] * g[..., None, None]
+    c = (alpha[..., None] * a1 + beta[..., None] * a2)[..., None, :] + sg * w[..., None, :]
+    a1s, a2s = a1[..., None, :], a2[..., None, :]
+    th2 = _rotation_angle(a2s, n0[..., None, :], c)
+    th1 = _rotation_angle(a1s, c, n[..., None, :])
+    th = _wrap_into_interval(np.stack([th1, th2], axis=-1), low[..., None, :], high[..., None, :])
+    dist = np.abs(th - mid[..., None, :]) / half[..., None, :]  # < 1 inside the linkage range
+    inside = np.all(dist < 1.0, axis=-1)
+    scores = np.where(inside, 0.0, 10.0) + np.max(dist, axis=-1)  # (..., 2)
+    pick = scores[..., 1] < scores[..., 0]
+    angles = np.where(pick[..., None], th[..., 1, :], th[..., 0, :])
     angles = np.where(exists[..., None], angles, np.nan)
     gam = gamma_rad(drives, angles)
     with np.errstate(invalid="ignore"):

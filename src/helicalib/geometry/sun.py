@@ -212,6 +212,7 @@ class SunTable:
         self.site = site
         self.step_s = float(step_s)
         self._chunks: dict[int, np.ndarray] = {}
+        self._positions: dict[float, tuple] = {}
 
     def _chunk(self, k: int) -> np.ndarray:
         vec = self._chunks.get(k)
@@ -248,7 +249,17 @@ class SunTable:
         return angles_from_sun_vector(self.vector_enu(np.asarray(t_s, dtype=float)))[1]
 
     def position(self, t_s) -> tuple[np.ndarray, float, float, bool]:
-        """(vector_enu (3,), azimuth_deg, elevation_deg, rising) at one instant."""
-        v = self.vector_enu(np.array([t_s, t_s + 60.0]))
-        az, el = angles_from_sun_vector(v)
-        return v[0], float(az[0]), float(el[0]), bool(el[1] > el[0])
+        """(vector_enu (3,), azimuth_deg, elevation_deg, rising) at one instant.
+
+        The last few instants asked are kept (a campaign asks for the same instant several times in
+        one step); the vector is a fresh copy each time, so a caller may change it."""
+        key = float(t_s)
+        hit = self._positions.get(key)
+        if hit is None:
+            v = self.vector_enu(np.array([key, key + 60.0]))
+            az, el = angles_from_sun_vector(v)
+            hit = (v[0], float(az[0]), float(el[0]), bool(el[1] > el[0]))
+            if len(self._positions) >= 16:
+                self._positions.pop(next(iter(self._positions)))
+            self._positions[key] = hit
+        return hit[0].copy(), hit[1], hit[2], hit[3]
