@@ -172,23 +172,24 @@ def paired(marks: dict, dots: dict) -> dict:
             "mean_sq_diff_mm2": float(d.mean()), "mean_sq_diff_se_mm2": float(d.std(ddof=1) / np.sqrt(ok.sum()))}
 
 
-def boards_only(n: int) -> int:
-    """``--boards-only``: marks against black (6 %) and mid-grey (50 %) dots on the same ``n`` spots,
-    in both views, paired spot by spot; writes ``benchmarks/out/bench_spot_boards.json``."""
+def boards_only(n: int, albedos=(0.06, 0.5), path: Path | None = None) -> int:
+    """``--boards-only``: marks against dots of each albedo (default black, 6 %, and mid-grey, 50 %)
+    on the same ``n`` spots, in both views, paired spot by spot; writes ``path`` (default
+    ``benchmarks/out/bench_spot_boards.json``)."""
     out, rows = {}, []
     for view in ("demo view", "side of the cylinder"):
         marks_t, cam = boards()[f"marks, {view}"]
         dots_t, _ = boards()[f"dots, {view}"]
         print(f"rendering {n} frames: marks, {view} ...", flush=True)
         m = accuracy(n, target=marks_t, camera_enu_m=cam)["methods"]["grlm-centroid"]
-        for albedo in (0.06, 0.5):
+        for albedo in albedos:
             print(f"rendering {n} frames: dots ({albedo:g}), {view} ...", flush=True)
             d = accuracy(n, target=dots_t, camera_enu_m=cam, lighting=Lighting(mark_albedo=albedo))["methods"]["grlm-centroid"]
             row = dict(paired(m, d), view=view, dot_albedo=albedo, on_dot_rms_mm=d["on_dot_rms_mm"],
                        off_dots_rms_mm=d["off_dots_rms_mm"], on_dot_frames=d["on_dot_frames"])
             rows.append(row)
     out = {"frames": n, "method": "grlm-centroid", "paired": rows}
-    path = OUT.with_name("bench_spot_boards.json")
+    path = Path(path) if path else OUT.with_name("bench_spot_boards.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=2))
     print(f"marks against dots, the same {n} spots (grlm-centroid):")
@@ -207,12 +208,16 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=None, help="rendered spots per case (default 40; 12 with --quick)")
     ap.add_argument("--boards-only", action="store_true",
                     help="only the mark-against-dot boards (black and mid-grey dots): no demo suite, sweep or throughput")
+    ap.add_argument("--albedos", default="0.06,0.5",
+                    help="with --boards-only: the dots' albedos, comma-separated (default %(default)s)")
+    ap.add_argument("--out", default=None, help="with --boards-only: the JSON to write "
+                                                "(default benchmarks/out/bench_spot_boards.json)")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     n, reps = (12, 10) if args.quick else (40, 30)
     n = args.frames or n
     if args.boards_only:
-        return boards_only(n)
+        return boards_only(n, tuple(float(a) for a in args.albedos.split(",")), args.out)
     acc = accuracy(n)
     cases = {}
     for name, (target, cam) in boards().items():

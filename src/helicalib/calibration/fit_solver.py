@@ -68,7 +68,7 @@ def _unit_or(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
 def _rotate_rows(axis: np.ndarray, cos: np.ndarray, sin: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Vectors ``v`` (K, M, 3) or (M, 3) rotated about one axis (3,) by per-row angles (K,)."""
     c, s = cos[:, None, None], sin[:, None, None]
-    return v * c + cross3(axis, v) * s + axis * (np.sum(axis * v, axis=-1, keepdims=True) * (1.0 - c))
+    return v * c + cross3(axis, v) * s + axis * (np.add.reduce(axis * v, axis=-1, keepdims=True) * (1.0 - c))
 
 
 class BeamJacobian:
@@ -134,9 +134,9 @@ class BeamJacobian:
         if self.kind == "beam":
             mc = pivot + self.offset * n
             to_spot = spot - mc
-            dist = np.sqrt(np.sum(to_spot * to_spot, axis=-1, keepdims=True))
+            dist = np.sqrt(np.add.reduce(to_spot * to_spot, axis=-1, keepdims=True))
             e = to_spot / dist
-            sn = np.sum(sun * n, axis=-1, keepdims=True)
+            sn = np.add.reduce(sun * n, axis=-1, keepdims=True)
             diff = (2.0 * sn * n - sun) - e
         else:
             diff = n - optics.aim_normal(pivot, sun, spot, self.offset)

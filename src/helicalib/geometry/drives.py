@@ -108,7 +108,12 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     b = np.asarray(b, dtype=float)
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+    x = a1 * b2 - a2 * b1
+    out = np.empty(x.shape + (3,))
+    out[..., 0] = x
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -117,19 +122,26 @@ def rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray) -> np.ndarray
     v = np.asarray(v, dtype=float)
     c = np.cos(angle_rad)[..., None]
     s = np.sin(angle_rad)[..., None]
-    dot = np.sum(axis * v, axis=-1, keepdims=True)
+    dot = _dot(axis, v, keepdims=True)
     return v * c + cross3(axis, v) * s + axis * dot * (1.0 - c)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.sqrt(_dot(v, v, keepdims=True))
+
+
+def _dot(a: np.ndarray, b: np.ndarray, keepdims: bool = False) -> np.ndarray:
+    """Σ a·b over the last axis: ``np.sum(a * b, axis=-1)`` (the same reduction, without the
+    wrapper's cost on the small arrays of one heliostat); ``np.linalg.norm(v, axis=-1)`` is
+    ``sqrt(_dot(v, v))`` for real v."""
+    return np.add.reduce(a * b, axis=-1, keepdims=keepdims)
 
 
 def _rotation_angle(axis: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Signed angle about ``axis`` that takes ``a`` to ``b`` (their components ⊥ axis) [rad]."""
-    a_perp = a - axis * np.sum(axis * a, axis=-1, keepdims=True)
-    b_perp = b - axis * np.sum(axis * b, axis=-1, keepdims=True)
-    return np.arctan2(np.sum(axis * cross3(a_perp, b_perp), axis=-1), np.sum(a_perp * b_perp, axis=-1))
+    a_perp = a - axis * _dot(axis, a, keepdims=True)
+    b_perp = b - axis * _dot(axis, b, keepdims=True)
+    return np.arctan2(_dot(axis, cross3(a_perp, b_perp)), _dot(a_perp, b_perp))
 
 
 # ---------------------------------------------------------------------------- linkage
@@ -204,9 +216,9 @@ def normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1
     """
     n = _unit(np.asarray(normal_enu, dtype=float))
     a1, a2, n0 = drives.axis1_enu, drives.axis2_enu, drives.normal0_enu
-    c12 = np.sum(a1 * a2, axis=-1)
-    p = np.sum(a1 * n, axis=-1)
-    q = np.sum(a2 * n0, axis=-1)
+    c12 = _dot(a1, a2)
+    p = _dot(a1, n)
+    q = _dot(a2, n0)
     det = 1.0 - c12 * c12
     alpha = (p - c12 * q) / det
     beta = (q - c12 * p) / det

@@ -17,14 +17,14 @@ AIM_ITERATIONS = 6
 def unit(v: np.ndarray) -> np.ndarray:
     """Vectors (..., 3) scaled to length 1."""
     v = np.asarray(v, dtype=float)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.sqrt(np.add.reduce(v * v, axis=-1, keepdims=True))  # np.linalg.norm's own sum, its wrapper left out
 
 
 def reflect(sun_enu: np.ndarray, normal_enu: np.ndarray) -> np.ndarray:
     """Reflected beam direction ``r = 2 (s·n) n − s``, shape (..., 3), ENU (unit if s and n are)."""
     s = np.asarray(sun_enu, dtype=float)
     n = np.asarray(normal_enu, dtype=float)
-    return 2.0 * np.sum(s * n, axis=-1, keepdims=True) * n - s
+    return 2.0 * np.add.reduce(s * n, axis=-1, keepdims=True) * n - s
 
 
 def mirror_centre(pivot_enu: np.ndarray, normal_enu: np.ndarray, mirror_offset_m) -> np.ndarray:

@@ -9,6 +9,7 @@ textbook formulas are off by several mrad, more than the 3.5 mrad loop threshold
 from __future__ import annotations
 
 import datetime as _dt
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -227,6 +228,8 @@ class SunTable:
     def vector_enu(self, t_s) -> np.ndarray:
         """Unit sun vector(s), ENU, shape (..., 3), at UTC seconds ``t_s``."""
         t = np.asarray(t_s, dtype=float)
+        if t.ndim == 0:
+            return self._vector_at(float(t))
         flat = t.reshape(-1)
         out = np.empty((flat.size, 3))
         k = np.floor(flat / self.CHUNK_S).astype(np.int64)
@@ -239,6 +242,16 @@ class SunTable:
             v = table[i] * (1.0 - f) + table[i + 1] * f
             out[sel] = v / np.linalg.norm(v, axis=1, keepdims=True)
         return out.reshape(t.shape + (3,))
+
+    def _vector_at(self, t: float) -> np.ndarray:
+        """:meth:`vector_enu` at one instant (3,): the same arithmetic, without the array bookkeeping."""
+        kk = math.floor(t / self.CHUNK_S)
+        table = self._chunk(kk)
+        x = (t - kk * self.CHUNK_S) / self.step_s
+        i = min(math.floor(x), len(table) - 2)
+        f = x - i
+        v = table[i] * (1.0 - f) + table[i + 1] * f
+        return v / np.sqrt(np.add.reduce(v * v))
 
     def elevation_deg(self, t_s) -> np.ndarray:
         """Apparent sun elevation(s) [deg] at UTC seconds ``t_s``."""
@@ -256,7 +269,7 @@ class SunTable:
         key = float(t_s)
         hit = self._positions.get(key)
         if hit is None:
-            v = self.vector_enu(np.array([key, key + 60.0]))
+            v = np.stack([self._vector_at(key), self._vector_at(key + 60.0)])
             az, el = angles_from_sun_vector(v)
             hit = (v[0], float(az[0]), float(el[0]), bool(el[1] > el[0]))
             if len(self._positions) >= 16:

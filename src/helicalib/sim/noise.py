@@ -38,15 +38,23 @@ def hash_keys(seed: int, stream: int, *keys) -> np.ndarray:
 
 def uniform(seed: int, stream: int, *keys) -> np.ndarray:
     """Uniform variates in (0, 1), one per broadcast key."""
-    h = hash_keys(seed, stream, *keys)
+    return _unit_interval(hash_keys(seed, stream, *keys))
+
+
+_LAST_01 = _mix(np.array([0, 1], dtype=np.uint64))
+"""The mixed last keys 0 and 1 of :func:`normal`'s two uniforms."""
+
+
+def _unit_interval(h: np.ndarray) -> np.ndarray:
     return ((h >> np.uint64(11)).astype(np.float64) + 0.5) / _TWO53
 
 
 def normal(seed: int, stream: int, *keys) -> np.ndarray:
-    """Standard normal variates (Box–Muller on two hashed uniforms), one per broadcast key."""
-    u1 = uniform(seed, stream, *keys, 0)
-    u2 = uniform(seed, stream, *keys, 1)
-    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+    """Standard normal variates (Box–Muller on two hashed uniforms, ``uniform(..., *keys, 0)`` and
+    ``uniform(..., *keys, 1)``), one per broadcast key. The keys' hash is taken once for both."""
+    h = hash_keys(seed, stream, *keys)[..., None]
+    u = _unit_interval(_mix(h ^ _LAST_01))
+    return np.sqrt(-2.0 * np.log(u[..., 0])) * np.cos(2.0 * np.pi * u[..., 1])
 
 
 def smooth_normal(seed: int, stream: int, t_s, correlation_s: float, *keys) -> np.ndarray:
