@@ -193,3 +193,25 @@ def test_round_trip_at_gimbal_lock_is_inside_the_contract():
             back, _ = normal_to_angles(d, normal)
             err_mrad = 1000.0 * np.max(np.abs(angles_to_normal(d, back) - normal))
             assert err_mrad < 1e-3  # contract: 0.01 mrad
+
+
+def test_cross3_and_normal_to_angles_row_by_row_equal_the_batch():
+    """``cross3`` equals ``np.cross`` under broadcasting; ``normal_to_angles`` on many rows gives
+    each row's single-row answer to the bit (both solutions are scored on their own axis, never mixed
+    across rows), including unreachable normals and both-solution picks."""
+    from helicalib.geometry.drives import cross3
+
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=(7, 1, 3)), rng.normal(size=(4, 3))
+    np.testing.assert_allclose(cross3(a, b), np.cross(a, b), rtol=0, atol=1e-15)
+    assert cross3(a[0, 0], b[0]).shape == (3,)
+    a1, a2, n0 = PRESETS["tilt-roll"]
+    d = make_drives(60, a1, a2, n0, gamma0_deg=(70.0, 110.0))
+    normals = rng.normal(size=(60, 3))
+    normals[:45, 2] = np.abs(normals[:45, 2]) + 0.3  # mostly reachable; the last 15 point anywhere
+    angles, reachable = normal_to_angles(d, normals)
+    assert 0 < reachable.sum() < 60
+    for k in range(60):
+        one, ok = normal_to_angles(d.take([k]), normals[k:k + 1])
+        np.testing.assert_array_equal(one[0], angles[k])
+        assert bool(ok[0]) == bool(reachable[k])

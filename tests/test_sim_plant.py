@@ -280,3 +280,21 @@ def test_the_weather_of_one_instant_equals_the_vectorised_weather():
     assert np.array_equal(noise.smooth_normal(4, 11, t, 7200.0),
                           [noise.smooth_normal(4, 11, float(x), 7200.0) for x in t])
     assert not np.allclose(vec, noise.smooth_normal(4, 11, t, 7200.0))
+
+
+def test_noise_normal_is_box_muller_of_its_two_uniforms():
+    """``noise.normal`` hashes its keys once for both uniforms; its values are still Box–Muller on
+    ``uniform(..., *keys, 0)`` and ``uniform(..., *keys, 1)`` (so the simulated weather and jitter of a
+    given seed do not change), over scalar and broadcast keys, and standard normal in distribution."""
+    from helicalib.sim import noise
+
+    keys = np.arange(-20, 4000, dtype=np.int64)
+    for args in [(1, 7, keys), (987654321, 3, keys, np.int64(5)), (2, 9, np.int64(42)),
+                 (5, 1, keys[:12].reshape(4, 3), np.arange(3))]:
+        u1, u2 = noise.uniform(*args, 0), noise.uniform(*args, 1)
+        expected = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+        got = noise.normal(*args)
+        assert got.shape == expected.shape
+        np.testing.assert_array_equal(got, expected)
+    z = noise.normal(11, 4, np.arange(200_000))
+    assert abs(z.mean()) < 0.01 and abs(z.std() - 1.0) < 0.01
