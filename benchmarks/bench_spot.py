@@ -8,20 +8,22 @@ of random size, shape, angle and position; the error of each method's centre aga
 spot's true centre, RMS in mm on the board and in frame pixels; also the marks' vertex error.
 The same spots on four boards: the demo board seen by the demo camera and the east board of
 ``simulations/fields/dots_cylinder.yaml`` seen obliquely (36° off its normal) by its camera, each
-with the four L marks and with nine dots; on dot boards split into spots that reach a dot and
-spots that do not.
+with the four L marks and with nine dots (light grey, the renderer's default ``DOT_ALBEDO``); on dot
+boards split into spots that reach a dot and spots that do not. Then the dot boards again with dots
+of each albedo of ``DOT_ALBEDOS`` (black to light grey) and with 4 after frames.
 
 Throughput: frame pairs per second of ``measure_spot`` (marks found once on the before frame,
 as the campaign does) on one core at 1280×1024 and 2448×2048, against the floor cost of one
 ``cv2.absdiff`` + ``cv2.integral`` pass over the same frames. Goal: ≥ 15 fps (T/GRLM 5.3).
 
     .venv/bin/python benchmarks/bench_spot.py [--quick] [--frames N]
-    .venv/bin/python benchmarks/bench_spot.py --boards-only --frames 200
+    .venv/bin/python benchmarks/bench_spot.py --boards-only --frames 1000 --albedos 0.06,0.5,0.65
 
-``--boards-only`` renders only the mark boards against black (6 %) and mid-grey (50 %) dot boards,
-both views, on the same spots, and compares them spot by spot (the ratio of RMS errors and the mean
-difference of squared errors with its standard error, which tells a real difference from the
-sampling noise of 40 spots); JSON ``benchmarks/out/bench_spot_boards.json``.
+``--boards-only`` renders only the mark boards against dot boards of each ``--albedos`` (default
+black, 6 %, mid-grey, 50 %, and light grey, 65 %), both views, on the same spots, and compares them
+spot by spot (the ratio of RMS errors and the mean difference of squared errors with its standard
+error, which tells a real difference from the sampling noise); JSON
+``benchmarks/out/bench_spot_boards.json`` (or ``--out``).
 """
 
 from __future__ import annotations
@@ -63,8 +65,9 @@ def boards() -> dict:
             "dots, side of the cylinder": (side, side_cam)}
 
 
-DOT_ALBEDOS = (0.06, 0.15, 0.25, 0.35, 0.5)
-"""Albedos of the dots swept (the first is the black of the L marks; the 2019 article names no colour)."""
+DOT_ALBEDOS = (0.06, 0.15, 0.25, 0.35, 0.5, 0.65)
+"""Albedos of the dots swept (the first is the black of the L marks, the last the default light grey;
+the 2019 article names no colour)."""
 
 
 def _touches_a_dot(target, spot: Spot) -> bool:
@@ -172,8 +175,8 @@ def paired(marks: dict, dots: dict) -> dict:
             "mean_sq_diff_mm2": float(d.mean()), "mean_sq_diff_se_mm2": float(d.std(ddof=1) / np.sqrt(ok.sum()))}
 
 
-def boards_only(n: int, albedos=(0.06, 0.5), path: Path | None = None) -> int:
-    """``--boards-only``: marks against dots of each albedo (default black, 6 %, and mid-grey, 50 %)
+def boards_only(n: int, albedos=(0.06, 0.5, 0.65), path: Path | None = None) -> int:
+    """``--boards-only``: marks against dots of each albedo (default black, 6 %, mid-grey, 50 %, and light grey, 65 %)
     on the same ``n`` spots, in both views, paired spot by spot; writes ``path`` (default
     ``benchmarks/out/bench_spot_boards.json``)."""
     out, rows = {}, []
@@ -184,7 +187,7 @@ def boards_only(n: int, albedos=(0.06, 0.5), path: Path | None = None) -> int:
         m = accuracy(n, target=marks_t, camera_enu_m=cam)["methods"]["grlm-centroid"]
         for albedo in albedos:
             print(f"rendering {n} frames: dots ({albedo:g}), {view} ...", flush=True)
-            d = accuracy(n, target=dots_t, camera_enu_m=cam, lighting=Lighting(mark_albedo=albedo))["methods"]["grlm-centroid"]
+            d = accuracy(n, target=dots_t, camera_enu_m=cam, lighting=Lighting(dot_albedo=albedo))["methods"]["grlm-centroid"]
             row = dict(paired(m, d), view=view, dot_albedo=albedo, on_dot_rms_mm=d["on_dot_rms_mm"],
                        off_dots_rms_mm=d["off_dots_rms_mm"], on_dot_frames=d["on_dot_frames"])
             rows.append(row)
@@ -207,8 +210,8 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer frames and repeats")
     ap.add_argument("--frames", type=int, default=None, help="rendered spots per case (default 40; 12 with --quick)")
     ap.add_argument("--boards-only", action="store_true",
-                    help="only the mark-against-dot boards (black and mid-grey dots): no demo suite, sweep or throughput")
-    ap.add_argument("--albedos", default="0.06,0.5",
+                    help="only the mark-against-dot boards (dots of each --albedos): no demo suite, sweep or throughput")
+    ap.add_argument("--albedos", default="0.06,0.5,0.65",
                     help="with --boards-only: the dots' albedos, comma-separated (default %(default)s)")
     ap.add_argument("--out", default=None, help="with --boards-only: the JSON to write "
                                                 "(default benchmarks/out/bench_spot_boards.json)")
@@ -223,7 +226,7 @@ def main() -> int:
     for name, (target, cam) in boards().items():
         print(f"rendering {n} frames: {name} ...", flush=True)
         cases[name] = accuracy(n, target=target, camera_enu_m=cam)
-    # dot boards: how the spot on a dot depends on the dots' albedo (black 6 % … mid-grey 50 %) and on
+    # dot boards: how the spot on a dot depends on the dots' albedo (black 6 % … light grey 65 %) and on
     # averaging after frames (grlm-centroid only)
     dot_sweep = []
     for name, (target, cam) in boards().items():
@@ -231,7 +234,7 @@ def main() -> int:
             continue
         for albedo, n_after in [(a, 1) for a in DOT_ALBEDOS] + [(DOT_ALBEDOS[0], 4)]:
             print(f"rendering {n} frames: {name}, dot albedo {albedo:g}, {n_after} after frame(s) ...", flush=True)
-            c = accuracy(n, target=target, camera_enu_m=cam, lighting=Lighting(mark_albedo=albedo),
+            c = accuracy(n, target=target, camera_enu_m=cam, lighting=Lighting(dot_albedo=albedo),
                          after_frames=n_after)
             r = c["methods"]["grlm-centroid"]
             dot_sweep.append({"board": name, "dot_albedo": albedo, "after_frames": n_after, "rms_mm": r["rms_mm"],

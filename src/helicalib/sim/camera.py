@@ -36,7 +36,7 @@ def simulated_fe(scenario) -> float:
     The renderer turns irradiance E on the white board into ``grey = board_albedo · gain · E``
     (plus ambient light and noise, which the after − before difference removes), so
     ``Fe = 1 / (board_albedo · gain_counts_per_wm2)``. Only the white board obeys it: the L marks
-    (``mark_albedo``) are darker.
+    (``mark_albedo``) and a dot board's dots (``dot_albedo``) are darker.
     """
     spec = scenario.camera
     return 1.0 / (float(spec.board_albedo) * float(spec.gain_counts_per_wm2))
@@ -152,7 +152,8 @@ class BoardRenderer:
         shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
         self.h_raster = self.h_board @ raster_to_board @ shift
         uu, vv = np.meshgrid(self.u_m, self.v_m)
-        self.albedo = np.where(dark_mask(target, uu, vv), spec.mark_albedo, spec.board_albedo).astype(np.float32)
+        dark = spec.dot_albedo if target.marks is not None and target.marks.kind == "dots" else spec.mark_albedo
+        self.albedo = np.where(dark_mask(target, uu, vv), dark, spec.board_albedo).astype(np.float32)
         rng = np.random.default_rng(seed)
         w, h = self.size_px
         self._noise = rng.standard_normal((h + 64, w + 64)).astype(np.float32) * np.float32(spec.noise_counts)

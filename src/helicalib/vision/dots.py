@@ -48,6 +48,9 @@ MIN_DOTS = 5
 UPRIGHT_DEG = 50.0
 """The board's u axis may turn this far from the image's x axis (and v from image up)."""
 MAX_CANDIDATES = 24
+MIN_DARKNESS = 0.25
+"""A dot candidate is at least this much darker than the white around it (``1 - dot / white``; black
+dots 0.94, mid-grey ones 0.5)."""
 
 
 @dataclass(frozen=True)
@@ -95,7 +98,7 @@ def _dot_candidate(gray: np.ndarray, contour: np.ndarray) -> _Dot | None:
     white = (coef[0] + coef[1] * xx + coef[2] * yy).astype(np.float32)
     dark = float(np.median(roi[core]))
     contrast = float(np.median(white[core])) - dark
-    if contrast < 10.0 or contrast < 0.25 * float(np.median(white[core])):
+    if contrast < 10.0 or contrast < MIN_DARKNESS * float(np.median(white[core])):
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
         darkness = np.where((white > 1.0) & inner.astype(bool), 1.0 - roi / white, 0.0).astype(np.float32)
@@ -123,9 +126,16 @@ def _candidates(gray: np.ndarray) -> list[_Dot]:
             if parent != -1:
                 continue
             d = _dot_candidate(gray, ct)
-            if d is not None and all(np.linalg.norm(d.centre - o.centre) > 0.25 * min(d.diameter_px, o.diameter_px)
-                                     for o in out):
+            if d is None:
+                continue
+            same = [i for i, o in enumerate(out)
+                    if np.linalg.norm(d.centre - o.centre) <= 0.25 * min(d.diameter_px, o.diameter_px)]
+            if not same:
                 out.append(d)
+            elif all(d.ring_rms < out[i].ring_rms for i in same) and len(same) == 1:
+                # the same dot from another block size: keep the blob whose white ring is the flattest (a
+                # light dot near the board's dark rim comes out whole only in a block clear of the rim)
+                out[same[0]] = d
     out.sort(key=lambda d: -d.diameter_px)
     return out[:MAX_CANDIDATES]
 

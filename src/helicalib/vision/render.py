@@ -111,17 +111,31 @@ class Spot:
         raise ValueError(f"unknown spot shape {self.shape!r}")
 
 
+DOT_ALBEDO = 0.06
+"""The dots' default albedo relative to the white board: black, as T/GRLM's L marks (the 2019 article
+names no colour). Lighter dots measure a spot on a dot better (its light there is restored at
+1/albedo times the frame's noise) but are harder to find on a frame exposed for the spot:
+docs/vision.md, "Mark boards against dot boards"."""
+
+
 @dataclass(frozen=True)
 class Lighting:
     """Scene light: ``ambient`` grey level of the white board at its centre, a linear gradient
     ``gradient`` (fraction per board half-width along u and v), ``background`` grey level off the
-    board, ``mark_albedo`` of the black marks, ``noise_sigma`` grey levels of sensor noise."""
+    board, ``mark_albedo`` of T/GRLM's black L marks, ``dot_albedo`` of a dot board's dots
+    (:data:`DOT_ALBEDO`), ``noise_sigma`` grey levels of sensor noise. Albedos are relative to
+    the white board (1)."""
 
     ambient: float = 150.0
     gradient: tuple[float, float] = (0.15, -0.10)
     background: float = 60.0
     mark_albedo: float = 0.06
     noise_sigma: float = 1.5
+    dot_albedo: float = DOT_ALBEDO
+
+    def albedo_of(self, target: Target) -> float:
+        """The albedo of ``target``'s marks: its dots on a dot board, else the L marks'."""
+        return self.dot_albedo if target.marks is not None and target.marks.kind == "dots" else self.mark_albedo
 
 
 def mark_mask(target: Target, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -195,7 +209,7 @@ def render_frame(target: Target, pose: CameraPose, spots: Sequence[Spot] = (), l
                 light = lighting.ambient * (1.0 + lighting.gradient[0] * u / hw + lighting.gradient[1] * v / hh)
                 for s in spots:
                     light = light + s.irradiance(u, v)
-                albedo = np.where(mark_mask(target, u, v), lighting.mark_albedo, 1.0)
+                albedo = np.where(mark_mask(target, u, v), lighting.albedo_of(target), 1.0)
                 acc += np.where(on_board, albedo * light, lighting.background * (1.0 + 0.1 * (ys0 / height)))
         img[y0:y1, x0:x1] = acc / supersample**2
     if lighting.noise_sigma > 0:
