@@ -48,6 +48,11 @@ MIN_DOTS = 5
 UPRIGHT_DEG = 50.0
 """The board's u axis may turn this far from the image's x axis (and v from image up)."""
 MAX_CANDIDATES = 24
+MIN_CONTRAST = 4.0
+"""Fewest grey levels a dot candidate lies below the white around it (and :data:`CONTRAST_NOISE` times
+the noise of that white ring): a frame exposed for the spot shows the ambient-lit board at some 20-30
+grey levels, so a light-grey dot there is only about 9 levels darker."""
+CONTRAST_NOISE = 4.0
 MIN_DARKNESS = 0.25
 """A dot candidate is at least this much darker than the white around it (``1 - dot / white``; black
 dots 0.94, mid-grey ones 0.5)."""
@@ -98,7 +103,7 @@ def _dot_candidate(gray: np.ndarray, contour: np.ndarray) -> _Dot | None:
     white = (coef[0] + coef[1] * xx + coef[2] * yy).astype(np.float32)
     dark = float(np.median(roi[core]))
     contrast = float(np.median(white[core])) - dark
-    if contrast < 10.0 or contrast < MIN_DARKNESS * float(np.median(white[core])):
+    if contrast < max(MIN_CONTRAST, CONTRAST_NOISE * ring_rms) or contrast < MIN_DARKNESS * float(np.median(white[core])):
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
         darkness = np.where((white > 1.0) & inner.astype(bool), 1.0 - roi / white, 0.0).astype(np.float32)
