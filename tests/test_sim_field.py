@@ -21,6 +21,7 @@ from helicalib.sim.field import (
     _field_data,
     assign_boards,
     board_incidence_deg,
+    board_size_m,
     feasible_all_year,
     generate_field,
     radial_staggered,
@@ -152,3 +153,31 @@ def test_board_incidence_deg():
     inc = board_incidence_deg(np.array([[0.0, 100.0, 8.0], [100.0, 8.0, 8.0], [0.0, -50.0, 8.0]]),
                               [0.0, 8.0, 8.0], [0.0, 1.0, 0.0])
     np.testing.assert_allclose(inc, [0.0, 90.0, 180.0], atol=1e-9)
+
+
+def test_board_size_follows_the_spot_at_the_90th_percentile_distance():
+    """1.6 × (distance · 9.3 mrad + the 4.5 m mirror) at the 90th-percentile distance, rounded up to
+    0.5 m, never under 12 m."""
+    targets = [{"id": "T1", "center_enu_m": [0.0, 0.0, 100.0]}]
+    far = [{"e_m": 0.0, "n_m": 1000.0, "u_m": 100.0, "target": "T1"}] * 10   # 1000 m from the board
+    near = [{"e_m": 0.0, "n_m": 50.0, "u_m": 100.0, "target": "T1"}] * 91
+    assert board_size_m(far, targets) == 22.5                                  # 1.6 · 13.8 = 22.08
+    assert board_size_m(near + far[:9], targets) == 12.0                      # the 90th percentile is near
+    assert board_size_m(near[:80] + far, targets) == 22.5
+
+
+def test_a_large_field_gets_boards_its_far_heliostats_spots_fit(tmp_path):
+    """A field whose far heliostats' spots outgrow 12 m boards is laid again with larger boards, the
+    L marks in the same proportions, the boards as far apart as before plus their growth, and every
+    heliostat still feasible for its board (a smaller field keeps 12 m boards: the tests above)."""
+    data, rows = generate_field(2500, 40.06, 94.43, 1267.0, targets=4, step_days=56.0, step_min=120.0)
+    cfg = write_field(data, rows, tmp_path / "f.yaml")
+    side = cfg.targets[0].size_m[0]
+    assert side > 12.0 and all(t.size_m == (side, side) for t in cfg.targets)
+    assert board_size_m(rows, data["targets"]) <= side                        # the laid field's need is met
+    m = cfg.targets[0].marks
+    assert m.vertices_m[1] == (side / 2 - 0.5, side / 2 - 0.5)
+    assert m.arm_m == pytest.approx(1.4 * side / 12.0, abs=0.01)
+    xs = [t.center_enu_m[0] for t in cfg.targets]
+    assert np.allclose(np.diff(xs), side + 4.0)
+    assert len(cfg.heliostats) == 2500 and _incidence_ok(cfg).all()

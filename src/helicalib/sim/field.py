@@ -29,6 +29,15 @@ from helicalib.sim.evaluate import year_sun_times
 DRIVE_NAME = "tr20"
 MIRROR_M = (4.5, 4.5)
 BOARD_M = 12.0
+"""The boards' side [m] for fields up to about 1500 heliostats; a field whose far heliostats' spots
+need more gets larger boards (:func:`board_size_m`)."""
+SUN_DISC_RAD = 9.3e-3
+"""The sun's angular diameter [rad]: a flat mirror's spot is about ``distance · SUN_DISC_RAD`` plus the mirror."""
+BOARD_OVER_SPOT = 1.6
+"""Board side over the spot at the field's 90th-percentile distance to its board. On 12 m boards a
+simulated 10⁴-heliostat campaign's first visits failed (the spot reaching the rim) for 0.5 % of the
+heliostats whose board was over 1.65 spots wide, 6 % at 1.3–1.65, 18 % at 1.2–1.3 and 32–62 % under
+1.2 (docs/benchmarks.md, "Scale")."""
 PIVOT_HEIGHT_M = 4.3
 STROKE_MARGIN_MM = 25.0
 """Room left at both ends of each stroke range for corrections and between the sampled sun positions."""
@@ -210,21 +219,25 @@ def board_incidence_deg(positions_enu: np.ndarray, center_enu, normal_enu) -> np
 
 # ---------------------------------------------------------------------------- the field
 def _field_data(n: int, latitude_deg: float, longitude_deg: float, altitude_m: float, targets: int,
-                name: str | None) -> dict:
-    """The config mapping (without heliostats): site, tower, boards side by side, cameras, drive, plant."""
+                name: str | None, board_m: float = BOARD_M) -> dict:
+    """The config mapping (without heliostats): site, tower, boards (``board_m`` square) side by side,
+    cameras, drive, plant. The L marks keep the 12 m board's proportions."""
     south = latitude_deg < 0
     sgn = -1.0 if south else 1.0
     tower_h = float(np.clip(40.0 + 2.5 * math.sqrt(n), 60.0, 250.0))
     board_h = round(0.6 * tower_h, 1)
     r0 = _first_ring_m(tower_h)
+    side = float(board_m)
+    scale = side / BOARD_M
+    c = round(side / 2 - 0.5, 2)  # the marks' outer corners 0.5 m inside the rim
     target_list = []
     for k in range(targets):
-        x = (k - (targets - 1) / 2) * (BOARD_M + 4.0)
+        x = (k - (targets - 1) / 2) * (side + 4.0)
         target_list.append({
             "id": f"T{k + 1}", "center_enu_m": [round(x, 2), sgn * 8.0, board_h], "normal_enu": [0.0, sgn, 0.0],
-            "size_m": [BOARD_M, BOARD_M], "standby_offset_m": [0.0, BOARD_M + 3.0],  # above the board: clear of its neighbours
-            "marks": {"vertices_m": [[-5.5, 5.5], [5.5, 5.5], [5.5, -5.5], [-5.5, -5.5]], "arm_m": 1.4,
-                      "thickness_m": 0.35},
+            "size_m": [side, side], "standby_offset_m": [0.0, side + 3.0],  # above the board: clear of its neighbours
+            "marks": {"vertices_m": [[-c, c], [c, c], [c, -c], [-c, -c]], "arm_m": round(1.4 * scale, 2),
+                      "thickness_m": round(0.35 * scale, 2)},
         })
     site = {"name": name or f"Simulated field ({n} heliostats)", "latitude_deg": latitude_deg,
             "longitude_deg": longitude_deg, "altitude_m": altitude_m}
@@ -247,6 +260,17 @@ def _field_data(n: int, latitude_deg: float, longitude_deg: float, altitude_m: f
                           "bin_half_width_ms": 1.0},
         "storage": {"database": "sqlite:///helicalib.db", "images_dir": "images"},
     }
+
+
+def board_size_m(rows: list[dict], targets: list[dict]) -> float:
+    """The board side [m] a laid field needs: :data:`BOARD_OVER_SPOT` times a flat mirror's spot
+    (``distance · SUN_DISC_RAD`` plus the mirror's side) at the 90th-percentile distance of its
+    heliostats to their boards, rounded up to 0.5 m; at least :data:`BOARD_M`."""
+    centre = {t["id"]: np.asarray(t["center_enu_m"], dtype=float) for t in targets}
+    pivots = np.array([[r["e_m"], r["n_m"], r["u_m"]] for r in rows], dtype=float)
+    boards = np.array([centre[r["target"]] for r in rows])
+    spot = float(np.percentile(np.linalg.norm(boards - pivots, axis=1), 90)) * SUN_DISC_RAD + MIRROR_M[0]
+    return max(BOARD_M, math.ceil(2.0 * BOARD_OVER_SPOT * spot) / 2.0)
 
 
 def _first_ring_m(tower_h_m: float) -> float:
@@ -290,7 +314,9 @@ def generate_field(n: int, latitude_deg: float, longitude_deg: float, altitude_m
     are shared out over the boards (:func:`assign_boards`) and checked for their board (strokes all
     year, incidence ≤ :data:`MAX_BOARD_INCIDENCE_DEG`); one that fails is dropped, the next candidate
     takes its place and the boards are shared out again, until all ``n`` pass. Rings are added when
-    too few candidates remain.
+    too few candidates remain. The boards are 12 m square unless the laid field's far heliostats need
+    more (:func:`board_size_m`): then the boards are set that size and the heliostats shared out and
+    checked for them again (at most :data:`BOARD_PASSES` layouts).
 
     ``progress(done, total, candidates)``, if given, is called as the year's checks go: ``done`` of
     ``total`` heliostat checks (one per heliostat and aim, each over the whole year's sun positions),
@@ -311,18 +337,38 @@ def generate_field(n: int, latitude_deg: float, longitude_deg: float, altitude_m
     receiver = np.asarray(data["tower"]["receiver_aim_enu_m"], dtype=float)
     want = int(n)
     checks = _Checks(want, progress)
+    laid = {"cand": np.empty((0, 3)), "rec_ok": np.empty(0, dtype=bool)}  # the receiver's checks, kept across passes
+    for _ in range(BOARD_PASSES):
+        rows = _lay(want, data, laid, r0, spacing, pole, south, receiver, sun, drive, checks)
+        side = board_size_m(rows, data["targets"])
+        if side <= data["targets"][0]["size_m"][0]:
+            break
+        # the far heliostats' spots need larger boards: the same positions, the boards set again
+        data = _field_data(n, latitude_deg, longitude_deg, altitude_m, targets, name, board_m=side)
+    return data, rows
 
-    cand = np.empty((0, 3))
-    rec_ok = np.empty(0, dtype=bool)
-    board_ok = np.empty((0, targets), dtype=np.int8)            # −1 not checked, 0 fails, 1 passes
-    dropped = np.empty(0, dtype=bool)
-    count = int(want * 1.15) + 10
+
+BOARD_PASSES = 3
+"""Layouts of :func:`generate_field` at most: a larger board is wider apart from its neighbours, so
+the heliostats are shared out and checked for their boards again (the receiver's checks are kept)."""
+
+
+def _lay(want: int, data: dict, laid: dict, r0: float, spacing: float, pole: float, south: bool,
+         receiver: np.ndarray, sun: np.ndarray, drive, checks: _Checks) -> list[dict]:
+    """Rows of the first ``want`` positions that pass the receiver's and their board's checks for the
+    boards of ``data``; lays more rings into ``laid`` (positions and receiver verdicts) as needed."""
+    targets = len(data["targets"])
+    cand, rec_ok = laid["cand"], laid["rec_ok"]
+    board_ok = np.full((len(cand), targets), -1, dtype=np.int8)  # −1 not checked, 0 fails, 1 passes
+    dropped = np.zeros(len(cand), dtype=bool)
+    count = max(int(want * 1.15) + 10, len(cand))
     while True:
         if len(cand) < count:                                     # lay rings up to ``count`` candidates
             pts = radial_staggered(count, r0, spacing, pole_azimuth_deg=pole)[len(cand):]
             new = np.column_stack([pts, np.full(len(pts), PIVOT_HEIGHT_M)])
             ok = checks.run(lambda step, new=new: feasible_all_year(new, receiver, sun, drive, progress=step), len(new))
             cand, rec_ok = np.vstack([cand, new]), np.concatenate([rec_ok, ok])
+            laid["cand"], laid["rec_ok"] = cand, rec_ok
             board_ok = np.vstack([board_ok, np.full((len(new), targets), -1, dtype=np.int8)])
             dropped = np.concatenate([dropped, np.zeros(len(new), dtype=bool)])
         avail = np.flatnonzero(rec_ok & ~dropped)
@@ -342,10 +388,9 @@ def generate_field(n: int, latitude_deg: float, longitude_deg: float, altitude_m
         if not bad.any():
             break
         dropped[sel[bad]] = True
-    rows = [{"id": f"H{j + 1:05d}", "e_m": round(float(cand[g, 0]), 2), "n_m": round(float(cand[g, 1]), 2),
+    return [{"id": f"H{j + 1:05d}", "e_m": round(float(cand[g, 0]), 2), "n_m": round(float(cand[g, 1]), 2),
              "u_m": PIVOT_HEIGHT_M, "drive": DRIVE_NAME, "target": data["targets"][board[j]]["id"]}
             for j, g in enumerate(sel)]
-    return data, rows
 
 
 def _board_check(pivots: np.ndarray, target: dict, sun: np.ndarray, drive, checks: _Checks) -> np.ndarray:
