@@ -10,7 +10,9 @@ Method
 1. Dark blobs: adaptive mean threshold at three block sizes (a large dot needs a block wider than
    itself to come out filled), external contours. A candidate is convex (solidity ≥ 0.9), fits its
    ellipse (``cv2.fitEllipse``; the contour's area within 12 % of the ellipse's), lies wholly in the
-   frame and is darker than a ring around it.
+   frame and is darker than a ring around it (by :data:`MIN_CONTRAST` grey levels, :data:`CONTRAST_NOISE`
+   times the ring's noise and :data:`MIN_DARKNESS` of its white, whichever is most). Of one dot's
+   blobs from the three block sizes the one with the flattest ring is kept.
 2. Sub-pixel centre: the white level around the blob is a plane fitted to a ring outside it; the
    darkness ``1 - I / white`` (independent of the albedo contrast and of uneven light) inside the
    grown blob weighs the pixels, and its centroid (``cv2.moments``) is the ellipse's centre.
@@ -103,7 +105,8 @@ def _dot_candidate(gray: np.ndarray, contour: np.ndarray) -> _Dot | None:
     white = (coef[0] + coef[1] * xx + coef[2] * yy).astype(np.float32)
     dark = float(np.median(roi[core]))
     contrast = float(np.median(white[core])) - dark
-    if contrast < max(MIN_CONTRAST, CONTRAST_NOISE * ring_rms) or contrast < MIN_DARKNESS * float(np.median(white[core])):
+    floor = max(MIN_CONTRAST, CONTRAST_NOISE * ring_rms, MIN_DARKNESS * float(np.median(white[core])))
+    if contrast < floor:
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
         darkness = np.where((white > 1.0) & inner.astype(bool), 1.0 - roi / white, 0.0).astype(np.float32)
@@ -137,7 +140,7 @@ def _candidates(gray: np.ndarray) -> list[_Dot]:
                     if np.linalg.norm(d.centre - o.centre) <= 0.25 * min(d.diameter_px, o.diameter_px)]
             if not same:
                 out.append(d)
-            elif all(d.ring_rms < out[i].ring_rms for i in same) and len(same) == 1:
+            elif len(same) == 1 and d.ring_rms < out[same[0]].ring_rms:
                 # the same dot from another block size: keep the blob whose white ring is the flattest (a
                 # light dot near the board's dark rim comes out whole only in a block clear of the rim)
                 out[same[0]] = d

@@ -115,7 +115,7 @@ DOT_ALBEDO = 0.06
 """The dots' default albedo relative to the white board: black, as T/GRLM's L marks (the 2019 article
 names no colour). Lighter dots measure a spot on a dot better (its light there is restored at
 1/albedo times the frame's noise) but are harder to find on a frame exposed for the spot:
-docs/vision.md, "Mark boards against dot boards"."""
+docs/vision.md, "Light-grey dots"."""
 
 
 @dataclass(frozen=True)
