@@ -312,6 +312,7 @@ def test_the_scenario_paints_dot_boards_with_dot_albedo_and_mark_boards_with_mar
         board = SimCamera(SimulatedPlant(cfg, sc, start_s=default_start_s(cfg) + 11 * 3600), cam.id).renderer
         uu, vv = np.meshgrid(board.u_m, board.v_m)
         dark = dark_mask(cfg.target(cam.target), uu, vv)
+
         def values(a):
             return {round(float(x), 4) for x in np.unique(a)}
 
@@ -328,7 +329,7 @@ def test_light_grey_dots_are_found_on_frames_exposed_for_the_spot(cylinder):
     levels and light-grey dots (scenario ``dot_albedo`` 0.585, 0.65 of the white) only about 9 levels
     below it: the finder's contrast floor follows the ring's noise (``CONTRAST_NOISE``), not a fixed
     10 levels, and finds all three boards of the cylinder. The board is fixed less well than with black
-    dots (their contrast is 2.6 times larger), still within 0.25 px of the renderer's centre."""
+    dots (their contrast is about 2.7 times larger), still within 0.25 px of the renderer's centre."""
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
