@@ -181,3 +181,16 @@ def test_a_large_field_gets_boards_its_far_heliostats_spots_fit(tmp_path):
     xs = [t.center_enu_m[0] for t in cfg.targets]
     assert np.allclose(np.diff(xs), side + 4.0)
     assert len(cfg.heliostats) == 2500 and _incidence_ok(cfg).all()
+
+
+def test_the_last_layout_keeps_the_boards_it_was_checked_for(tmp_path, monkeypatch):
+    """With one layout allowed, a field that would want larger boards keeps its 12 m boards: the
+    rows returned were shared out and checked for those boards, never for boards set after them."""
+    import helicalib.sim.field as field
+
+    monkeypatch.setattr(field, "BOARD_PASSES", 1)
+    data, rows = generate_field(2500, 40.06, 94.43, 1267.0, targets=4, step_days=56.0, step_min=120.0)
+    assert all(t["size_m"] == [12.0, 12.0] for t in data["targets"])
+    assert board_size_m(rows, data["targets"]) > 12.0  # it would want more
+    cfg = write_field(data, rows, tmp_path / "f.yaml")
+    assert _incidence_ok(cfg).all()

@@ -376,3 +376,25 @@ def test_the_camera_sensor_fixes_the_board_on_the_mean_of_its_before_frames(cyli
     sensor._forget_marks()  # as after a "reprojection" reading: the next frame alone
     assert float(np.linalg.norm(sensor._marks_for(frames[1], target).center_px - truth)) == pytest.approx(
         float(np.linalg.norm(find_marks(frames[1], target, cam).center_px - truth)))
+
+
+def test_a_mean_that_shows_no_marks_is_not_sought_again_on_every_visit(monkeypatch):
+    """When the marks are not found on the mean of the first ``MARKS_MEAN_FRAMES`` before frames, the
+    sensor keeps the first frame's marks and does not look again at every visit (a find costs 10-50 ms)
+    until they expire after ``MARKS_REUSE_VISITS`` visits."""
+    from types import SimpleNamespace
+
+    import helicalib.campaign.sensor as sensor_mod
+
+    calls = []
+
+    def fake_find(image, target, camera):
+        calls.append(float(image.mean()))
+        return SimpleNamespace(found=len(calls) == 1)  # only the first frame's marks are found
+
+    monkeypatch.setattr(sensor_mod, "find_marks", fake_find)
+    sensor = sensor_mod.CameraSensor(camera=None, camera_config=None)
+    frames = [np.full((4, 4), k, dtype=np.uint8) for k in range(20)]
+    marks = [sensor._marks_for(f, target=None) for f in frames]
+    assert len(calls) == 2 and all(m is marks[0] and m.found for m in marks)
+    assert calls[1] == pytest.approx(np.mean(range(sensor_mod.MARKS_MEAN_FRAMES)), abs=0.5)  # the mean of 8

@@ -240,16 +240,12 @@ def _approach_after(before: np.ndarray | None, held_mm: np.ndarray | None, targe
 
 
 def tracking_direction(model: HeliostatModel, sun, aim_enu: np.ndarray, t_s: float) -> np.ndarray:
-    """Direction (2,) of ±1 in which each actuator moves while tracking ``aim_enu`` at ``t_s``
-    (the model's strokes now and :data:`APPROACH_LEAD_S` later; +1 where it stands still or is
-    unknown). ``sun(t_s)`` returns the sun vector first."""
-    if len(model) == 1:  # both instants in one solve (row-wise, the same values as two)
-        both = model.subset([0, 0]).strokes_for_aim(np.stack([sun(t_s)[0], sun(t_s + APPROACH_LEAD_S)[0]]),
-                                                 aim_enu).strokes_mm
-        return tracking_approach(both[0], both[1])
-    s0 = model.strokes_for_aim(sun(t_s)[0], aim_enu).strokes_mm[0]
-    s1 = model.strokes_for_aim(sun(t_s + APPROACH_LEAD_S)[0], aim_enu).strokes_mm[0]
-    return tracking_approach(s0, s1)
+    """Direction (2,) of ±1 in which each actuator of the one heliostat of ``model`` moves while
+    tracking ``aim_enu`` at ``t_s`` (the model's strokes now and :data:`APPROACH_LEAD_S` later, in
+    one solve; +1 where it stands still or is unknown). ``sun(t_s)`` returns the sun vector first."""
+    both = model.subset([0, 0]).strokes_for_aim(np.stack([sun(t_s)[0], sun(t_s + APPROACH_LEAD_S)[0]]),
+                                                aim_enu).strokes_mm
+    return tracking_approach(both[0], both[1])
 
 
 def approach_and_hold(ctx: VisitContext, strokes_mm: np.ndarray, aim_enu: np.ndarray

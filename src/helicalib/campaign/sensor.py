@@ -118,7 +118,7 @@ class CameraSensor:
         self.fe_wm2_per_grey, self.atmosphere = fe_wm2_per_grey, atmosphere
         self._marks = None
         self._marks_uses = 0
-        self._marks_frames = 0  # before frames averaged for the marks in use
+        self._marks_frames = 0  # before frames the marks were last sought on
         self._recent: deque = deque(maxlen=MARKS_MEAN_FRAMES)  # the last before images
 
     # ------------------------------------------------------------------ frames
@@ -140,7 +140,7 @@ class CameraSensor:
         """The board's marks for this before ``image``: found on the mean of the last before frames
         (:data:`MARKS_MEAN_FRAMES`) when there are none yet, when they have served
         :data:`MARKS_REUSE_VISITS` visits, and once more when the frames to average first reach
-        :data:`MARKS_MEAN_FRAMES` (kept as they were if that finding fails)."""
+        :data:`MARKS_MEAN_FRAMES` (kept as they were, until they expire, if that finding fails)."""
         if self._recent and self._recent[-1].shape != image.shape:
             self._recent.clear()
         self._recent.append(image)
@@ -148,8 +148,9 @@ class CameraSensor:
         more = len(self._recent) == MARKS_MEAN_FRAMES and self._marks_frames < MARKS_MEAN_FRAMES
         if fresh or more:
             marks = find_marks(self._mean_before(), target, self.camera_config)
+            self._marks_frames = len(self._recent)  # sought on this many: a failed mean is not sought again
             if marks.found:
-                self._marks, self._marks_uses, self._marks_frames = marks, 0, len(self._recent)
+                self._marks, self._marks_uses = marks, 0
             elif fresh:
                 self._forget_marks()
                 return marks

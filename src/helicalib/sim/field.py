@@ -338,19 +338,22 @@ def generate_field(n: int, latitude_deg: float, longitude_deg: float, altitude_m
     want = int(n)
     checks = _Checks(want, progress)
     laid = {"cand": np.empty((0, 3)), "rec_ok": np.empty(0, dtype=bool)}  # the receiver's checks, kept across passes
-    for _ in range(BOARD_PASSES):
+    layout = 1
+    while True:
         rows = _lay(want, data, laid, r0, spacing, pole, south, receiver, sun, drive, checks)
         side = board_size_m(rows, data["targets"])
-        if side <= data["targets"][0]["size_m"][0]:
-            break
+        if side <= data["targets"][0]["size_m"][0] or layout >= BOARD_PASSES:
+            return data, rows  # with the boards the rows were checked for
         # the far heliostats' spots need larger boards: the same positions, the boards set again
         data = _field_data(n, latitude_deg, longitude_deg, altitude_m, targets, name, board_m=side)
-    return data, rows
+        layout += 1
 
 
 BOARD_PASSES = 3
 """Layouts of :func:`generate_field` at most: a larger board is wider apart from its neighbours, so
-the heliostats are shared out and checked for their boards again (the receiver's checks are kept)."""
+the heliostats are shared out and checked for their boards again (the receiver's checks are kept).
+The last layout is kept with the boards it was checked for, even if its far heliostats would want
+larger ones."""
 
 
 def _lay(want: int, data: dict, laid: dict, r0: float, spacing: float, pole: float, south: bool,
