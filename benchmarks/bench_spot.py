@@ -7,7 +7,7 @@ Accuracy: a suite of rendered frames of the demo board (the demo camera's steep 
 of random size, shape, angle and position; the error of each method's centre against the
 spot's true centre, RMS in mm on the board and in frame pixels; also the marks' vertex error.
 The same spots on four boards: the demo board seen by the demo camera and the east board of
-``simulations/fields/dots_cylinder.yaml`` seen obliquely (36° off its normal) by its camera, each
+``simulations/fields/dots_cylinder.yaml`` seen obliquely (40° off its normal) by its camera, each
 with the four L marks and with nine dots (light grey, the renderer's default ``DOT_ALBEDO``); on dot
 boards split into spots that reach a dot and spots that do not. Then the dot boards again with dots
 of each albedo of ``DOT_ALBEDOS`` (black to light grey) and with 4 after frames.
@@ -23,7 +23,11 @@ as the campaign does) on one core at 1280×1024 and 2448×2048, against the floo
 black, 6 %, mid-grey, 50 %, and light grey, 65 %), both views, on the same spots, and compares them
 spot by spot (the ratio of RMS errors and the mean difference of squared errors with its standard
 error, which tells a real difference from the sampling noise); JSON
-``benchmarks/out/bench_spot_boards.json`` (or ``--out``).
+``benchmarks/out/bench_spot_boards.json`` (or ``--out``). ``--exposure spot`` renders them as the
+simulated plant's cameras do, exposed for the spot (the white board at 25 grey levels, spots of
+60-180), and finds the marks on the mean of 8 before frames, as the campaign's camera sensor does:
+
+    .venv/bin/python benchmarks/bench_spot.py --boards-only --frames 1000 --exposure spot
 """
 
 from __future__ import annotations
@@ -31,11 +35,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from helicalib.campaign.sensor import MARKS_MEAN_FRAMES
 from helicalib.vision.marks import board_to_image, find_marks
 from helicalib.config import load_field_config
 from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_dot_target, demo_target, look_at_pose,
@@ -47,7 +53,7 @@ CYLINDER = Path(__file__).resolve().parents[1] / "simulations" / "fields" / "dot
 
 
 def _side_board():
-    """The east board of ``simulations/fields/dots_cylinder.yaml`` and its camera: 36° off the normal."""
+    """The east board of ``simulations/fields/dots_cylinder.yaml`` and its camera: 40° off the normal."""
     cfg = load_field_config(CYLINDER)
     cam = next(c for c in cfg.cameras if c.target == "TE")
     return cfg.target("TE"), cam.position_enu_m
@@ -65,6 +71,24 @@ def boards() -> dict:
             "dots, side of the cylinder": (side, side_cam)}
 
 
+BOARD_EXPOSED_PEAK = (35.0, 75.0)
+"""Spot peaks [grey levels] on the bright board (150 grey levels, :class:`Lighting`'s default)."""
+
+SPOT_EXPOSED = Lighting(ambient=25.0, background=10.0)
+"""The simulated plant's exposure (``sim.scenario.CameraSpec`` defaults at DNI 800): the camera is
+set for the spot, so the ambient-lit white board shows at about 25 grey levels and the sky around
+it at 10; the noise is the same 1.5 grey levels."""
+
+SPOT_EXPOSED_PEAK = (60.0, 180.0)
+"""Spot peaks [grey levels] at that exposure (a 20 m² mirror at normal incidence peaks near 160 on
+the white board; far and oblique mirrors lower)."""
+
+EXPOSURES = {"board": (Lighting(), BOARD_EXPOSED_PEAK, 1),
+             "spot": (SPOT_EXPOSED, SPOT_EXPOSED_PEAK, MARKS_MEAN_FRAMES)}
+"""``--exposure``: (lighting, spot peaks, before frames the marks are found on). On spot-exposed
+frames the marks are found on the mean of 8 before frames, as the camera sensor does
+(:data:`helicalib.campaign.sensor.MARKS_MEAN_FRAMES`)."""
+
 DOT_ALBEDOS = (0.06, 0.15, 0.25, 0.35, 0.5, 0.65)
 """Albedos of the dots swept (the first is the black of the L marks, the last the default light grey;
 the 2019 article names no colour)."""
@@ -80,12 +104,19 @@ def _touches_a_dot(target, spot: Spot) -> bool:
 
 
 def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAMERA_ENU_M,
-             lighting: Lighting = Lighting(), after_frames: int = 1) -> dict:
+             lighting: Lighting = Lighting(), after_frames: int = 1, before_frames: int = 1,
+             peak: tuple[float, float] = BOARD_EXPOSED_PEAK) -> dict:
+    """Spots of random shape, size, angle, position and ``peak`` grey levels (uniform in the range)
+    on ``target`` seen from ``camera_enu_m``; the marks are found on the mean of ``before_frames``
+    before frames (in floating point, as the campaign's camera sensor does) and reused for every spot."""
     target = target or demo_target()
     pose = look_at_pose(camera_enu_m, target, 5200, (1280, 1024))
     rng = np.random.default_rng(seed)
-    before = render_frame(target, pose, (), lighting, rng=int(rng.integers(1 << 30)))
-    marks = find_marks(before, target)
+    seed_before = int(rng.integers(1 << 30))
+    befores = [render_frame(target, pose, (), lighting, rng=seed_before + 7919 * k) for k in range(before_frames)]
+    before = befores[0]
+    mean_before = np.mean(np.stack(befores).astype(np.float32), axis=0)
+    marks = find_marks(mean_before if before_frames > 1 else before, target)
     if target.marks.kind == "dots":
         truth_v = project_board_points(pose, target, target.marks.dots_m()[[0, 2, 8, 6]])
     else:
@@ -97,7 +128,7 @@ def accuracy(n_frames: int, seed: int = 2024, target=None, camera_enu_m=DEMO_CAM
         shape = str(rng.choice(["gaussian", "flat"]))
         size = tuple(rng.uniform(0.5, 1.6, 2))
         centre = tuple(rng.uniform(-3.0, 3.0, 2))
-        spot = Spot(centre, size, peak=float(rng.uniform(35, 75)), shape=shape, angle_deg=float(rng.uniform(0, 180)))
+        spot = Spot(centre, size, peak=float(rng.uniform(*peak)), shape=shape, angle_deg=float(rng.uniform(0, 180)))
         seed_after = int(rng.integers(1 << 30))
         afters = [render_frame(target, pose, [spot], lighting, rng=seed_after + 7919 * k) for k in range(after_frames)]
         true_px = project_board_points(pose, target, np.array([centre]))[0]
@@ -175,23 +206,35 @@ def paired(marks: dict, dots: dict) -> dict:
             "mean_sq_diff_mm2": float(d.mean()), "mean_sq_diff_se_mm2": float(d.std(ddof=1) / np.sqrt(ok.sum()))}
 
 
-def boards_only(n: int, albedos=(0.06, 0.5, 0.65), path: Path | None = None) -> int:
+VIEWS = ("demo view", "side of the cylinder")
+
+
+def boards_only(n: int, albedos=(0.06, 0.5, 0.65), path: Path | None = None, exposure: str = "board",
+                views=VIEWS) -> int:
     """``--boards-only``: marks against dots of each albedo (default black, 6 %, mid-grey, 50 %, and light grey, 65 %)
-    on the same ``n`` spots, in both views, paired spot by spot; writes ``path`` (default
-    ``benchmarks/out/bench_spot_boards.json``)."""
+    on the same ``n`` spots, in both views, paired spot by spot, at ``exposure`` (:data:`EXPOSURES`);
+    writes ``path`` (default ``benchmarks/out/bench_spot_boards.json``)."""
+    lighting, peak, n_before = EXPOSURES[exposure]
     out, rows = {}, []
-    for view in ("demo view", "side of the cylinder"):
+    for view in views:
         marks_t, cam = boards()[f"marks, {view}"]
         dots_t, _ = boards()[f"dots, {view}"]
-        print(f"rendering {n} frames: marks, {view} ...", flush=True)
-        m = accuracy(n, target=marks_t, camera_enu_m=cam)["methods"]["grlm-centroid"]
+        print(f"rendering {n} frames: marks, {view}, {exposure}-exposed ...", flush=True)
+        mc = accuracy(n, target=marks_t, camera_enu_m=cam, lighting=lighting, before_frames=n_before, peak=peak)
+        m = mc["methods"]["grlm-centroid"]
         for albedo in albedos:
-            print(f"rendering {n} frames: dots ({albedo:g}), {view} ...", flush=True)
-            d = accuracy(n, target=dots_t, camera_enu_m=cam, lighting=Lighting(dot_albedo=albedo))["methods"]["grlm-centroid"]
+            print(f"rendering {n} frames: dots ({albedo:g}), {view}, {exposure}-exposed ...", flush=True)
+            dc = accuracy(n, target=dots_t, camera_enu_m=cam, lighting=replace(lighting, dot_albedo=albedo),
+                          before_frames=n_before, peak=peak)
+            d = dc["methods"]["grlm-centroid"]
             row = dict(paired(m, d), view=view, dot_albedo=albedo, on_dot_rms_mm=d["on_dot_rms_mm"],
-                       off_dots_rms_mm=d["off_dots_rms_mm"], on_dot_frames=d["on_dot_frames"])
+                       off_dots_rms_mm=d["off_dots_rms_mm"], on_dot_frames=d["on_dot_frames"],
+                       marks_invalid=m["invalid"], dots_invalid=d["invalid"],
+                       marks_centre_error_px=mc["marks_centre_error_px"],
+                       dots_centre_error_px=dc["marks_centre_error_px"])
             rows.append(row)
-    out = {"frames": n, "method": "grlm-centroid", "paired": rows}
+    out = {"frames": n, "method": "grlm-centroid", "exposure": exposure, "before_frames": n_before,
+           "ambient_grey": lighting.ambient, "spot_peak_grey": list(peak), "paired": rows}
     path = Path(path) if path else OUT.with_name("bench_spot_boards.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=2))
@@ -200,7 +243,9 @@ def boards_only(n: int, albedos=(0.06, 0.5, 0.65), path: Path | None = None) -> 
         print(f"  {r['view']:<22} dots {r['dot_albedo']:4.2f}: {r['dots_rms_mm']:5.2f} mm against marks "
               f"{r['marks_rms_mm']:5.2f} mm (ratio {r['ratio']:.3f}); mean squared difference "
               f"{r['mean_sq_diff_mm2']:.2f} ± {r['mean_sq_diff_se_mm2']:.2f} mm²; reaching a dot "
-              f"{r['on_dot_rms_mm']:.2f} mm ({r['on_dot_frames']}), off the dots {r['off_dots_rms_mm']:.2f} mm")
+              f"{r['on_dot_rms_mm']:.2f} mm ({r['on_dot_frames']}), off the dots {r['off_dots_rms_mm']:.2f} mm; "
+              f"board centre {r['marks_centre_error_px']:.3f} / {r['dots_centre_error_px']:.3f} px; "
+              f"invalid {r['marks_invalid']} / {r['dots_invalid']}")
     print(f"wrote {path}")
     return 0
 
@@ -213,6 +258,13 @@ def main() -> int:
                     help="only the mark-against-dot boards (dots of each --albedos): no demo suite, sweep or throughput")
     ap.add_argument("--albedos", default="0.06,0.5,0.65",
                     help="with --boards-only: the dots' albedos, comma-separated (default %(default)s)")
+    ap.add_argument("--exposure", choices=sorted(EXPOSURES), default="board",
+                    help="with --boards-only: 'board' (white board at 150 grey levels, spots 35-75, marks on one "
+                         "before frame) or 'spot' (the simulated plant's: board at 25, spots 60-180, marks on the "
+                         "mean of 8 before frames) (default %(default)s)")
+    ap.add_argument("--views", default="demo,side",
+                    help="with --boards-only: 'demo' (the demo view), 'side' (the side of the cylinder) or both "
+                         "(default %(default)s)")
     ap.add_argument("--out", default=None, help="with --boards-only: the JSON to write "
                                                 "(default benchmarks/out/bench_spot_boards.json)")
     args = ap.parse_args()
@@ -220,7 +272,10 @@ def main() -> int:
     n, reps = (12, 10) if args.quick else (40, 30)
     n = args.frames or n
     if args.boards_only:
-        return boards_only(n, tuple(float(a) for a in args.albedos.split(",")), args.out)
+        views = tuple(v for v in VIEWS if v.split()[0] in args.views.split(","))
+        if not views:
+            ap.error(f"--views: expected demo, side or demo,side, got {args.views!r}")
+        return boards_only(n, tuple(float(a) for a in args.albedos.split(",")), args.out, args.exposure, views)
     acc = accuracy(n)
     cases = {}
     for name, (target, cam) in boards().items():

@@ -303,6 +303,8 @@ def test_shared_targets_lend_boards_that_face_the_heliostat_and_have_a_camera(cf
     assert policy.shared_targets(cfg, t2, ["T2"])["T1"] == {}  # no camera on T1: not lent
     # T1 turned to face away from the field: none of the field may borrow it
     demo_data["targets"][0]["normal_enu"] = [0.0, -0.81915, -0.57358]
+    # turned round, the board's u axis points the other way: its standby point stays east, off board T2
+    demo_data["targets"][0]["standby_offset_m"] = [15.0, 0.0]
     away = load_field_config(write_field(demo_data))
     assert policy.shared_targets(away, t2, ["T1", "T2"])["T1"] == {}
 

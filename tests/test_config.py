@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 
 from helicalib.config import load_field_config
 from helicalib.errors import ConfigError
+
+from conftest import ROOT
 
 
 def _problems(path) -> list[str]:
@@ -162,3 +165,59 @@ def test_target_frame_is_computed_once_per_normal_and_read_only(demo_field_path)
     flat = cfg.targets[0].model_copy(update={"normal_enu": (0.0, 0.0, 1.0)})
     np.testing.assert_array_equal(flat.frame_enu[0], [1.0, 0.0, 0.0])  # a horizontal board: u east
     assert cfg.targets[0].frame_enu is not flat.frame_enu
+
+
+CYLINDER = ROOT / "simulations" / "fields" / "dots_cylinder.yaml"
+
+
+def test_a_standby_point_whose_beams_land_on_another_board_is_refused(write_field):
+    """The centre board's standby point 15 m to its east (toward the east board) puts its heliostats'
+    waiting beams on the east board; the shipped file keeps it 15 m below the board."""
+    data = yaml.safe_load(CYLINDER.read_text())
+    load_field_config(write_field(data))  # the shipped layout is valid
+    data["targets"][1]["standby_offset_m"] = [-15.0, 0.0]
+    with pytest.raises(ConfigError) as exc:
+        load_field_config(write_field(data))
+    msg = str(exc.value)
+    assert "targets[1].standby_offset_m" in msg and "'TN'" in msg and "board of target 'TE'" in msg, msg
+
+
+def test_a_board_in_front_of_another_is_refused_and_boards_meeting_edge_to_edge_are_not(write_field):
+    """A board moved between the field and the centre board takes its heliostats' beams; two boards in
+    one plane, one above the other and meeting at an edge (the Jülich tower's upper and lower targets),
+    take none of each other's."""
+    data = yaml.safe_load(CYLINDER.read_text())
+    front = dict(data["targets"][0], center_enu_m=[0.0, 24.0, 95.0], normal_enu=data["targets"][1]["normal_enu"])
+    data["targets"][0] = front
+    with pytest.raises(ConfigError) as exc:
+        load_field_config(write_field(data))
+    assert "targets[1].center_enu_m" in str(exc.value) and "first" in str(exc.value), str(exc.value)
+    data = yaml.safe_load(CYLINDER.read_text())
+    tn = data["targets"][1]
+    v = np.cross(tn["normal_enu"], np.cross([0.0, 0.0, 1.0], tn["normal_enu"]))
+    v = v / np.linalg.norm(v)  # up the board
+    above = dict(tn, id="TU", center_enu_m=(np.asarray(tn["center_enu_m"]) + 12.0 * v).round(6).tolist(),
+                 standby_offset_m=[0.0, 15.0])
+    data["targets"] = [data["targets"][0], tn, above, data["targets"][2]]
+    data["cameras"].append(dict(data["cameras"][1], id="CU", target="TU"))
+    data["heliostats"][0] = dict(data["heliostats"][0], target="TU")
+    load_field_config(write_field(data))
+
+
+def test_boards_without_standby_points_get_one_that_keeps_beams_off_the_other_boards(demo_data, write_field):
+    """The demo's two boards stand side by side; without its stated standby point, T2's default one
+    (beside it, toward T1) puts its waiting beams on T1 and the file is refused. ``clear_standby_points``
+    (used by import-paint: PAINT has no standby points) puts it on the first side that clears."""
+    from helicalib.config import clear_standby_points
+
+    del demo_data["targets"][1]["standby_offset_m"]
+    with pytest.raises(ConfigError) as exc:
+        load_field_config(write_field(demo_data))
+    assert "targets[1].standby_offset_m" in str(exc.value)
+    cleared = clear_standby_points(demo_data)
+    cfg = load_field_config(write_field(cleared, "cleared.yaml"))
+    w = cfg.target("T2").size_m[0]
+    default = [-(w / 2 + max(w / 2, 6.0)), 0.0]
+    assert list(cfg.target("T2").standby_offset_m) not in ([], default)  # another side than the refused one
+    assert cleared["targets"][0]["standby_offset_m"] == demo_data["targets"][0]["standby_offset_m"]  # stated: kept
+    assert "standby_offset_m" not in demo_data["targets"][1]  # the input is not changed

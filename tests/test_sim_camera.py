@@ -107,3 +107,28 @@ def test_dark_at_night(cfg):
     p = SimulatedPlant(cfg, parse_scenario(QUIET), start_s=night)
     img, _ = SimCamera(p, "C2").render()
     assert img.max() == 0
+
+
+def test_a_board_stops_the_beams_that_meet_it_before_another_board():
+    """Boards are opaque: a beam aimed at the centre board of the cylinder is drawn on a board moved
+    into its path (between the field and the centre board) and not on the centre board; a board behind
+    the centre board, or beside the beams, stops nothing. The truth is the ray's own geometry: the
+    distance along each beam to each board's plane."""
+    from helicalib.sim.camera import stopped_before
+
+    from conftest import ROOT
+
+    cfg = load_field_config(ROOT / "simulations" / "fields" / "dots_cylinder.yaml")
+    tn = cfg.target("TN")
+    helios = [h for h in cfg.heliostats if h.target == "TN"]
+    origin = np.array([h.position_enu_m for h in helios], dtype=float)
+    direction = np.asarray(tn.center_enu_m) - origin
+    direction /= np.linalg.norm(direction, axis=1)[:, None]
+    w = np.asarray(tn.normal_enu)
+    front = tn.model_copy(update={"id": "F", "center_enu_m": tuple(np.asarray(tn.center_enu_m) + 10.0 * w)})
+    behind = tn.model_copy(update={"id": "B", "center_enu_m": tuple(np.asarray(tn.center_enu_m) - 10.0 * w)})
+    assert stopped_before(tn, (front,), origin, direction).all()
+    assert not stopped_before(tn, (behind,), origin, direction).any()
+    assert not stopped_before(tn, tuple(t for t in cfg.targets if t.id != "TN"), origin, direction).any()
+    # and the front board itself is not stopped by the centre board behind it
+    assert not stopped_before(front, (tn,), origin, direction).any()

@@ -15,8 +15,8 @@ import yaml
 from helicalib.config import ConfigError, DotMarks, load_field_config, parse_field_config
 from helicalib.vision.frames import read_frame, write_png
 from helicalib.vision.marks import _apply_h, find_marks, image_to_board
-from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_dot_target, demo_target, look_at_pose,
-                                     project_board_points, render_frame)
+from helicalib.vision.render import (DEMO_CAMERA_ENU_M, DOT_ALBEDO, Lighting, Spot, demo_dot_target, demo_target,
+                                     look_at_pose, project_board_points, render_frame)
 from helicalib.vision.spot import measure_spot
 
 from conftest import ROOT
@@ -25,12 +25,16 @@ TARGET = demo_dot_target()
 DOTS_M = TARGET.marks.dots_m()
 CYLINDER = ROOT / "simulations" / "fields" / "dots_cylinder.yaml"
 
+BLACK = 0.06
+"""Black dots (as T/GRLM's L marks), the hardest paint for a spot on a dot; the default is light grey
+(``DOT_ALBEDO``)."""
+
 SCENES = {
     # the demo camera: ~70 m in front of the 12 m board at 95 m, a steep upward view
-    "frontal": dict(cam=DEMO_CAMERA_ENU_M, fx=5200, roll=0.0, light=Lighting()),
+    "frontal": dict(cam=DEMO_CAMERA_ENU_M, fx=5200, roll=0.0, light=Lighting(dot_albedo=BLACK)),
     # from the side (about 50° off the normal), rolled, strong light gradient, more noise
     "oblique": dict(cam=(60.0, 60.0, 20.0), fx=4200, roll=12.0,
-                    light=Lighting(ambient=120, gradient=(0.35, -0.3), noise_sigma=3.0)),
+                    light=Lighting(ambient=120, gradient=(0.35, -0.3), noise_sigma=3.0, dot_albedo=BLACK)),
 }
 
 
@@ -122,34 +126,59 @@ def test_spot_centre_on_a_dot_board_off_and_on_the_reference_dot(centre, tol_mm)
     its light, dimmed by the dot, is restored from the before frame (without that the centre is
     pushed 0.1-0.7 m off the dot)."""
     pose = _pose("frontal")
-    before = render_frame(TARGET, pose, rng=11)
+    black = Lighting(dot_albedo=BLACK)
+    before = render_frame(TARGET, pose, lighting=black, rng=11)
     errs = []
     for seed in range(3):
-        after = render_frame(TARGET, pose, [Spot(centre, (0.8, 0.7), peak=60, angle_deg=30)], rng=20 + seed)
+        after = render_frame(TARGET, pose, [Spot(centre, (0.8, 0.7), peak=60, angle_deg=30)], lighting=black,
+                             rng=20 + seed)
         r = measure_spot(before, [after], TARGET)
         assert r.valid, r.message
         errs.append(1000 * np.linalg.norm(r.offset_m - centre))
     assert max(errs) < tol_mm, errs
 
 
-def test_spots_on_the_reference_dot_are_centred_within_10_mm_rms():
-    """Twelve spots (Gaussian and flat, 0.6-1.2 m, 50-75 grey levels) centred within 0.6 m of the
-    reference dot, each with its own before frame: the renderer places them exactly. On a 6 % dot
-    the restored light carries the after frame's noise (1.5 grey levels) times 17, so the centre of
-    one spot scatters by several mm; the set's RMS is held to 11 mm (0.09 mrad at 120 m). Without the
-    before frame's model on the dot and the smoother detection estimate the same set is 17 mm RMS."""
-    pose = look_at_pose(DEMO_CAMERA_ENU_M, TARGET, 5200, (1280, 1024))
-    rng = np.random.default_rng(1)
+def _reference_dot_errors_mm(target, lighting, n=12, seed=1):
+    """Centre errors [mm] of ``n`` spots (Gaussian and flat, 0.6-1.2 m, 50-75 grey levels) centred
+    within 0.6 m of the board centre (a dot board's reference dot) in the demo view, each with its own
+    before frame; the renderer places them exactly."""
+    pose = look_at_pose(DEMO_CAMERA_ENU_M, target, 5200, (1280, 1024))
+    rng = np.random.default_rng(seed)
     errs = []
-    for _ in range(12):
-        before = render_frame(TARGET, pose, rng=int(rng.integers(1 << 30)))
+    for _ in range(n):
+        before = render_frame(target, pose, lighting=lighting, rng=int(rng.integers(1 << 30)))
         centre = tuple(rng.uniform(-0.6, 0.6, 2))
         spot = Spot(centre, tuple(rng.uniform(0.6, 1.2, 2)), peak=float(rng.uniform(50, 75)),
                     shape=str(rng.choice(["gaussian", "flat"])), angle_deg=float(rng.uniform(0, 180)))
-        r = measure_spot(before, [render_frame(TARGET, pose, [spot], rng=int(rng.integers(1 << 30)))], TARGET)
+        after = render_frame(target, pose, [spot], lighting=lighting, rng=int(rng.integers(1 << 30)))
+        r = measure_spot(before, [after], target)
         assert r.valid, r.message
         errs.append(1000 * np.linalg.norm(r.offset_m - centre))
+    return np.array(errs)
+
+
+def test_spots_on_the_reference_dot_are_centred_within_10_mm_rms():
+    """Twelve spots near the reference dot on black dots. On a 6 % dot the restored light carries the
+    after frame's noise (1.5 grey levels) times 17, so the centre of one spot scatters by several mm;
+    the set's RMS is held to 11 mm (0.09 mrad at 120 m). Without the before frame's model on the dot
+    and the smoother detection estimate the same set is 17 mm RMS."""
+    errs = _reference_dot_errors_mm(TARGET, Lighting(dot_albedo=BLACK))
     assert np.sqrt(np.mean(np.square(errs))) < 11.0, np.round(errs, 1)
+
+
+def test_light_grey_dots_measure_spots_on_the_reference_dot_as_well_as_a_mark_board():
+    """The same twelve spots near the reference dot (the usual aim) on the board with light-grey dots
+    (the default paint, ``DOT_ALBEDO``), with black dots and with T/GRLM's L marks instead: light-grey
+    dots are no worse than the mark board (the issue's goal), black dots lose most of the spot's
+    light there and are more than twice as far off."""
+    def rms(errs):
+        return float(np.sqrt(np.mean(np.square(errs))))
+
+    assert Lighting().dot_albedo == DOT_ALBEDO > 0.5
+    grey = rms(_reference_dot_errors_mm(TARGET, Lighting()))
+    black = rms(_reference_dot_errors_mm(TARGET, Lighting(dot_albedo=BLACK)))
+    marks = rms(_reference_dot_errors_mm(demo_target(), Lighting()))
+    assert grey <= marks and black > 2 * marks, (grey, black, marks)
 
 
 def test_dot_fill_leaves_a_spot_off_the_dots_and_mark_boards_unchanged(monkeypatch):
@@ -237,8 +266,13 @@ def test_simulated_cameras_render_dot_boards_the_vision_finds(cylinder):
     from helicalib.simulation import default_start_s
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
+    from helicalib.sim.scenario import Scenario
 
-    plant = SimulatedPlant(cylinder, start_s=default_start_s(cylinder) + 11 * 3600)
+    # black dots, as T/GRLM's marks: the tightest check of the renderer's geometry (light-grey dots,
+    # the default, on one spot-exposed frame: test_light_grey_dots_are_found_on_frames_exposed_for_the_spot)
+    sc = Scenario()
+    sc = sc.model_copy(update={"camera": sc.camera.model_copy(update={"dot_albedo": 0.04})})
+    plant = SimulatedPlant(cylinder, sc, start_s=default_start_s(cylinder) + 11 * 3600)
     normals, obliquity = [], {}
     for cam in cylinder.cameras:
         target = cylinder.target(cam.target)
@@ -278,14 +312,14 @@ def test_short_simulated_campaign_on_dot_boards_gives_valid_observations(cylinde
 
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_light_grey_dots_are_found_whole_and_the_homography_matches(tmp_path, name):
-    """Dots of albedo 0.65 (light grey; ``Lighting.dot_albedo``) are found, all nine used: near the
+    """Dots of albedo 0.65 (light grey, the default ``DOT_ALBEDO``) are found, all nine used: near the
     board's dark rim a light dot comes out whole only in an adaptive block clear of the rim, and the
     finder keeps the blob whose white ring is the flattest (with the first blob found, the top-right dot
     of the frontal scene sat 1.8 px off and was dropped)."""
     import dataclasses
 
     pose = _pose(name)
-    light = dataclasses.replace(SCENES[name]["light"], dot_albedo=0.65)
+    light = dataclasses.replace(SCENES[name]["light"], dot_albedo=DOT_ALBEDO)
     gray = _roundtrip(tmp_path, render_frame(TARGET, pose, lighting=light, rng=7))
     r = find_marks(gray, TARGET)
     assert r.found and r.kind == "dots", r.message
@@ -298,7 +332,7 @@ def test_light_grey_dots_are_found_whole_and_the_homography_matches(tmp_path, na
 
 def test_the_scenario_paints_dot_boards_with_dot_albedo_and_mark_boards_with_mark_albedo(cylinder, demo_field_path):
     """``camera.dot_albedo`` of the scenario is the dots' paint in the simulated camera's board
-    raster (black by default, as the L marks), and leaves mark boards to ``mark_albedo``."""
+    raster (light grey by default, 0.65 of the white board), and leaves mark boards to ``mark_albedo``."""
     from helicalib.sim.boards import dark_mask
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
@@ -318,7 +352,8 @@ def test_the_scenario_paints_dot_boards_with_dot_albedo_and_mark_boards_with_mar
 
         return values(board.albedo[dark]), values(board.albedo[~dark])
 
-    assert painted(cylinder) == ({0.04}, {0.9})
+    assert painted(cylinder) == ({0.585}, {0.9})
+    assert painted(cylinder, dot_albedo=0.04) == ({0.04}, {0.9})
     assert painted(cylinder, dot_albedo=0.45, mark_albedo=0.1) == ({0.45}, {0.9})
     demo = load_field_config(demo_field_path)
     assert painted(demo, dot_albedo=0.45, mark_albedo=0.1) == ({0.1}, {0.9})
@@ -326,7 +361,7 @@ def test_the_scenario_paints_dot_boards_with_dot_albedo_and_mark_boards_with_mar
 
 def test_light_grey_dots_are_found_on_frames_exposed_for_the_spot(cylinder):
     """The simulated cameras expose for the spot, so the ambient-lit board shows at some 25 grey
-    levels and light-grey dots (scenario ``dot_albedo`` 0.585, 0.65 of the white) only about 9 levels
+    levels and light-grey dots (the scenario's default ``dot_albedo`` 0.585, 0.65 of the white) only about 9 levels
     below it: the finder's contrast floor follows the ring's noise (``CONTRAST_NOISE``), not a fixed
     10 levels, and finds all three boards of the cylinder. The board is fixed less well than with black
     dots (their contrast is about 2.7 times larger), still within 0.25 px of the renderer's centre."""
@@ -336,7 +371,7 @@ def test_light_grey_dots_are_found_on_frames_exposed_for_the_spot(cylinder):
     from helicalib.simulation import default_start_s
 
     sc = Scenario()
-    sc = sc.model_copy(update={"camera": sc.camera.model_copy(update={"dot_albedo": 0.585})})
+    assert sc.camera.dot_albedo / sc.camera.board_albedo == pytest.approx(DOT_ALBEDO)
     plant = SimulatedPlant(cylinder, sc, start_s=default_start_s(cylinder) + 11 * 3600)
     for cam in cylinder.cameras:
         sim = SimCamera(plant, cam.id)
@@ -351,31 +386,89 @@ def test_light_grey_dots_are_found_on_frames_exposed_for_the_spot(cylinder):
 
 def test_the_camera_sensor_fixes_the_board_on_the_mean_of_its_before_frames(cylinder):
     """``CameraSensor`` finds a board's marks on its first before frame, then again on the mean of
-    the last ``MARKS_MEAN_FRAMES`` before frames: on the simulated plant's spot-exposed frames of
-    the side board of the cylinder, with light-grey dots, the board centre moves from 0.11 px off the
-    renderer's truth (one frame) to under 0.05 px; a reading that doubts the marks starts over."""
+    the last ``MARKS_MEAN_FRAMES`` before frames: on the simulated plant's spot-exposed frames of the
+    cylinder's three boards (light-grey dots, 09:00), the board centre from the mean lands nearer the
+    renderer's truth than from single frames (RMS over the boards against RMS over every single frame:
+    measured 0.03 against 0.06 px; averaging 8 frames takes the sensor noise out of the fix, a bias
+    stays); a reading that doubts the marks starts over on one frame."""
     from helicalib.campaign.sensor import MARKS_MEAN_FRAMES, CameraSensor
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
     from helicalib.simulation import default_start_s
 
-    sc = Scenario()
-    sc = sc.model_copy(update={"camera": sc.camera.model_copy(update={"dot_albedo": 0.585})})
-    plant = SimulatedPlant(cylinder, sc, start_s=default_start_s(cylinder) + 9 * 3600)
-    cam = cylinder.cameras[-1]
-    target = cylinder.target(cam.target)
-    sim = SimCamera(plant, cam.id)
+    plant = SimulatedPlant(cylinder, Scenario(), start_s=default_start_s(cylinder) + 9 * 3600)
+    singles, means = [], []
+    for cam in cylinder.cameras:
+        target = cylinder.target(cam.target)
+        sim = SimCamera(plant, cam.id)
+        truth = _apply_h(sim.renderer.h_board, np.zeros((1, 2)))[0]
+        sensor = CameraSensor(sim, cam)
+        frames = [sim.render()[0] for _ in range(MARKS_MEAN_FRAMES)]
+        errors = [float(np.linalg.norm(sensor._marks_for(f, target).center_px - truth)) for f in frames]
+        one = [float(np.linalg.norm(find_marks(f, target, cam).center_px - truth)) for f in frames]
+        assert errors[:-1] == [one[0]] * (MARKS_MEAN_FRAMES - 1)  # the first frame's marks until 8 are there
+        singles += one
+        means.append(errors[-1])
+        sensor._forget_marks()  # as after a "reprojection" reading: the next frame alone
+        assert float(np.linalg.norm(sensor._marks_for(frames[1], target).center_px - truth)) == pytest.approx(one[1])
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert rms(means) < 0.7 * rms(singles), (means, singles)
+
+
+def test_the_camera_sensor_finds_dim_light_grey_dots_on_more_frames_of_the_same_visit(cylinder):
+    """A board lit dimly (the camera exposed for the spot, little diffuse light: the white at about
+    13 grey levels) shows light-grey dots some 4.5 levels below it, under the finder's floor on one
+    frame: ``CameraSensor.before`` then grabs ``MARKS_MEAN_FRAMES`` − 1 more frames and finds the
+    board on their mean, so the visit is not lost to ``marks_not_found``; the visit's before frame
+    is still its first one. Black dots are found on the first frame, with no extra grab."""
+    from types import SimpleNamespace
+
+    from helicalib.campaign.sensor import MARKS_MEAN_FRAMES, CameraSensor
+    from helicalib.sim.camera import SimCamera
+    from helicalib.sim.plant import SimulatedPlant
+    from helicalib.sim.scenario import Scenario
+    from helicalib.simulation import default_start_s
+    from helicalib.vision.frames import decode_frame
+
+    class Counting:
+        def __init__(self, camera):
+            self.camera, self.grabs = camera, 0
+
+        def grab(self):
+            self.grabs += 1
+            return self.camera.grab()
+
+    def sensor_on(dot_albedo):
+        sc = Scenario()
+        dim = {"ambient_fraction": 0.05, "ambient_offset_wm2": 25.0, "dot_albedo": dot_albedo}
+        sc = sc.model_copy(update={"camera": sc.camera.model_copy(update=dim)})
+        plant = SimulatedPlant(cylinder, sc, start_s=default_start_s(cylinder) + 11 * 3600)
+        cam = cylinder.cameras[1]
+        sim = SimCamera(plant, cam.id)
+        ctx = SimpleNamespace(now=lambda: plant.t_s, settings=SimpleNamespace(max_capture_skew_s=5.0),
+                              time_slack_s=None, heliostat_id="H0004", target=cylinder.target(cam.target))
+        camera = Counting(sim)
+        return CameraSensor(camera, cam), camera, sim, ctx
+
+    sensor, camera, sim, ctx = sensor_on(Scenario().camera.dot_albedo)
+    target = ctx.target
+    one = sim.render()[0]
+    x, y = _apply_h(sim.renderer.h_board, np.array([[4.0, 2.0]]))[0].astype(int)  # white board between dots
+    white = float(np.median(one[y - 3:y + 4, x - 3:x + 4]))
+    assert 11 < white < 15, white  # the white board, dimly lit
+    assert not find_marks(one, target, sensor.camera_config).found  # one frame shows no dots
+    before = sensor.before(ctx)
+    image, marks = before.state
+    assert camera.grabs == MARKS_MEAN_FRAMES and marks.found and marks.kind == "dots", marks.message
+    assert np.array_equal(decode_frame(before.data, expected_shape=None), image)  # the visit's own first frame
     truth = _apply_h(sim.renderer.h_board, np.zeros((1, 2)))[0]
-    sensor = CameraSensor(sim, cam)
-    frames = [sim.render()[0] for _ in range(MARKS_MEAN_FRAMES)]
-    errors = [float(np.linalg.norm(sensor._marks_for(f, target).center_px - truth)) for f in frames]
-    one = float(np.linalg.norm(find_marks(frames[0], target, cam).center_px - truth))
-    assert errors[:-1] == [one] * (MARKS_MEAN_FRAMES - 1)  # the first frame's marks until 8 are there
-    assert one > 0.08 and errors[-1] < 0.05 and errors[-1] < one / 2
-    sensor._forget_marks()  # as after a "reprojection" reading: the next frame alone
-    assert float(np.linalg.norm(sensor._marks_for(frames[1], target).center_px - truth)) == pytest.approx(
-        float(np.linalg.norm(find_marks(frames[1], target, cam).center_px - truth)))
+    assert np.linalg.norm(marks.center_px - truth) < 0.1
+    sensor.before(ctx)  # the next visit reuses them: one grab
+    assert camera.grabs == MARKS_MEAN_FRAMES + 1
+
+    sensor, camera, sim, ctx = sensor_on(0.04)  # black dots
+    assert sensor.before(ctx).state[1].found and camera.grabs == 1
 
 
 def test_a_mean_that_shows_no_marks_is_not_sought_again_on_every_visit(monkeypatch):

@@ -102,6 +102,25 @@ def test_ambient_change(tmp_path, before, marks):
     assert "-40 %" in r.message
 
 
+def test_a_beam_crossing_the_board_in_the_before_frame_is_refused(tmp_path, marks):
+    """Another heliostat's beam on the board while the before frame was taken (moving between its
+    board and its standby point) leaves a patch darker in the after frame than in the before; the
+    difference's centre would lie between the two spots, so the reading is refused as "ambient_change".
+    The same spot with a clean before frame is valid, and so is a faint patch of lost light (under the
+    share of the spot's area)."""
+    crossing = Spot(center_m=(-2.0, 1.5), size_m=(0.9, 0.9), peak=60)
+    lit_before = _png(tmp_path, render_frame(TARGET, POSE, [crossing], rng=1), "b.png")
+    after = _png(tmp_path, render_frame(TARGET, POSE, [GOOD], rng=2))
+    r = measure_spot(lit_before, [after], TARGET, marks=marks)
+    _check(r, "ambient_change")
+    assert "before frame" in r.message and "another beam" in r.message
+    clean = render_frame(TARGET, POSE, rng=1)
+    assert measure_spot(clean, [after], TARGET, marks=marks).valid
+    small = Spot(center_m=(-2.0, 1.5), size_m=(0.2, 0.2), peak=60)  # a few cells of lost light
+    r = measure_spot(_png(tmp_path, render_frame(TARGET, POSE, [small], rng=1), "c.png"), [after], TARGET, marks=marks)
+    assert r.valid, r.message
+
+
 def test_jitter(tmp_path, before, marks):
     afters = [_png(tmp_path, render_frame(TARGET, POSE, [Spot((0.5 + du, -0.4), (0.8, 0.8), peak=70)], rng=10 + i),
                    f"a{i}.png") for i, du in enumerate((-0.3, 0.0, 0.3))]

@@ -794,6 +794,7 @@ def _cross_check(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
         if h.target not in target_ids:
             problems.append(f"{heliostat_loc}[{i}].target: unknown target {_short(h.target)} (defined: {', '.join(target_ids)})")
     problems += _apart_from_their_boards(cfg, heliostat_loc)
+    problems += _beams_off_other_boards(cfg, heliostat_loc)
     for name, d in cfg.drives.items():
         if d.kind == "custom" and None in (d.axis1_enu, d.axis2_enu, d.normal0_enu):
             problems.append(f"drives.{name}: kind custom needs axis1_enu, axis2_enu and normal0_enu")
@@ -815,6 +816,68 @@ def _apart_from_their_boards(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
     return [f"{heliostat_loc}[{i}].position_enu_m: {_short(h.id)} stands within 1 m of the centre of its "
             f"target {_short(h.target)}" for i, h in enumerate(cfg.heliostats or ())
             if h.target in centre and np.linalg.norm(np.asarray(h.position_enu_m) - centre[h.target]) < 1.0][:20]
+
+
+STANDBY_CLEARANCE_M = 1.0
+"""A beam waiting at a standby point keeps its aim this far off every other board (its spot is larger)."""
+
+
+def _beams_off_other_boards(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
+    """A beam on a board, or waiting at its standby point, must not cross another board: the campaign
+    gives a board to one beam at a time and keeps the others' beams at their own boards or standby
+    points, so boards that overlap as the field sees them, or a standby point whose beams fall on a
+    neighbouring board, put a second spot into a board's measurements. Rays from each heliostat's pivot
+    through its own board's centre, corners and edge middles are intersected with every other board
+    before that point (a board in front takes the beam), the ray through its standby point with every
+    other board grown by :data:`STANDBY_CLEARANCE_M` anywhere beyond the pivot (the beam goes on); a
+    hit is refused, naming the first heliostat and the point."""
+    targets = list(cfg.targets)
+    if len(targets) < 2 or not cfg.heliostats:
+        return []
+    pivots = np.array([h.position_enu_m for h in cfg.heliostats], dtype=float)
+    own = np.array([h.target for h in cfg.heliostats])
+    problems = []
+    for i, a in enumerate(targets):
+        sel = np.nonzero(own == a.id)[0]
+        if not len(sel):
+            continue
+        hw, hh = a.size_m[0] / 2, a.size_m[1] / 2
+        names = ["centre", "top-left corner", "top edge", "top-right corner", "right edge", "bottom-right corner",
+                 "bottom edge", "bottom-left corner", "left edge", "standby point"]
+        uvw = np.array([[0, 0, 0], [-hw, hh, 0], [0, hh, 0], [hw, hh, 0], [hw, 0, 0], [hw, -hh, 0], [0, -hh, 0],
+                        [-hw, -hh, 0], [-hw, 0, 0], a.standby_uvw_m], dtype=float)
+        aims = a.uvw_to_enu(uvw)  # (P, 3)
+        d = aims[None, :, :] - pivots[sel][:, None, :]  # (H, P, 3)
+        for b in targets:
+            if b.id == a.id:
+                continue
+            n = np.asarray(b.frame_enu[2])
+            denom = d @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = ((np.asarray(b.center_enu_m) - pivots[sel]) @ n)[:, None] / denom
+                x = b.enu_to_uvw(pivots[sel][:, None, :] + t[..., None] * d)
+            # a board point's beam stops at that board: only a board before it (t < 1) takes it; the beam
+            # through a standby point goes on (t > 0)
+            # (boards that meet edge to edge, as a tower's stacked boards, are fine: a board point's ray
+            # must pass 5 cm inside the other board; the waiting spot is kept 1 m off the other boards)
+            before = np.ones_like(t, dtype=bool)
+            before[:, :-1] = t[:, :-1] < 1.0 - 1e-6
+            grow = np.full(len(uvw), -0.05)
+            grow[-1] = STANDBY_CLEARANCE_M
+            hit = (np.abs(denom) > 1e-12) & (t > 0) & before & (np.abs(x[..., 0]) < b.size_m[0] / 2 + grow) \
+                & (np.abs(x[..., 1]) < b.size_m[1] / 2 + grow)
+            if hit.any():
+                k, j = (int(v[0]) for v in np.nonzero(hit))
+                who = f"the beam of {_short(cfg.heliostats[sel[k]].id)}"
+                where = (f"the board of target {_short(b.id)} (u {x[k, j, 0]:.1f}, v {x[k, j, 1]:.1f} m; "
+                         f"{int(hit.any(axis=1).sum())} of the {len(sel)} heliostats of {_short(a.id)})")
+                if j == len(names) - 1:
+                    problems.append(f"targets[{i}].standby_offset_m: {who} waiting at the standby point of target "
+                                    f"{_short(a.id)} lands on {where}: keep standby points off every board")
+                else:
+                    problems.append(f"targets[{i}].center_enu_m: {who} aimed at the {names[j]} of target "
+                                    f"{_short(a.id)} meets {where} first: a board stands in front of another")
+    return problems
 
 
 def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConfig:
@@ -863,6 +926,36 @@ def load_field_config(path: str | Path) -> FieldConfig:
     """Read and validate a field config YAML file (and its heliostat CSV)."""
     path = Path(path)
     return parse_field_config(read_yaml(path), path)
+
+
+def clear_standby_points(data: Mapping[str, Any]) -> dict:
+    """``data`` with a standby point given to every target that has none, on the first side of its
+    board (left, right, below, above; as far out as the default) whose waiting beams land on no
+    other board: an importer's boards (PAINT has no standby points) then pass the check of
+    :func:`_beams_off_other_boards` where the default side would put a beam on a neighbour. Targets
+    that state theirs keep it; when no side clears, the default is kept (and refused by the check)."""
+    import copy
+
+    data = copy.deepcopy(dict(data))
+    targets = data.get("targets") or []
+    open_ = [i for i, t in enumerate(targets) if isinstance(t, Mapping) and t.get("standby_offset_m") is None]
+    for i in open_:
+        w, h = (float(x) for x in targets[i]["size_m"])
+        du, dv = w / 2 + max(w / 2, 6.0), h / 2 + max(h / 2, 6.0)
+        for side in ([-du, 0.0], [du, 0.0], [0.0, -dv], [0.0, dv]):
+            targets[i]["standby_offset_m"] = side
+            try:
+                parse_field_config(data)
+            except ConfigError as exc:
+                if any(p.startswith(f"targets[{i}].standby_offset_m") for p in exc.problems):
+                    continue
+            break
+        else:
+            targets[i]["standby_offset_m"] = None
+    for t in targets:
+        if isinstance(t, Mapping) and t.get("standby_offset_m") is None:
+            t.pop("standby_offset_m", None)
+    return data
 
 
 def write_field_config(data: Mapping[str, Any], path: str | Path) -> FieldConfig:

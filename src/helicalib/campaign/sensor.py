@@ -35,7 +35,9 @@ MARKS_MEAN_FRAMES = 8
 visit's own frame, then again once 8 are there (and at every later finding). Averaging takes the
 sensor noise out of the board's fix: on the simulated plant's frames, exposed for the spot, the board
 centre of a dot board came 0.005–0.025 px from the truth with black dots and 0.007–0.059 px with
-light-grey ones, against 0.006–0.056 and 0.03–0.14 px from one frame (docs/vision.md)."""
+light-grey ones, against 0.006–0.056 and 0.03–0.14 px from one frame (docs/vision.md). When a
+before frame alone shows no marks, this many frames of the same visit are averaged at once
+(:meth:`CameraSensor.before`: a dimly lit board)."""
 MARKS_DOUBT = frozenset({"marks_not_found", "reprojection"})
 """Reading reasons after which the cached marks are found again on the next before frame."""
 
@@ -158,11 +160,13 @@ class CameraSensor:
         return self._marks
 
     def _mean_before(self) -> np.ndarray:
-        """The mean of the kept before images, as an 8-bit image (the one image itself if alone)."""
+        """The mean of the kept before images in floating point (the one image itself if alone): the dot
+        finder centres dots on its fractions of a grey level, which an 8-bit mean would round away (on a
+        dimly lit board that rounding moved the board centre by up to 0.04 px); L marks are found on it
+        rounded to 8 bits."""
         if len(self._recent) == 1:
             return self._recent[0]
-        mean = np.mean(np.stack(self._recent).astype(np.float32), axis=0)
-        return np.clip(np.rint(mean), 0, 255).astype(np.uint8)  # decode_frame's images are 8-bit
+        return np.mean(np.stack(self._recent).astype(np.float32), axis=0)
 
     def _forget_marks(self) -> None:
         """Find the marks again on the next before frame alone (the board or the camera may have moved)."""
@@ -172,8 +176,36 @@ class CameraSensor:
     # ------------------------------------------------------------------ the protocol
     def before(self, ctx) -> Before:
         frame, image = self._grab(ctx)
-        return Before(capture_time_s=float(frame.capture_time_s), data=frame.data,
-                      state=(image, self._marks_for(image, ctx.target)))
+        marks = self._marks_for(image, ctx.target)
+        if not marks.found:
+            marks = self._marks_on_more_frames(ctx, image, marks)
+        return Before(capture_time_s=float(frame.capture_time_s), data=frame.data, state=(image, marks))
+
+    def _marks_on_more_frames(self, ctx, image, failed):
+        """The marks sought once more on the mean of this frame and :data:`MARKS_MEAN_FRAMES` − 1 more
+        grabbed now, when this frame alone shows none (beams are off the board during ``before``). On a
+        board lit dimly (the camera exposed for the spot, a low sun: the board at some 10–15 grey levels)
+        a light-grey dot lies a few levels below its white, under the finder's floor of 4 noise σ of
+        one frame, and 8 frames halve that twice. The extra frames serve the board's fix only; the
+        visit keeps ``image`` as its before frame. Returns ``failed`` when they show no marks either, or
+        when a frame cannot be had (the visit then goes on and says ``marks_not_found``)."""
+        frames = [image]
+        try:
+            for _ in range(MARKS_MEAN_FRAMES - 1):
+                frames.append(self._grab(ctx)[1])
+        except MeasurementError:
+            return failed
+        if any(f.shape != image.shape for f in frames):
+            return failed
+        self._recent.clear()
+        self._recent.extend(frames)
+        marks = find_marks(self._mean_before(), ctx.target, self.camera_config)
+        self._marks_frames = len(self._recent)
+        if not marks.found:
+            self._forget_marks()
+            return failed
+        self._marks, self._marks_uses = marks, 1  # this visit uses them
+        return marks
 
     def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
         frames, images, reason, message, refused = [], [], None, "", []

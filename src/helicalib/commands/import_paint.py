@@ -65,7 +65,7 @@ def _culprit(exc: BaseException) -> str | None:
 
 def run(args) -> int:
     from helicalib.calibration.observations import write_observations
-    from helicalib.config import write_field_config
+    from helicalib.config import clear_standby_points, write_field_config
     from helicalib.errors import ConfigError
     from helicalib.realdata.paint import field_config_dict, observations, scan
 
@@ -80,7 +80,7 @@ def run(args) -> int:
         where = _culprit(exc) or ", ".join(str(d) for d in args.dirs)
         raise ConfigError(f"{where}: not the PAINT layout helicalib reads ({what})") from None
     out = Path(args.out)
-    cfg = write_field_config(data, out / "field.yaml")
+    cfg = write_field_config(clear_standby_points(data), out / "field.yaml")
     comments = [f"helicalib import-paint from {', '.join(str(d) for d in args.dirs)}",
                 f"spot centre: {args.spot}; plant reference WGS84 {list(imp.tower.reference_llh)}",
                 "PAINT data: CDLA-Permissive-2.0 (DLR / KIT)"]

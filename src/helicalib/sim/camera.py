@@ -113,6 +113,22 @@ def spot_geometry(target, optics_spec, origin_enu, direction_enu, sun_enu, norma
     return uv, power, np.maximum(width, 1e-3), sigma, near & (power > 0)
 
 
+def stopped_before(target, others, origin_enu, direction_enu) -> np.ndarray:
+    """True for the beams (N, 3) that meet one of the boards ``others`` (within the board) before they
+    reach ``target``'s plane: a board is opaque, so such a beam lights that board and not this one.
+    (A beam aimed at a board near a neighbour that the field sees overlapping it used to be drawn on
+    both.)"""
+    _, hit, valid = optics.intersect_target(origin_enu, direction_enu, target)
+    reach = np.where(valid, np.linalg.norm(hit - origin_enu, axis=-1), np.inf)
+    out = np.zeros(len(origin_enu), dtype=bool)
+    for other in others:
+        uv, hit_o, valid_o = optics.intersect_target(origin_enu, direction_enu, other)
+        with np.errstate(invalid="ignore"):
+            inside = valid_o & np.all(np.abs(uv) <= np.asarray(other.size_m) / 2.0, axis=-1)
+            out |= inside & (np.linalg.norm(hit_o - origin_enu, axis=-1) < reach)
+    return out
+
+
 def mark_mask(target, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """True where board points (u, v) [m] lie on one of the four L marks (vertex inward, two arms)."""
     out = np.zeros(np.broadcast(u, v).shape, dtype=bool)
@@ -214,10 +230,14 @@ class BoardRenderer:
         return rows, cols, acc
 
     def spots_from_beams(self, origin_enu, direction_enu, sun_enu, normal_enu, mirror_size_m, dni_wm2,
-                         cleanliness):
-        """Board-frame spot parameters of the beams (N, 3) that meet this board from the front."""
+                         cleanliness, others=()):
+        """Board-frame spot parameters of the beams (N, 3) that meet this board from the front, less
+        those that another board of ``others`` (the plant's other targets) stops first."""
         uv, power, width, sigma, k = spot_geometry(self.target, self.optics, origin_enu, direction_enu, sun_enu,
                                                    normal_enu, mirror_size_m, dni_wm2, cleanliness)
+        if others and k.any():
+            idx = np.nonzero(k)[0]
+            k[idx[stopped_before(self.target, others, origin_enu[idx], direction_enu[idx])]] = False
         return uv[k], power[k], width[k], sigma[k]
 
     def render(self, spots, dni_wm2: float, daylight: bool) -> np.ndarray:
@@ -279,6 +299,7 @@ class SimCamera:
         sc = plant.scenario
         seed = (sc.seed * 1000 + list(cams).index(camera_id)) & 0xFFFFFFFF
         self.renderer = BoardRenderer(self.config, self.target, sc.camera, sc.optics, seed=seed)
+        self.others = tuple(t for t in plant.cfg.targets if t.id != self.target.id)  # boards that may stop a beam
         self.source = self.config.url
         self.fe_wm2_per_grey = simulated_fe(sc)
 
@@ -291,7 +312,7 @@ class SimCamera:
         beams = p.true_beams(t)
         spots = self.renderer.spots_from_beams(
             beams.origin_enu, beams.direction_enu, sun, beams.normal_enu, p.nominal.drives.mirror_size_m,
-            weather.dni_wm2, p.soiling.cleanliness(t))
+            weather.dni_wm2, p.soiling.cleanliness(t), others=self.others)
         return self.renderer.render(spots, weather.dni_wm2, elevation > 0.0), t
 
     def grab(self) -> Frame:

@@ -1,6 +1,7 @@
 """Nine-dot (田) target boards → homography image ↔ board (``marks: {kind: dots}``).
 
-The 2019 calibration article's boards carry nine round black dots of two sizes on a 3 × 3 grid;
+The 2019 calibration article's boards carry nine round dots of two sizes on a 3 × 3 grid (any paint
+clearly darker than the board; light grey measures a spot on a dot best, docs/vision.md);
 the reference dot (the centre one by default) is the board's measuring point, (u, v) = (0, 0).
 :func:`find_dots` returns the same :class:`~helicalib.vision.marks.MarksResult` as the L marks, so
 everything downstream (rectified grid, spot centre, reuse of the marks in a campaign) is shared.
@@ -12,7 +13,9 @@ Method
    ellipse (``cv2.fitEllipse``; the contour's area within 12 % of the ellipse's), lies wholly in the
    frame and is darker than a ring around it (by :data:`MIN_CONTRAST` grey levels, :data:`CONTRAST_NOISE`
    times the ring's noise and :data:`MIN_DARKNESS` of its white, whichever is most). Of one dot's
-   blobs from the three block sizes the one with the flattest ring is kept.
+   blobs from the three block sizes the one with the flattest ring is kept. When fewer than nine
+   dots come out, the blobs are proposed once more at a lower threshold constant
+   (:data:`ADAPTIVE_C`: a small light-grey dot on a dimly lit board) and the pass using more dots wins.
 2. Sub-pixel centre: the white level around the blob is a plane fitted to a ring outside it; the
    darkness ``1 - I / white`` (independent of the albedo contrast and of uneven light) inside the
    grown blob weighs the pixels, and its centroid (``cv2.moments``) is the ellipse's centre.
@@ -55,6 +58,13 @@ MIN_CONTRAST = 4.0
 the noise of that white ring): a frame exposed for the spot shows the ambient-lit board at some 20-30
 grey levels, so a light-grey dot there is only about 9 levels darker."""
 CONTRAST_NOISE = 4.0
+ADAPTIVE_C = (4.0, 2.0)
+"""Fewest grey levels below its block's mean that a pixel must lie to be a dot candidate's (the
+adaptive threshold's constant, at least 8 % of the frame's median), for the first pass and for a
+second one when the first identifies fewer than nine dots. A candidate is then held to
+:data:`MIN_CONTRAST` against its own white ring; a block's mean takes in the dot itself, so a small
+light-grey dot on a board at 12-16 grey levels lies only about 3 levels below it: with 4 the small
+dots of such a frame were lost and only the five large ones found, with 2 all nine (docs/vision.md)."""
 MIN_DARKNESS = 0.25
 """A dot candidate is at least this much darker than the white around it (``1 - dot / white``; black
 dots 0.94, mid-grey ones 0.5)."""
@@ -68,7 +78,10 @@ class _Dot:
     contrast: float  # white - dark [grey levels]
 
 
-def _dot_candidate(gray: np.ndarray, contour: np.ndarray) -> _Dot | None:
+def _dot_candidate(gray: np.ndarray, contour: np.ndarray, fine: np.ndarray | None = None) -> _Dot | None:
+    """A dot candidate from a blob's ``contour`` in the 8-bit ``gray``; its white ring, contrast and
+    centre are measured on ``fine`` when given (the same image in floating point, e.g. a mean of
+    frames, whose fractions of a grey level rounding would lose)."""
     import cv2
 
     area = cv2.contourArea(contour)
@@ -88,7 +101,7 @@ def _dot_candidate(gray: np.ndarray, contour: np.ndarray) -> _Dot | None:
     x0, y0, x1, y1 = x - 2 * m - 1, y - 2 * m - 1, x + w + 2 * m + 1, y + h + 2 * m + 1
     if x0 < 0 or y0 < 0 or x1 > W or y1 > H:
         return None  # cut by the frame edge: its centre would be biased
-    roi = gray[y0:y1, x0:x1].astype(np.float32)
+    roi = (gray if fine is None else fine)[y0:y1, x0:x1].astype(np.float32)
     mask = np.zeros(roi.shape, np.uint8)
     cv2.drawContours(mask, [contour - np.array([x0, y0])], -1, 1, thickness=cv2.FILLED)
     disc = lambda k: cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))  # noqa: E731
@@ -117,12 +130,12 @@ def _dot_candidate(gray: np.ndarray, contour: np.ndarray) -> _Dot | None:
     return _Dot(centre, 2.0 * r_eq, ring_rms, contrast)
 
 
-def _candidates(gray: np.ndarray) -> list[_Dot]:
+def _candidates(gray: np.ndarray, c_floor: float, fine: np.ndarray | None = None) -> list[_Dot]:
     import cv2
 
     h, w = gray.shape
     blur = cv2.GaussianBlur(gray, (3, 3), 0)
-    c = max(4.0, 0.08 * float(np.median(gray)))
+    c = max(c_floor, 0.08 * float(np.median(gray)))
     out: list[_Dot] = []
     for frac in (4, 8, 16):
         block = max(15, (min(h, w) // frac) | 1)
@@ -133,7 +146,7 @@ def _candidates(gray: np.ndarray) -> list[_Dot]:
         for ct, (_, _, _, parent) in zip(contours, hierarchy[0] if hierarchy is not None else ()):
             if parent != -1:
                 continue
-            d = _dot_candidate(gray, ct)
+            d = _dot_candidate(gray, ct, fine)
             if d is None:
                 continue
             same = [i for i, o in enumerate(out)
@@ -227,18 +240,36 @@ def conic_centres(H_bi: np.ndarray, centres_m: np.ndarray, radii_m: np.ndarray) 
 # ---------------------------------------------------------------------------- main
 def find_dots(gray: np.ndarray, target: Target, camera: Camera | None = None, *,
               max_reprojection_px: float = 1.5) -> MarksResult:
-    """Find the nine dots of ``target`` (``marks.kind == "dots"``) in a uint8 frame (H, W).
+    """Find the nine dots of ``target`` (``marks.kind == "dots"``) in a frame (H, W): uint8, or
+    floating point (a mean of frames: blobs are proposed on it rounded, dots measured on its fractions).
 
     Returns a :class:`MarksResult` (``kind`` "dots", ``dots_px`` the nine centres, NaN where not
     used); ``found`` is False with reason "marks_not_found" when fewer than :data:`MIN_DOTS` dots
     are identified, or "reprojection" when they fit the layout worse than ``max_reprojection_px``.
+    When the first pass uses fewer than nine dots, a second one proposes candidates at the lower
+    threshold constant of :data:`ADAPTIVE_C` (a dimly lit board), and the result using more dots wins.
     """
+    fine = None
+    if np.asarray(gray).dtype != np.uint8:  # e.g. the mean of several frames: centres on its fractions
+        fine = np.ascontiguousarray(gray, dtype=np.float32)
+        gray = np.clip(np.rint(fine), 0, 255).astype(np.uint8)
+    gray = np.ascontiguousarray(gray, dtype=np.uint8)
+    first = _find_dots(gray, target, camera, max_reprojection_px, ADAPTIVE_C[0], fine)
+    if first.found and np.count_nonzero(np.isfinite(first.dots_px[:, 0])) == 9:
+        return first
+    second = _find_dots(gray, target, camera, max_reprojection_px, ADAPTIVE_C[1], fine)
+    used = lambda r: np.count_nonzero(np.isfinite(r.dots_px[:, 0])) if r.found else -1  # noqa: E731
+    return second if used(second) > used(first) else first
+
+
+def _find_dots(gray: np.ndarray, target: Target, camera: Camera | None, max_reprojection_px: float,
+               c_floor: float, fine: np.ndarray | None = None) -> MarksResult:
+    """:func:`find_dots` with candidates proposed at threshold constant ``c_floor``."""
     import cv2
 
     marks = target.marks
     K, dist = camera_model(camera)
-    gray = np.ascontiguousarray(gray, dtype=np.uint8)
-    dots = _candidates(gray)
+    dots = _candidates(gray, c_floor, fine)
     not_found = dict(kind="dots", dots_px=np.full((9, 2), np.nan))
     if len(dots) < MIN_DOTS:
         return MarksResult(False, "marks_not_found", f"only {len(dots)} round dark dots of target {target.id} "

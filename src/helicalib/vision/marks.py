@@ -245,7 +245,8 @@ def _order(cands: tuple[_LCandidate, ...]) -> tuple[_LCandidate, ...] | None:
 # ---------------------------------------------------------------------------- main
 def find_marks(gray: np.ndarray, target: Target, camera: Camera | None = None, *,
                max_reprojection_px: float = 1.5) -> MarksResult:
-    """Find the four L marks of ``target`` in a uint8 frame (H, W).
+    """Find the four L marks of ``target`` in a frame (H, W): uint8, or floating point (a mean of
+    frames, rounded here); a dot board is handed to :func:`~helicalib.vision.dots.find_dots`.
 
     Returns a :class:`MarksResult`; ``found`` is False with reason "marks_not_found" when no
     layout fits, or "reprojection" when the fit is worse than ``max_reprojection_px``.
@@ -259,6 +260,8 @@ def find_marks(gray: np.ndarray, target: Target, camera: Camera | None = None, *
 
         return find_dots(gray, target, camera, max_reprojection_px=max_reprojection_px)
     K, dist = camera_model(camera)
+    if np.asarray(gray).dtype != np.uint8:  # a mean of frames: rounded, not truncated
+        gray = np.clip(np.rint(np.asarray(gray, dtype=np.float32)), 0, 255)
     gray = np.ascontiguousarray(gray, dtype=np.uint8)
     cands = _candidates(gray)
     if len(cands) < 4:

@@ -111,11 +111,12 @@ class Spot:
         raise ValueError(f"unknown spot shape {self.shape!r}")
 
 
-DOT_ALBEDO = 0.06
-"""The dots' default albedo relative to the white board: black, as T/GRLM's L marks (the 2019 article
-names no colour). Lighter dots measure a spot on a dot better (its light there is restored at
-1/albedo times the frame's noise) but are harder to find on a frame exposed for the spot:
-docs/vision.md, "Light-grey dots"."""
+DOT_ALBEDO = 0.65
+"""The dots' default albedo relative to the white board: light grey (the 2019 article names the dots'
+sizes and layout, not their colour). A spot's light on a dot is restored at 1/albedo times the
+frame's noise, so black dots (0.06, as T/GRLM's L marks) measure a spot that reaches a dot 2-6
+times worse than a mark board, and light-grey ones as well as it, on frames exposed for the board
+and for the spot alike: docs/vision.md, "Light-grey dots"."""
 
 
 @dataclass(frozen=True)

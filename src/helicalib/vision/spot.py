@@ -64,6 +64,10 @@ class SpotLimits:
     """Fewer thresholded cells than this → "no_spot"."""
     max_clipped_cells: int = 2
     """More thresholded cells than this on the board rim or the frame edge → "clipped"."""
+    max_lost_light_share: float = 0.2
+    """More cells than this share of the spot's (and at least ``min_area_cells``) at least the threshold
+    *below* the before frame → "ambient_change": light on the board in the before frame that is gone
+    in the after frame, another beam crossing the board while the before frame was taken."""
 
 
 @dataclass(frozen=True)
@@ -291,7 +295,7 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
         raise _Invalid("low_contrast", "the board is too dark or saturated to compare before and after.")
     k, d0 = _ambient_ratio(a_s, b_s, lit)
     D = cv2.addWeighted(A, 1.0, B, -k, 0.0, dtype=cv2.CV_32F)  # after - k·before
-    Ddet = D
+    Ddet = D_raw = D  # D_raw: before any light restored on a dot board's dots (whose noise it amplifies)
     if fill is not None:
         D, Ddet = fill.correct(D, k)
     # noise sigma of the difference, from the board cells outside the spot (second pass above)
@@ -323,6 +327,11 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
                         k, peak, noise, sat, clipped)
     if S < limits.min_area_cells:
         raise _Invalid("no_spot", f"no spot: only {S} cells of the board lie above the threshold {T:.0f}.", partial)
+    lost = int(np.count_nonzero((D_raw <= -T) & inside))
+    if lost >= max(limits.min_area_cells, limits.max_lost_light_share * S):
+        raise _Invalid("ambient_change", f"{lost} cells of the board were lit in the before frame and are "
+                       f"{T:.0f} grey levels or more darker in the after frame (the spot has {S}): another beam "
+                       "crossed the board while the before frame was taken.", partial)
     side = math.sqrt(S)
     if clipped > limits.max_clipped_cells or side >= min(grid.shape):
         # the visible part's centroid (biased toward the board): tells a search which way the beam lies
