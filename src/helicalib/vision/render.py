@@ -114,9 +114,9 @@ class Spot:
 DOT_ALBEDO = 0.65
 """The dots' default albedo relative to the white board: light grey (the 2019 article names the dots'
 sizes and layout, not their colour). A spot's light on a dot is restored at 1/albedo times the
-frame's noise, so black dots (0.06, as T/GRLM's L marks) measure a spot that reaches a dot 2-6
-times worse than a mark board, and light-grey ones as well as it, on frames exposed for the board
-and for the spot alike: docs/vision.md, "Light-grey dots"."""
+frame's noise, so black dots (0.06, as T/GRLM's L marks) measure spots 2.4-7.5 times worse than a
+mark board, and light-grey ones 0.39-1.05 times as far off, on frames exposed for the board and for
+the spot: docs/vision.md, "Light-grey dots"."""
 
 
 @dataclass(frozen=True)
