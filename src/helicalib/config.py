@@ -856,10 +856,9 @@ def _beams_off_other_boards(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = ((np.asarray(b.center_enu_m) - pivots[sel]) @ n)[:, None] / denom
                 x = b.enu_to_uvw(pivots[sel][:, None, :] + t[..., None] * d)
-            # a board point's beam stops at that board: only a board before it (t < 1) takes it; the beam
-            # through a standby point goes on (t > 0)
-            # (boards that meet edge to edge, as a tower's stacked boards, are fine: a board point's ray
-            # must pass 5 cm inside the other board; the waiting spot is kept 1 m off the other boards)
+            # a board point's beam stops at that board, so only a board before it (t < 1) takes it, and
+            # 5 cm inside its edge (boards meeting edge to edge, as a tower's stacked boards, are fine);
+            # the beam through a standby point goes on (t > 0) and keeps 1 m off the other boards
             before = np.ones_like(t, dtype=bool)
             before[:, :-1] = t[:, :-1] < 1.0 - 1e-6
             grow = np.full(len(uvw), -0.05)
