@@ -794,7 +794,7 @@ def _cross_check(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
         if h.target not in target_ids:
             problems.append(f"{heliostat_loc}[{i}].target: unknown target {_short(h.target)} (defined: {', '.join(target_ids)})")
     problems += _apart_from_their_boards(cfg, heliostat_loc)
-    problems += _beams_off_other_boards(cfg, heliostat_loc)
+    problems += _beams_off_other_boards(cfg)
     for name, d in cfg.drives.items():
         if d.kind == "custom" and None in (d.axis1_enu, d.axis2_enu, d.normal0_enu):
             problems.append(f"drives.{name}: kind custom needs axis1_enu, axis2_enu and normal0_enu")
@@ -822,7 +822,7 @@ STANDBY_CLEARANCE_M = 1.0
 """A beam waiting at a standby point keeps its aim this far off every other board (its spot is larger)."""
 
 
-def _beams_off_other_boards(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
+def _beams_off_other_boards(cfg: FieldConfig) -> list[str]:
     """A beam on a board, or waiting at its standby point, must not cross another board: the campaign
     gives a board to one beam at a time and keeps the others' beams at their own boards or standby
     points, so boards that overlap as the field sees them, or a standby point whose beams fall on a
