@@ -196,7 +196,10 @@ def test_a_board_in_front_of_another_is_refused_and_boards_meeting_edge_to_edge_
     tn = data["targets"][1]
     v = np.cross(tn["normal_enu"], np.cross([0.0, 0.0, 1.0], tn["normal_enu"]))
     v = v / np.linalg.norm(v)  # up the board
-    above = dict(tn, id="TU", center_enu_m=(np.asarray(tn["center_enu_m"]) + 12.0 * v).round(6).tolist(),
+    # 2 cm farther from the field than TN, as surveyed boards are (the Jülich upper and lower targets): the beams
+    # to TU's bottom edge graze TN's top edge
+    w = np.asarray(tn["normal_enu"], dtype=float)
+    above = dict(tn, id="TU", center_enu_m=(np.asarray(tn["center_enu_m"]) + 12.0 * v - 0.02 * w).round(6).tolist(),
                  standby_offset_m=[0.0, 15.0])
     data["targets"] = [data["targets"][0], tn, above, data["targets"][2]]
     data["cameras"].append(dict(data["cameras"][1], id="CU", target="TU"))

@@ -389,7 +389,7 @@ def test_the_camera_sensor_fixes_the_board_on_the_mean_of_its_before_frames(cyli
     the last ``MARKS_MEAN_FRAMES`` before frames: on the simulated plant's spot-exposed frames of the
     cylinder's three boards (light-grey dots, 09:00), the board centre from the mean lands nearer the
     renderer's truth than from single frames (RMS over the boards against RMS over every single frame:
-    measured 0.03 against 0.06 px; averaging 8 frames takes the sensor noise out of the fix, a bias
+    measured 0.02 against 0.06 px; averaging 8 frames takes the sensor noise out of the fix, a bias
     stays); a reading that doubts the marks starts over on one frame."""
     from helicalib.campaign.sensor import MARKS_MEAN_FRAMES, CameraSensor
     from helicalib.sim.camera import SimCamera

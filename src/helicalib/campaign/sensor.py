@@ -35,7 +35,9 @@ MARKS_MEAN_FRAMES = 8
 visit's own frame, then again once 8 are there (and at every later finding). Averaging takes the
 sensor noise out of the board's fix: on the simulated plant's frames, exposed for the spot, the board
 centre of a dot board came 0.005–0.025 px from the truth with black dots and 0.007–0.059 px with
-light-grey ones, against 0.006–0.056 and 0.03–0.14 px from one frame (docs/vision.md). When a
+light-grey ones, against 0.006–0.056 and 0.03–0.14 px from one frame (8 m layout, 8-bit mean); on
+the 18 m layout with the mean in floating point, light-grey dots 0.014–0.034 px against 0.044–0.073
+px RMS from single frames (docs/vision.md). When a
 before frame alone shows no marks, this many frames of the same visit are averaged at once
 (:meth:`CameraSensor.before`: a dimly lit board)."""
 MARKS_DOUBT = frozenset({"marks_not_found", "reprojection"})
