@@ -831,6 +831,8 @@ def _beams_off_other_boards(cfg: FieldConfig) -> list[str]:
     before that point (a board in front takes the beam), the ray through its standby point with every
     other board grown by :data:`STANDBY_CLEARANCE_M` anywhere beyond the pivot (the beam goes on); a
     hit is refused, naming the first heliostat and the point."""
+    from helicalib.geometry.optics import intersect_target
+
     targets = list(cfg.targets)
     if len(targets) < 2 or not cfg.heliostats:
         return []
@@ -851,11 +853,8 @@ def _beams_off_other_boards(cfg: FieldConfig) -> list[str]:
         for b in targets:
             if b.id == a.id:
                 continue
-            n = np.asarray(b.frame_enu[2])
-            denom = d @ n
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = ((np.asarray(b.center_enu_m) - pivots[sel]) @ n)[:, None] / denom
-                x = b.enu_to_uvw(pivots[sel][:, None, :] + t[..., None] * d)
+            x, at, valid = intersect_target(pivots[sel][:, None, :], d, b)  # x: (u, v) on b; NaN if missed
+            t = np.sum((at - pivots[sel][:, None, :]) * d, axis=-1) / np.sum(d * d, axis=-1)  # 1 at the aim
             # a board point's beam stops at that board, so only a board before it (t < 1) takes it, and
             # 5 cm inside its edge (boards meeting edge to edge, as a tower's stacked boards, are fine);
             # the beam through a standby point goes on (t > 0) and keeps 1 m off the other boards
@@ -863,8 +862,9 @@ def _beams_off_other_boards(cfg: FieldConfig) -> list[str]:
             before[:, :-1] = t[:, :-1] < 1.0 - 1e-6
             grow = np.full(len(uvw), -0.05)
             grow[-1] = STANDBY_CLEARANCE_M
-            hit = (np.abs(denom) > 1e-12) & (t > 0) & before & (np.abs(x[..., 0]) < b.size_m[0] / 2 + grow) \
-                & (np.abs(x[..., 1]) < b.size_m[1] / 2 + grow)
+            with np.errstate(invalid="ignore"):
+                hit = valid & before & (np.abs(x[..., 0]) < b.size_m[0] / 2 + grow) \
+                    & (np.abs(x[..., 1]) < b.size_m[1] / 2 + grow)
             if hit.any():
                 k, j = (int(v[0]) for v in np.nonzero(hit))
                 who = f"the beam of {_short(cfg.heliostats[sel[k]].id)}"
