@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 STORED = frozenset({"stow", "resume", "gated", "ungated", "fault", "note", "tracking_written", "off_tracking",
-                    "back_to_tracking", "campaign", "operator", "drift", "check"})
+                    "back_to_tracking", "campaign", "operator", "drift", "check", "plant_lost", "plant_back"})
 """Event kinds written to the store's events table (the others live in their own tables)."""
 
 KINDS = {
@@ -35,6 +35,8 @@ KINDS = {
     "check": "operation: a visit is a check of a calibrated heliostat (its visit id and after frames)",
     "drift": "operation: a heliostat's checks lie outside its model's band: drift confirmed, calibration reopened",
     "operator": "a crew's action from the console applied (pause, resume, re-check, repaired, out of service)",
+    "plant_lost": "the plant stopped answering: no visit starts, the readings shown grow old (one line per loss)",
+    "plant_back": "the plant answers again after a loss (one line, with how long it was lost)",
     "status": "a periodic snapshot (JSON lines only)",
     "summary": "the final summary (JSON lines only)",
 }
@@ -110,6 +112,10 @@ class Snapshot:
     valid_visits: int
     next_band: str
     off_tracking: tuple[str, ...] = ()
+    plant_unreachable_since_s: float | None = None
+    """Plant time (the controller's estimate) since which the plant has not answered; None while it answers."""
+    weather_time_s: float | None = None
+    """Plant time of the weather reading behind ``wind_ms``, ``dni_wm2`` and the gate (its age is shown)."""
 
     def to_json(self, tz: dt.tzinfo | None = None) -> dict[str, Any]:
         out = {"event": "status", "time": iso_utc(self.time_s)}

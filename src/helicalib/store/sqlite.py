@@ -241,7 +241,13 @@ class Store:
                        heliostats: Iterable[CampaignHeliostat | tuple[str, int, str]],
                        config_path: str | Path = "", config_sha256: str = "",
                        settings: dict[str, Any] | None = None) -> int:
-        """Record a new campaign and its heliostats (id, plant block index, target); returns its id."""
+        """Record a new campaign and its heliostats (id, plant block index, target); returns its id.
+
+        The campaign's frames folder is recorded in its settings (``images_dir``, absolute), so that a
+        reader opened without the writer's ``images_dir`` finds the frames (:meth:`campaign_images_dir`).
+        """
+        settings = dict(settings or {})
+        settings.setdefault("images_dir", str(Path(self.images_dir).resolve()))
         rows = [h if isinstance(h, CampaignHeliostat) else CampaignHeliostat(str(h[0]), int(h[1]), str(h[2]))
                 for h in heliostats]
         with self._lock, self._conn:
@@ -256,6 +262,11 @@ class Store:
                 [(cid, h.heliostat_id, h.block_index, h.target_id) for h in rows],
             )
         return cid
+
+    def campaign_images_dir(self, campaign_id: int) -> Path:
+        """The folder the campaign's frames were written to: as recorded at its start, else this store's."""
+        recorded = (self.campaign(campaign_id).settings or {}).get("images_dir")
+        return Path(recorded) if isinstance(recorded, str) and recorded else self.images_dir
 
     def finish_campaign(self, campaign_id: int, ended_s: float, status: str = "finished") -> None:
         """Mark a campaign ended: ``finished`` (its end time came) or ``stopped`` (Ctrl-C, SIGTERM)."""
