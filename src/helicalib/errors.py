@@ -28,3 +28,13 @@ class MeasurementError(HelicalibError):
 
 class GeometryError(HelicalibError):
     """A pose is unreachable or a stroke lies outside the drive's range."""
+
+
+class DataError(HelicalibError):
+    """Stored data is damaged (a database row, a JSON column, a frame file); the message names the
+    table and row (or file) so a crew can find it."""
+
+
+class StorageError(HelicalibError):
+    """The campaign database or its frames folder cannot be written (full disk, read-only file or
+    folder); the message names the file and what the system said."""
