@@ -24,6 +24,7 @@ import traceback
 from dataclasses import dataclass, field
 
 from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner
+from helicalib.devices.modbus import quiet_pymodbus
 from helicalib.errors import HelicalibError
 
 TICK_PLANT_S = 2.0
@@ -136,7 +137,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     # a tick still running when the next is due is skipped by design (max_instances=1): not news;
     # a lost plant is one fault line of ours, not pymodbus's own log lines
     logging.getLogger("apscheduler").setLevel(logging.CRITICAL)
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    quiet_pymodbus()
     stop = stop_event or threading.Event()
     lock = threading.Lock()
     if output is not None and output.on_event not in runner.listeners:

@@ -29,6 +29,12 @@ from helicalib.errors import PlantError
 
 log = logging.getLogger(__name__)
 
+
+def quiet_pymodbus() -> None:
+    """Silence pymodbus's own log (its "Connection ... refused" and "Repeating...." lines would reach
+    stderr through Python's last-resort handler): a failure is one :class:`PlantError` line of ours."""
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
 EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure",
                    6: "device busy", 10: "gateway path unavailable", 11: "gateway target failed to respond"}
 
@@ -86,6 +92,7 @@ class ModbusLink:
 
     def _connected(self) -> ModbusTcpClient:
         if self._client is None:
+            quiet_pymodbus()  # before the client exists: its first failed connect logs too
             self._client = ModbusTcpClient(self.host, port=self.port, timeout=self.timeout_s, retries=0,
                                            reconnect_delay=0, name=f"helicalib-{self.port}")
         if not self._client.connected and not self._client.connect():
