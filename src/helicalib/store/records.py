@@ -238,10 +238,15 @@ class OperatorAction:
 
 def off_tracking(events) -> list[str]:
     """Heliostats left off tracking: those whose newest ``off_tracking`` event has no
-    ``back_to_tracking`` after it (a run that stopped before the plant confirmed their return;
-    the next run sends them back first)."""
+    ``back_to_tracking`` recorded after it (a run that stopped before the plant confirmed their
+    return; the next run sends them back first).
+
+    "After" is the order the events were recorded (their row ids; the given order for events
+    without one), never their plant times: a plant restarted with its clock earlier stamps the
+    confirming ``back_to_tracking`` events before the ``off_tracking`` ones they answer."""
     last: dict[str, str] = {}
-    for e in sorted(events, key=lambda e: (e.time_s, e.id or 0)):
+    order = sorted(enumerate(events), key=lambda ie: (0, ie[1].id, ie[0]) if ie[1].id is not None else (1, 0, ie[0]))
+    for _i, e in order:
         if e.kind in ("off_tracking", "back_to_tracking") and e.heliostat_id:
             last[e.heliostat_id] = e.kind
     return sorted(h for h, k in last.items() if k == "off_tracking")
