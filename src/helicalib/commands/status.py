@@ -11,7 +11,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Progress of a campaign in a helicalib database: per heliostat visits, valid "
                                    "points, last error and the acceptance verdict with its first missing item.")
     p.add_argument("db", help="helicalib SQLite database (file path or sqlite:/// URL)")
-    p.add_argument("--campaign", type=int, default=None, help="campaign id (default the newest)")
+    p.add_argument("--campaign", type=int, default=None,
+                   help="campaign id (default: the one the process holding the database runs, else the newest "
+                        "marked running, else the newest)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=run)
 
@@ -20,6 +22,7 @@ def run(args) -> int:
 
     from rich.console import Console
     from rich.table import Table
+    from rich.text import Text
 
     from helicalib.store.records import off_tracking
     from helicalib.store.sqlite import Store, existing_database
@@ -30,21 +33,22 @@ def run(args) -> int:
         if not campaigns:
             print(f"{args.db}: no campaign yet")
             return 0
-        camp = store.campaign(args.campaign) if args.campaign is not None else campaigns[-1]
+        owner = store.owner()
+        camp, why = shown_campaign(store, campaigns, owner, args.campaign)
         rows = store.progress(camp.id)
         events = store.events(camp.id)
-        owner = store.owner()
     finally:
         store.close()
     accepted = sum(1 for r in rows if r["accepted"])
     state = shown_status(camp.status, owner)
     if args.json:
-        print(json.dumps({"campaign": camp.id, "name": camp.name, "mode": camp.mode, "status": state,
+        print(json.dumps({"campaign": camp.id, "shown_because": why, "name": camp.name, "mode": camp.mode, "status": state,
                           "owner": owner, "accepted": accepted, "heliostats": rows,
                           "stows": sum(e.kind == "stow" for e in events),
                           "off_tracking": off_tracking(events)}, indent=2, default=list))
         return 0
     console = Console()
+    console.print(Text(f"campaign {camp.id}: {why}"))
     table = Table(title=f"campaign {camp.id}: {camp.name} ({state}) — {accepted}/{len(rows)} accepted")
     for col in ("heliostat", "target", "visits", "valid", "last error mrad", "RMS mrad", "verdict"):
         table.add_column(col, justify="right" if col not in ("heliostat", "target", "verdict") else "left")
@@ -61,6 +65,49 @@ def run(args) -> int:
     if stows:
         console.print(f"{len(stows)} wind stow(s); last: {stows[-1].reason}")
     return 0
+
+
+SQLITE_MAX_ID = 2**63 - 1
+"""The largest row id SQLite stores."""
+
+OWNER_MODES = {"run": ("live", "dry-run"), "operate": ("live",), "check": ("check",), "simulate": ("simulate",)}
+"""Campaign modes each campaign command runs (the word after the pid in the owner's lock line)."""
+
+
+def shown_campaign(store, campaigns, owner: str | None, requested: int | None):
+    """The campaign to show and why, in a few words (``status``, the crew console).
+
+    ``requested`` (``--campaign``) if given; else the campaign the process holding the database runs
+    (of the campaigns marked ``running`` and of its command's modes, the one whose process opened it
+    last: each opening records a ``campaign`` event); else the newest marked ``running`` (no process
+    runs it: interrupted); else the newest.
+
+    Raises
+    ------
+    ConfigError
+        ``requested`` is not a campaign of the database (one line naming the ids it has).
+    """
+    from helicalib.errors import ConfigError
+
+    if requested is not None:
+        found = [c for c in campaigns if c.id == requested] if 0 < requested <= SQLITE_MAX_ID else []
+        if not found:
+            ids = (", ".join(str(c.id) for c in campaigns) if len(campaigns) <= 10
+                   else f"{campaigns[0].id} to {campaigns[-1].id}, {len(campaigns)} in all")
+            raise ConfigError(f"--campaign {requested}: {store.path} has no such campaign (its campaign ids: {ids})")
+        return found[0], "asked for with --campaign"
+    running = [c for c in campaigns if c.status == "running"]
+    if owner is not None:
+        command = owner.split(":", 1)[-1].split()[0] if owner.split(":", 1)[-1].split() else ""
+        theirs = [c for c in running if c.mode in OWNER_MODES.get(command, ())]
+        if theirs:
+            opened = {e.campaign_id: e.id for e in store.events(kind="campaign")}
+            camp = max(theirs, key=lambda c: (opened.get(c.id, 0), c.id))
+            return camp, f"the campaign the process holding the database runs ({owner})"
+    if running:
+        return running[-1], ("the newest campaign marked running" if owner is None else
+                             f"the newest campaign marked running (the database is held by {owner})")
+    return campaigns[-1], "the newest campaign (none is running)"
 
 
 def shown_status(status: str, owner: str | None) -> str:
