@@ -3,7 +3,10 @@
 :class:`HttpCamera` implements :class:`helicalib.devices.protocols.Camera` with the standard
 library only. A timeout, a refused connection, a 5xx answer or a truncated body is retried
 (``retries`` times, with back-off); a 4xx answer, a body that is not an image, a missing or
-unreadable capture time, or a frame of the wrong size is not. Every failure raises
+unreadable capture time, or a frame of the wrong size is not. Every fetch has a whole-request
+deadline (monotonic; a watchdog shuts the socket when it passes, so a camera trickling its answer
+cannot hold the controller) and a size cap from the frame's expected size (an endless body cannot
+fill the memory). Every failure raises
 :class:`CameraError` (a :class:`~helicalib.errors.MeasurementError`) whose ``reason`` is a short
 code the visit records and whose message is one readable sentence.
 """
@@ -14,9 +17,9 @@ import http.client
 import math
 import socket
 import struct
+import threading
 import time
-import urllib.error
-import urllib.request
+import urllib.parse
 from collections.abc import Callable
 
 from helicalib.devices.protocols import Frame
@@ -28,8 +31,30 @@ JPEG_MAGIC = b"\xff\xd8\xff"
 JPEG_END = b"\xff\xd9"
 
 REASONS = ("camera_timeout", "camera_unreachable", "camera_http_error", "camera_truncated", "camera_not_image",
-           "camera_no_capture_time", "camera_wrong_size")
+           "camera_no_capture_time", "camera_wrong_size", "camera_deadline", "camera_too_large")
 """Reason codes of :class:`CameraError`."""
+
+DEADLINE_S = 10.0
+"""Real seconds a whole frame fetch (connection, answer, retries) may take by default. A frame of a
+few megabytes crosses a plant's LAN in well under a second; a camera that needs longer is faulty,
+and the controller must go on (its weather reads, status and stow)."""
+CHUNK_BYTES = 64 * 1024
+"""Bytes asked of the socket per read (a read returns what has arrived, up to this)."""
+FRAME_CAP_UNKNOWN_BYTES = 128 * 1024 * 1024
+"""The most an answer may hold when the camera's frame size is not configured (a 4096 × 4096 frame
+of 16-bit RGB stored without compression is 100 MB)."""
+
+
+def frame_cap_bytes(size_px: tuple[int, int] | None) -> int:
+    """The most a frame of ``size_px`` (width, height) can take as PNG or JPEG: every pixel at 4
+    channels of 16 bits (8 bytes) uncompressed, PNG's filter byte per row, zlib's 5 bytes per
+    stored block of 64 KiB and chunk headers (under 1 %), plus 64 KiB for the file's other chunks;
+    :data:`FRAME_CAP_UNKNOWN_BYTES` when the size is not known."""
+    if size_px is None:
+        return FRAME_CAP_UNKNOWN_BYTES
+    w, h = int(size_px[0]), int(size_px[1])
+    raw = h * (w * 8 + 1)
+    return int(raw * 1.01) + 64 * 1024
 
 
 class CameraError(MeasurementError):
@@ -72,57 +97,144 @@ class HttpCamera:
         Wait before the first retry [s], doubled each time.
     sleep : callable
         Real sleep (``time.sleep``), injected.
+    deadline_s : float, optional
+        The whole frame fetch, every attempt and wait included, ends within this many real seconds
+        (:data:`DEADLINE_S` by default; a read waits at most what is left of it): a camera that trickles its
+        answer (a few bytes every half second, each read within ``timeout_s``) raises
+        ``camera_deadline`` instead of holding the controller for hours.
+    max_bytes : int, optional
+        The most an answer may hold (:func:`frame_cap_bytes` of ``expected_size_px`` by default):
+        a longer body, or one without end and without ``Content-Length``, raises
+        ``camera_too_large`` once that much has arrived (memory stays bounded).
+    monotonic : callable
+        Real time for the deadline (``time.monotonic``), injected.
 
     A camera is a device: it gives frames. Its flux calibration (FLUX.yaml) is the sensor's
     business (:func:`helicalib.campaign.sensor.camera_sensors`).
     """
 
     def __init__(self, url: str, timeout_s: float = 5.0, retries: int = 2, expected_size_px: tuple[int, int] | None = None,
-                 backoff_s: float = 0.2, sleep: Callable[[float], None] = time.sleep):
+                 backoff_s: float = 0.2, sleep: Callable[[float], None] = time.sleep, deadline_s: float | None = None,
+                 max_bytes: int | None = None, monotonic: Callable[[], float] = time.monotonic):
         self.url = url
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
         self.expected_size_px = None if expected_size_px is None else (int(expected_size_px[0]), int(expected_size_px[1]))
         self.backoff_s = float(backoff_s)
         self._sleep = sleep
+        self.deadline_s = float(DEADLINE_S if deadline_s is None else deadline_s)
+        self.max_bytes = int(max_bytes) if max_bytes is not None else frame_cap_bytes(self.expected_size_px)
+        self._monotonic = monotonic
+        self._parts = urllib.parse.urlsplit(url)
 
     def grab(self) -> Frame:
-        """The current frame; raises :class:`CameraError` after the retries."""
+        """The current frame; raises :class:`CameraError` after the retries, or when the fetch's
+        deadline passes (``camera_deadline``: no further attempt)."""
         delay = self.backoff_s
+        end = self._monotonic() + self.deadline_s
         for attempt in range(self.retries + 1):
             if attempt:
-                self._sleep(delay)
+                wait = min(delay, max(0.0, end - self._monotonic()))
+                self._sleep(wait)
                 delay *= 2
             try:
-                return self._once()
+                return self._once(end)
             except CameraError as err:
-                if not err.transient or attempt == self.retries:
-                    if err.transient and self.retries:
+                out_of_time = self._monotonic() >= end
+                if not err.transient or attempt == self.retries or out_of_time:
+                    if err.transient and attempt:
                         raise CameraError(err.reason, f"{err} (after {attempt + 1} attempts)") from None
                     raise
         raise AssertionError("unreachable")
 
-    def _once(self) -> Frame:
+    def _connection(self, timeout_s: float) -> http.client.HTTPConnection:
+        p = self._parts
+        kind = http.client.HTTPSConnection if p.scheme == "https" else http.client.HTTPConnection
+        return kind(p.hostname, p.port, timeout=timeout_s)
+
+    def _once(self, end: float) -> Frame:
+        """One request, ended (its socket shut) at monotonic time ``end`` whatever the server does."""
         where = f"camera {self.url}"
+        if self._parts.scheme not in ("http", "https") or not self._parts.hostname:
+            raise CameraError("camera_unreachable", f"{where}: not an http:// or https:// address")
+        left = end - self._monotonic()
+        if left <= 0:
+            raise CameraError("camera_deadline", f"{where}: no frame within the fetch's deadline of "
+                                                 f"{self.deadline_s:g} s")
+        conn = self._connection(min(self.timeout_s, left))
+        cut = threading.Event()
+
+        def shut() -> None:  # the watchdog: a blocked read returns at once once the socket is shut
+            cut.set()
+            sock = conn.sock
+            if sock is not None:
+                try:
+                    sock.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+
+        watchdog = threading.Timer(left, shut)
+        watchdog.daemon = True
+        path = self._parts.path or "/"
+        if self._parts.query:
+            path += "?" + self._parts.query
         try:
-            with urllib.request.urlopen(self.url, timeout=self.timeout_s) as resp:
+            watchdog.start()
+            try:
+                conn.request("GET", path, headers={"Accept": "image/png, image/jpeg"})
+                resp = conn.getresponse()
                 headers = resp.headers
-                body = resp.read()
+                if resp.status >= 300:
+                    transient = resp.status >= 500
+                    raise CameraError("camera_http_error", f"{where}: HTTP {resp.status} {resp.reason}", transient)
                 length = headers.get("Content-Length")
-        except urllib.error.HTTPError as exc:
-            transient = exc.code >= 500
-            raise CameraError("camera_http_error", f"{where}: HTTP {exc.code} {exc.reason}", transient) from None
-        except (TimeoutError, socket.timeout) as exc:
-            raise CameraError("camera_timeout", f"{where}: no answer within {self.timeout_s:g} s", True) from exc
-        except http.client.IncompleteRead as exc:
-            raise CameraError("camera_truncated", f"{where}: body cut short ({len(exc.partial)} bytes received)",
-                              True) from None
-        except urllib.error.URLError as exc:
-            if isinstance(exc.reason, (TimeoutError, socket.timeout)):
-                raise CameraError("camera_timeout", f"{where}: no answer within {self.timeout_s:g} s", True) from None
-            raise CameraError("camera_unreachable", f"{where}: {exc.reason}", True) from None
-        except (http.client.HTTPException, ConnectionError, OSError) as exc:
-            raise CameraError("camera_unreachable", f"{where}: {type(exc).__name__}: {exc}", True) from None
+                if length is not None and length.isdigit() and int(length) > self.max_bytes:
+                    raise CameraError("camera_too_large", f"{where}: answer of {int(length)} bytes announced, more than "
+                                                          f"the {self.max_bytes} bytes a frame of this camera can hold")
+                body = self._body(resp, end, where)
+            except CameraError:
+                raise
+            except (TimeoutError, socket.timeout) as exc:
+                if cut.is_set():
+                    raise self._late(where) from None
+                raise CameraError("camera_timeout", f"{where}: no answer within {self.timeout_s:g} s", True) from exc
+            except http.client.IncompleteRead as exc:
+                if cut.is_set():
+                    raise self._late(where) from None
+                raise CameraError("camera_truncated", f"{where}: body cut short ({len(exc.partial)} bytes received)",
+                                  True) from None
+            except (http.client.HTTPException, ConnectionError, OSError) as exc:
+                if cut.is_set():
+                    raise self._late(where) from None
+                raise CameraError("camera_unreachable", f"{where}: {type(exc).__name__}: {exc}", True) from None
+        finally:
+            watchdog.cancel()
+            conn.close()
+        return self._frame(body, headers, length, where)
+
+    def _late(self, where: str) -> CameraError:
+        return CameraError("camera_deadline", f"{where}: the answer did not end within the fetch's deadline of "
+                                              f"{self.deadline_s:g} s (a camera sending slowly)")
+
+    def _body(self, resp, end: float, where: str) -> bytes:
+        """The answer's body, read as it comes (never more than :attr:`max_bytes`, never past ``end``)."""
+        chunks, size = [], 0
+        while True:
+            if self._monotonic() >= end:
+                raise self._late(where)
+            chunk = resp.read1(CHUNK_BYTES)
+            if not chunk:
+                break
+            size += len(chunk)
+            if size > self.max_bytes:
+                raise CameraError("camera_too_large", f"{where}: answer longer than {self.max_bytes} bytes, more "
+                                                      "than a frame of this camera can hold; not read further")
+            chunks.append(chunk)
+        if self._monotonic() >= end:  # the watchdog shut the socket: the body ended early, not by itself
+            raise self._late(where)
+        return b"".join(chunks)
+
+    def _frame(self, body: bytes, headers, length: str | None, where: str) -> Frame:
         if length is not None and length.isdigit() and int(length) != len(body):
             raise CameraError("camera_truncated", f"{where}: body of {len(body)} bytes, Content-Length {length}", True)
         if body.startswith(PNG_MAGIC):
