@@ -165,7 +165,7 @@ class TerminalView:
     def message(self, text: str) -> None:
         self.note = text
         if self._live is None:
-            self.console.print(text)
+            self.console.print(text, markup=False, highlight=False)  # names and paths from outside: text
 
     def on_event(self, ev: RunEvent) -> None:
         if ev.kind != "measurement" or not ev.data.get("valid", True):
@@ -182,9 +182,12 @@ class TerminalView:
         from rich.table import Table
         from rich.text import Text
 
+        # every string from outside (ids, the site's name, reasons, paths) is a Text, never markup:
+        # "[/]" would raise MarkupError (and blank the live view), "[link=...]" would become a link
+        title = Text(self.title)
         s = self.snap
         if s is None:
-            return Panel(Text("connecting to the plant …"), title=self.title)
+            return Panel(Text("connecting to the plant …"), title=title)
         head = Table.grid(padding=(0, 2))
         head.add_column(style="bold")
         head.add_column()
@@ -192,16 +195,18 @@ class TerminalView:
         rate = (s.time_s - (self._plant0 or s.time_s)) / elapsed
         head.add_row("plant time", f"{_clock(s.time_s, self.tz)}   rate {s.rate:g}x (seen {rate:.0f}x)   "
                                    f"sun {s.sun_elevation_deg:.1f}°")
-        head.add_row("mode", "[green]ARMED[/]: calibrating" if s.armed else
-                     "[yellow]not armed[/]: reading and planning only, nothing written to the plant")
+        head.add_row("mode", Text("ARMED", style="green") + Text(": calibrating") if s.armed else
+                     Text("not armed", style="yellow") + Text(": reading and planning only, nothing written to "
+                                                              "the plant"))
         style = "red" if s.stowed else ("green" if s.gate_open else "yellow")
         weather = "" if "wind" in s.gate_reason else (f"   wind {_fmt(s.wind_ms, ' m/s')}   "
                                                       f"DNI {_fmt(s.dni_wm2, ' W/m²', 0)}")
-        head.add_row("gate", f"[{style}]{gate_text(s)}[/]{weather}")
-        head.add_row("progress", f"[bold]{s.accepted}[/]/{s.heliostats} accepted · {s.in_progress} on boards · "
-                                 f"{s.waiting} waiting · {s.visits} visits ({s.valid_visits} valid) · {s.next_band}")
+        head.add_row("gate", Text(gate_text(s), style=style) + Text(weather))
+        head.add_row("progress", Text(str(s.accepted), style="bold") + Text(
+            f"/{s.heliostats} accepted · {s.in_progress} on boards · {s.waiting} waiting · {s.visits} visits "
+            f"({s.valid_visits} valid) · {s.next_band}"))
         if s.off_tracking:
-            head.add_row("[red]off tracking[/]", Text(", ".join(s.off_tracking), style="red")
+            head.add_row(Text("off tracking", style="red"), Text(", ".join(s.off_tracking), style="red")
                          + Text(" (retrying until the plant confirms state 1)"))
         boards = Table(box=None, expand=False, header_style="bold")
         for col in ("board", "heliostat", "placement", "last error [mrad]", "on board for"):
@@ -222,7 +227,7 @@ class TerminalView:
         parts = [head, Text(""), boards, Text(""), Panel(log, title="events (site time; * controller clock)")]
         if self.note:
             parts.append(Text(self.note, style="bold yellow"))
-        return Panel(Group(*parts), title=self.title)
+        return Panel(Group(*parts), title=title)
 
 
 def _style(ev: RunEvent) -> str:

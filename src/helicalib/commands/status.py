@@ -47,23 +47,26 @@ def run(args) -> int:
                           "stows": sum(e.kind == "stow" for e in events),
                           "off_tracking": off_tracking(events)}, indent=2, default=list))
         return 0
+    # every string below that a user or a device gave (ids, names, reasons, the owner's line) is
+    # printed as rich Text, never parsed as markup: "[/]" must not crash, "[link=...]" not become a link
     console = Console()
     console.print(Text(f"campaign {camp.id}: {why}"))
-    table = Table(title=f"campaign {camp.id}: {camp.name} ({state}) — {accepted}/{len(rows)} accepted")
+    table = Table(title=Text(f"campaign {camp.id}: {camp.name} ({state}) — {accepted}/{len(rows)} accepted"))
     for col in ("heliostat", "target", "visits", "valid", "last error mrad", "RMS mrad", "verdict"):
         table.add_column(col, justify="right" if col not in ("heliostat", "target", "verdict") else "left")
     for r in rows:
         verdict = "accepted" if r["accepted"] else ("—" if r["accepted"] is None else (r["reasons"] or ["not accepted"])[0])
         fmt = lambda x: "—" if x is None else f"{x:.2f}"  # noqa: E731
-        table.add_row(r["heliostat_id"], r["target_id"], str(r["visits"]), str(r["valid"]), fmt(r["last_error_mrad"]),
-                      fmt(r["rms_mrad"]), verdict)
+        table.add_row(Text(r["heliostat_id"]), Text(r["target_id"]), str(r["visits"]), str(r["valid"]),
+                      fmt(r["last_error_mrad"]), fmt(r["rms_mrad"]), Text(verdict))
     console.print(table)
     stranded = off_tracking(events)
     if stranded:
-        console.print(f"[red]not confirmed back to tracking[/]: {', '.join(stranded)} (the next run retries them)")
+        console.print(Text("not confirmed back to tracking", style="red")
+                      + Text(f": {', '.join(stranded)} (the next run retries them)"))
     stows = [e for e in events if e.kind == "stow"]
     if stows:
-        console.print(f"{len(stows)} wind stow(s); last: {stows[-1].reason}")
+        console.print(Text(f"{len(stows)} wind stow(s); last: {stows[-1].reason}"))
     return 0
 
 
