@@ -32,6 +32,7 @@ from pathlib import Path
 from urllib.parse import quote
 
 from helicalib.console.view import FRAMES_KEPT, STATES, Sources, read_view
+from helicalib.errors import ConfigError, HelicalibError
 
 TEMPLATES = Path(__file__).with_name("templates")
 STATIC = Path(__file__).with_name("static")
@@ -195,6 +196,85 @@ class TokenGate:
         return await self.app(scope, receive, send)
 
 
+# ---------------------------------------------------------------------------------------------- actions
+MAX_BODY_BYTES = 16 * 1024
+"""An action's JSON body is read up to this size; a longer one is refused (413) unread."""
+MAX_ACTION_IDS = 1000
+"""Heliostats one action may name."""
+MAX_ID_CHARS = 200
+ACTION_FIELDS = ("kind", "heliostats", "who")
+
+
+class BodyTooLarge(HelicalibError):
+    """A request body over :data:`MAX_BODY_BYTES` (answered 413)."""
+
+
+async def read_body(request, limit: int = MAX_BODY_BYTES) -> bytes:
+    """The request's body, refused (:class:`BodyTooLarge`) past ``limit`` bytes: by its declared
+    length before reading, else as soon as the bytes received pass it."""
+    declared = request.headers.get("content-length")
+    if declared is not None:
+        if not declared.strip().isdigit():
+            raise ConfigError(f"action: Content-Length {declared[:40]!r} is not a number")
+        if int(declared) > limit:
+            raise BodyTooLarge(f"action: body of {int(declared)} bytes refused (at most {limit} bytes)")
+    chunks, size = [], 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > limit:
+            raise BodyTooLarge(f"action: body over {limit} bytes refused")
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def parse_action(raw: bytes) -> tuple[str, list[str], str]:
+    """(kind, heliostat ids, who) of an action's JSON body, each of the right type and length;
+    :class:`ConfigError` naming the field otherwise. Whether the kind and ids are known is
+    :func:`helicalib.campaign.operator.check_request`'s to say."""
+    from helicalib.campaign.operator import KINDS, MAX_WHO_CHARS
+
+    try:
+        body = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
+    except UnicodeDecodeError:
+        raise ConfigError("action: the body is not UTF-8 text") from None
+    except RecursionError:
+        raise ConfigError("action: the JSON is nested too deeply (an action is one flat object)") from None
+    except ValueError as err:
+        raise ConfigError(f"action: not JSON ({err})") from None
+    if not isinstance(body, dict):
+        raise ConfigError('action: the body must be one JSON object {"kind": ..., "who": ..., "heliostats": [...]}')
+    extra = [k for k in body if k not in ACTION_FIELDS]
+    if extra:
+        raise ConfigError(f"action: unknown field {extra[0][:40]!r} (the fields are {', '.join(ACTION_FIELDS)})")
+    kind, who, ids = body.get("kind"), body.get("who"), body.get("heliostats")
+    if not isinstance(kind, str) or kind not in KINDS:
+        shown = kind[:40] if isinstance(kind, str) else json.dumps(kind)[:40]
+        raise ConfigError(f"action: 'kind' {shown!r} is not one of {', '.join(KINDS)}")
+    if not isinstance(who, str):
+        got = "null" if who is None else type(who).__name__
+        raise ConfigError(f"action: 'who' must be text, your name (got {got})")
+    if len(who) > MAX_WHO_CHARS:
+        raise ConfigError(f"action: 'who' is longer than {MAX_WHO_CHARS} characters")
+    if any(not ch.isprintable() for ch in who):
+        raise ConfigError("action: 'who' holds control characters (a name is one line of text)")
+    if ids is None:
+        ids = []
+    elif isinstance(ids, str):
+        ids = ids.split(",")
+    if not isinstance(ids, list) or not all(isinstance(h, str) for h in ids):
+        raise ConfigError("action: 'heliostats' must be a list of ids or one comma-separated string")
+    if len(ids) > MAX_ACTION_IDS:
+        raise ConfigError(f"action: {len(ids)} heliostats named (at most {MAX_ACTION_IDS} per action)")
+    long = next((h for h in ids if len(h) > MAX_ID_CHARS), None)
+    if long is not None:
+        raise ConfigError(f"action: heliostat id {long[:40]!r}... is longer than {MAX_ID_CHARS} characters")
+    return kind, ids, who.strip()
+
+
 # ---------------------------------------------------------------------------------------------- app
 def create_app(console: Console):
     """The Starlette application of ``console``."""
@@ -206,8 +286,6 @@ def create_app(console: Console):
         StreamingResponse
     from starlette.routing import Mount, Route
     from starlette.staticfiles import StaticFiles
-
-    from helicalib.errors import HelicalibError
 
     async def page(request: Request):
         v = await run_in_threadpool(console.view)
@@ -272,21 +350,14 @@ def create_app(console: Console):
         if origin and origin.split("://", 1)[-1] != request.headers.get("host"):
             return JSONResponse({"error": f"action refused: request from another site ({origin})"}, status_code=403)
         try:
-            body = await request.json()
-            kind = str(body.get("kind", ""))
-            ids = body.get("heliostats") or []
-            if isinstance(ids, str):
-                ids = ids.split(",")
-            if not isinstance(ids, list) or not all(isinstance(h, str) for h in ids):
-                return JSONResponse({"error": "action: heliostats must be a list of ids or one comma-separated "
-                                              "string"}, status_code=400)
-            who = str(body.get("who", "")).strip()
-            client = request.client.host if request.client else "?"
+            kind, ids, who = parse_action(await read_body(request))
+            # the socket's peer: a header (X-Forwarded-For...) is whatever the sender wrote
+            client = request.scope["client"][0] if request.scope.get("client") else "?"
             action_id = await run_in_threadpool(console.act, kind, ids, f"{who} ({client})" if who else "")
+        except BodyTooLarge as err:
+            return JSONResponse({"error": str(err)}, status_code=413)
         except HelicalibError as err:
             return JSONResponse({"error": str(err)}, status_code=400)
-        except (ValueError, AttributeError) as err:
-            return JSONResponse({"error": f"action: not a JSON object ({err})"}, status_code=400)
         return JSONResponse({"id": action_id, "kind": kind, "status": "recorded; the controller applies it at "
                                                                       "its next decision"})
 

@@ -84,8 +84,10 @@ class ConsoleServer:
     def _config(self):
         import uvicorn
 
+        # proxy_headers off: uvicorn would otherwise take X-Forwarded-For from a loopback peer as the
+        # client, and an action would record whatever address its sender wrote
         return uvicorn.Config(self.app, log_level="warning", lifespan="off", access_log=False,
-                              timeout_graceful_shutdown=2)
+                              timeout_graceful_shutdown=2, proxy_headers=False)
 
     def start(self) -> None:
         """Serve in a daemon thread; returns once the server accepts connections."""
