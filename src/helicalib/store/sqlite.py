@@ -118,9 +118,10 @@ class Store:
         if readonly:
             return cls(_connect_readonly(db), db, images, durable)
         db.parent.mkdir(parents=True, exist_ok=True)
-        lock_file = _owner_lock(db.with_name(db.name + ".lock"), owner) if owner is not None else None
+        real = db.resolve()  # every path to one file (a symlink, dir/../dir/x.db) shares one lock and one WAL
+        lock_file = _owner_lock(_lock_file_of(real), owner) if owner is not None else None
         try:
-            conn = sqlite3.connect(db, timeout=30.0, check_same_thread=False)
+            conn = sqlite3.connect(real, timeout=30.0, check_same_thread=False)
             conn.execute("PRAGMA journal_mode=WAL")
             conn.execute(f"PRAGMA synchronous={'FULL' if durable else 'NORMAL'}")
             conn.execute("PRAGMA foreign_keys=ON")
@@ -159,7 +160,8 @@ class Store:
 
     @property
     def lock_path(self) -> Path:
-        return self.path.with_name(self.path.name + ".lock")
+        """``<database>.lock`` beside the resolved database file (the one lock of every path to it)."""
+        return _lock_file_of(self.path)
 
     def owner(self) -> str | None:
         """Who holds the database now ("pid 123: run"), or None when no campaign process runs on it."""
@@ -576,7 +578,7 @@ def _connect_readonly(db: Path) -> sqlite3.Connection:
     if not db.is_file():
         raise ConfigError(f"{db}: no such database file")
     db = db.resolve()  # the -wal and .lock files sit beside the real file, not beside a symlink
-    quiet = not db.with_name(db.name + "-wal").exists() and _lock_holder(db.with_name(db.name + ".lock")) is None
+    quiet = not db.with_name(db.name + "-wal").exists() and _lock_holder(_lock_file_of(db)) is None
     try:
         conn = sqlite3.connect(f"{db.resolve().as_uri()}?{'immutable=1' if quiet else 'mode=ro'}", uri=True,
                                timeout=30.0, check_same_thread=False)
@@ -584,6 +586,13 @@ def _connect_readonly(db: Path) -> sqlite3.Connection:
     except sqlite3.DatabaseError as exc:
         raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
     return conn
+
+
+def _lock_file_of(db: Path) -> Path:
+    """The owner lock of a database: ``<name>.lock`` beside the file a path resolves to, so that a
+    symlink, ``dir/../dir/x.db`` or a symlinked folder all contend for the same lock."""
+    real = Path(db).resolve()
+    return real.with_name(real.name + ".lock")
 
 
 def _owner_lock(path: Path, what: str):
