@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -55,15 +56,39 @@ def _short(value: Any, limit: int = 40) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _nonblank(value: str) -> str:
-    if not value.strip():
+MAX_ID_LENGTH = 32
+"""Longest heliostat, target, camera id or drive name (PAINT's ``AA39``, ``H00001``, ``solar_tower_juelich_upper``)."""
+ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+"""An id: ASCII letters, digits, ``.``, ``_`` and ``-``, starting with a letter or digit (no markup,
+no path separators, no spaces: an id is shown on every screen and names files)."""
+MAX_NAME_LENGTH = 200
+"""Longest free-text name (``site.name``) in characters."""
+
+
+def _safe_id(value: str) -> str:
+    if not value:
         raise ValueError("expected a non-empty id")
-    if not value.isprintable():
-        raise ValueError(f"expected an id without control characters, got {_short(value)}")
+    if len(value) > MAX_ID_LENGTH:
+        raise ValueError(f"an id of {len(value)} characters: at most {MAX_ID_LENGTH}")
+    if not ID_PATTERN.fullmatch(value):
+        raise ValueError(f"{_short(value)}: an id holds only the letters A-Z and a-z, digits, '.', '_' and '-', "
+                         "and starts with a letter or digit")
     return value
 
 
-Id = Annotated[str, AfterValidator(_nonblank)]
+def _plain_name(value: str) -> str:
+    if not value.strip():
+        raise ValueError("expected a non-empty name")
+    if len(value) > MAX_NAME_LENGTH:
+        raise ValueError(f"a name of {len(value)} characters: at most {MAX_NAME_LENGTH}")
+    if not value.isprintable():
+        bad = next(c for c in value if not c.isprintable())
+        raise ValueError(f"expected printable text, got the control or format character U+{ord(bad):04X}")
+    return value
+
+
+Id = Annotated[str, AfterValidator(_safe_id)]
+Name = Annotated[str, AfterValidator(_plain_name)]
 
 
 def _unit(value: tuple[float, ...]) -> tuple[float, ...]:
@@ -107,7 +132,7 @@ class _Model(BaseModel):
 
 # ---------------------------------------------------------------------------- sections
 class Site(_Model):
-    name: str
+    name: Name
     latitude_deg: float = Field(ge=-90, le=90)
     longitude_deg: float = Field(ge=-180, le=180)
     altitude_m: float = Field(ge=-1000, le=10000)
