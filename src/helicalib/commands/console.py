@@ -32,7 +32,7 @@ def run(args) -> int:
 
     from helicalib.console.app import Console, create_app
     from helicalib.console.server import ConsoleServer, parse_address, url
-    from helicalib.console.view import Sources
+    from helicalib.console.view import Sources, reading
     from helicalib.errors import ConfigError
     from helicalib.geometry.sitetime import site_time
     from helicalib.report.data import find_config
@@ -45,12 +45,16 @@ def run(args) -> int:
         return Store.open(path, args.images, readonly=True)  # a reader: never writes, never takes the lock
 
     store = reopen()
-    campaigns = store.campaigns()
-    if not campaigns:
+    try:
+        with reading(store, args.campaign):
+            campaigns = store.campaigns()
+            if not campaigns:
+                raise ConfigError(f"{args.db}: no campaign in this database yet")
+            campaign = store.campaign(args.campaign) if args.campaign is not None else campaigns[-1]
+            cfg, note = find_config(campaign, path, args.field)
+    except BaseException:
         store.close()
-        raise ConfigError(f"{args.db}: no campaign in this database yet")
-    campaign = store.campaign(args.campaign) if args.campaign is not None else campaigns[-1]
-    cfg, note = find_config(campaign, path, args.field)
+        raise
     token = secrets.token_urlsafe(18) if args.console_public else None
     sources = Sources(store=store, cfg=cfg, campaign_id=campaign.id, site=site_time(cfg))
     console = Console(sources, token=token, reopen=reopen,

@@ -31,8 +31,8 @@ import time
 from pathlib import Path
 from urllib.parse import quote
 
-from helicalib.console.view import FRAMES_KEPT, STATES, Sources, read_view
-from helicalib.errors import ConfigError, HelicalibError
+from helicalib.console.view import FRAMES_KEPT, STATES, Sources, read_view, reading
+from helicalib.errors import ConfigError, DataError, HelicalibError
 
 TEMPLATES = Path(__file__).with_name("templates")
 STATIC = Path(__file__).with_name("static")
@@ -83,7 +83,8 @@ class Console:
             if self.reopen is not None:
                 old, self.src.store = self.src.store, self.reopen()
                 old.close()
-            v = read_view(self.src, snapshot)
+            with reading(self.src.store, self.src.campaign_id):
+                v = read_view(self.src, snapshot)
             self._view = (now, version, v)
             return v
 
@@ -114,10 +115,11 @@ class Console:
         with self._draw_lock:
             now = time.monotonic()
             if self._report is None or now - self._report[0] >= REPORT_EVERY_S:
-                data = load_campaign(self.src.store.path, self.src.campaign_id, images_dir=self.src.store.images_dir)
-                if self.src.cfg is not None:
-                    data.cfg = data.cfg or self.src.cfg
-                self._report = (now, data, None, compute(data, self.src.site))
+                with reading(self.src.store, self.src.campaign_id):
+                    data = load_campaign(self.src.store.path, self.src.campaign_id, images_dir=self.src.store.images_dir)
+                    if self.src.cfg is not None:
+                        data.cfg = data.cfg or self.src.cfg
+                    self._report = (now, data, None, compute(data, self.src.site))
             return self._report[1], self._report[3]
 
     def progress_png(self) -> Path:
@@ -301,6 +303,8 @@ def create_app(console: Console):
                 try:
                     v = await run_in_threadpool(console.view)
                     panels = await run_in_threadpool(console.panels, v)
+                except HelicalibError as err:  # damaged data says so in one line; the stream goes on
+                    panels = {"clock": console.render("panel_error.html", error=str(err))}
                 except Exception as err:  # noqa: BLE001 - a page that cannot be read says so, the stream goes on
                     panels = {"clock": console.render("panel_error.html", error=f"{type(err).__name__}: {err}")}
                 changed = {k: h for k, h in panels.items() if last.get(k) != h}
@@ -327,6 +331,8 @@ def create_app(console: Console):
     async def progress(request: Request):
         try:
             path = await run_in_threadpool(console.progress_png)
+        except DataError:
+            raise  # damaged data: 503 with its line (unreadable)
         except HelicalibError as err:
             return Response(f"{err}\n", status_code=404, media_type="text/plain")
         return FileResponse(path, media_type="image/png", headers={"Cache-Control": "no-store"})
@@ -335,6 +341,8 @@ def create_app(console: Console):
         hid = request.path_params["hid"]
         try:
             href = await run_in_threadpool(console.sheet, hid)
+        except DataError:
+            raise
         except HelicalibError as err:
             return Response(f"{err}\n", status_code=404, media_type="text/plain")
         return RedirectResponse("/sheets/" + quote(href), status_code=303)
@@ -381,4 +389,14 @@ def create_app(console: Console):
 
         middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=list(LOOPBACK_HOSTS))]
     (console.cache / "sheets").mkdir(parents=True, exist_ok=True)
-    return Starlette(routes=routes, middleware=middleware)
+
+    async def unreadable(request: Request, err: HelicalibError):
+        """A database that cannot be read (damaged rows, a file gone): one line, 503, never a traceback."""
+        line = " ".join(str(err).split())
+        if request.url.path.startswith("/api/"):
+            return JSONResponse({"error": line}, status_code=503)
+        if request.url.path == "/":
+            return HTMLResponse(console.render("console_error.html", error=line), status_code=503)
+        return Response(line + "\n", status_code=503, media_type="text/plain")
+
+    return Starlette(routes=routes, middleware=middleware, exception_handlers={HelicalibError: unreadable})

@@ -15,8 +15,13 @@ the templates draw (``templates/panels.html``):
 
 from __future__ import annotations
 
+import json
 import math
+import sqlite3
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+
+from helicalib.errors import DataError, HelicalibError
 
 STATES = {
     "waiting": "waiting for its turn (no verdict yet, or not accepted)",
@@ -233,6 +238,67 @@ def log_rows(events, visits, limit: int = EVENTS_SHOWN) -> list[dict]:
                      "reason": f"{v.heliostat_id} off {v.target_id}: {v.outcome} ({v.reason}){errs}"})
     rows.sort(key=lambda r: r["time_s"], reverse=True)
     return rows[:limit]
+
+
+# ---------------------------------------------------------------------------------------------- damage
+RAW_ERRORS = (sqlite3.DatabaseError, ValueError, TypeError, KeyError, AttributeError, OverflowError)
+"""What a damaged row raises when a reader parses it unchecked (bad JSON is a ValueError, text in
+a REAL column a TypeError or ValueError further on, a damaged page a ``sqlite3.DatabaseError``)."""
+
+
+@contextmanager
+def reading(store, campaign_id: int | None):
+    """Turn a raw error while reading the database into one :class:`DataError` line naming the
+    table and row (:func:`locate_damage`); helicalib's own errors pass as they are."""
+    try:
+        yield
+    except HelicalibError:
+        raise
+    except RAW_ERRORS as err:
+        raise DataError(damage_line(store, campaign_id, err)) from None
+
+
+def damage_line(store, campaign_id: int | None, err: BaseException) -> str:
+    """One line saying what in ``store`` could not be read: the damaged table and row when found."""
+    said = " ".join(str(err).split())[:160]
+    try:
+        where = locate_damage(store, campaign_id)
+    except (sqlite3.DatabaseError, ValueError) as again:
+        where = None
+        said = " ".join(str(again).split())[:160]
+    path = getattr(store, "path", "the database")
+    if where is not None:
+        return f"{path}: damaged data in {where}; the console shows the rest once it is mended"
+    return (f"{path}: the database could not be read ({type(err).__name__}: {said}); "
+            "`sqlite3 DB 'PRAGMA integrity_check'` says where it is damaged")
+
+
+def locate_damage(store, campaign_id: int | None) -> str | None:
+    """The first damaged value of the campaign's rows, ``table T, row N: COLUMN is not ...`` (a
+    ``*_json`` column that is not JSON, a REAL or INTEGER column holding text or bytes), or None."""
+    tables = [r[0] for r in store._read("SELECT name FROM sqlite_master WHERE type = 'table' AND name NOT LIKE "
+                                        "'sqlite_%' ORDER BY name")]
+    for table in tables:
+        cols = store._read(f'PRAGMA table_info("{table}")')
+        names = [c["name"] for c in cols]
+        key = "campaign_id" if "campaign_id" in names else ("id" if table == "campaigns" else None)
+        where = "" if campaign_id is None or key is None else f" AND {key} = {int(campaign_id)}"
+        for c in cols:
+            word = {"REAL": "a number", "INTEGER": "an integer"}.get(str(c["type"]).upper())
+            if word is None:
+                continue
+            bad = store._read(f'SELECT rowid, "{c["name"]}" FROM "{table}" WHERE typeof("{c["name"]}") NOT IN '
+                              f"('real', 'integer', 'null'){where} LIMIT 1")
+            if bad:
+                value = bad[0][1]
+                return f"table {table}, row {bad[0][0]}: {c['name']} is not {word} ({type(value).__name__} {value!r:.40})"
+        for col in (n for n in names if n.endswith("_json")):
+            for rowid, text in store._read(f'SELECT rowid, "{col}" FROM "{table}" WHERE 1{where}'):
+                try:
+                    json.loads(text)
+                except (ValueError, TypeError, RecursionError):
+                    return f"table {table}, row {rowid}: {col} is not JSON ({text!r:.40})"
+    return None
 
 
 def read_view(src: Sources, snapshot=None) -> dict:
