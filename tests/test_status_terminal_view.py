@@ -3,8 +3,13 @@ console from snapshots and events built here, as the runner builds them."""
 
 from __future__ import annotations
 
+import collections
 import datetime as dt
 import io
+import math
+import re
+
+import pytest
 
 from helicalib.campaign.console import LineLog, TerminalView
 from helicalib.campaign.events import BoardState, RunEvent, Snapshot
@@ -50,3 +55,90 @@ def test_hostile_ids_names_and_reasons_are_shown_as_text():
     for literal in (site, LINK, "[/]T1", "[bold]T2", "paused: [/] DNI low", f"{LINK} onto [/]T1",
                     f"database /srv/[/]{LINK}.db"):
         assert literal in text, literal
+
+
+class _SlowPlant:
+    """The in-process plant, each request taking 12 plant seconds (a 50 ms Modbus round trip at 240x)."""
+
+    def __init__(self, plant, clock_of):
+        self._plant, self._clock_of = plant, clock_of
+
+    def __getattr__(self, name):
+        attr = getattr(self._plant, name)
+        clock = self._clock_of()
+        if not callable(attr) or clock is None:
+            return attr
+
+        def call(*args, **kwargs):
+            out = attr(*args, **kwargs)
+            clock.advance_to(clock.now_s() + 12.0)
+            return out
+        return call
+
+
+@pytest.fixture(scope="module")
+def late_stamped(demo_field_path, tmp_path_factory):
+    """Events of a short campaign whose plant answers slowly: they reach the views out of plant-time
+    order (a step's visit_end carries the time the step began, its tracking_written a later one)."""
+    from campaign_helpers import inprocess_campaign
+    from helicalib.config import load_field_config
+
+    cfg = load_field_config(demo_field_path)
+    box = {}
+    runner, sim, store, _cid, _c = inprocess_campaign(cfg, tmp_path_factory.mktemp("late"), 9, 3,
+                                                      ["H0001", "H0021", "H0002"],
+                                                      plant=lambda s: _SlowPlant(s, lambda: box.get("clock")))
+    box["clock"] = runner.clock
+    events = []
+    runner.listeners.append(events.append)
+    runner.run_until(sim.t_s + 1500)
+    store.close()
+    assert any(b.time_s < a.time_s for a, b in zip(events, events[1:]))  # as on the independent plant
+    return events
+
+
+def _event_times(text: str) -> list[str]:
+    panel = text[text.index("events in plant-time order"):]
+    return re.findall(r"^\W*(\d\d:\d\d:\d\d)\s", panel, flags=re.M)
+
+
+def test_the_terminal_shows_events_in_plant_time_order(late_stamped):
+    view = terminal(width=220)
+    view.events = collections.deque(maxlen=len(late_stamped))  # every event, to see them all
+    for ev in late_stamped:
+        view.on_event(ev)
+    view.on_snapshot(snapshot(time_s=late_stamped[-1].time_s))
+    times = _event_times(draw(view))
+    assert len(times) > 10 and times == sorted(times)
+    shown = [ev for _s, ev in view.shown_events()]
+    assert len(times) == len(shown)
+    assert [ev.time_s for ev in shown] == sorted(ev.time_s for ev in shown)
+
+
+def test_log_lines_label_a_line_stamped_before_the_line_above(late_stamped):
+    stream = io.StringIO()
+    log = LineLog(UTC, stream=stream)
+    for ev in late_stamped:
+        log.on_event(ev)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == len(late_stamped)
+    newest = -math.inf
+    for ev, line in zip(late_stamped, lines):
+        assert ("out of order:" in line) == (ev.time_s < newest), line
+        newest = max(newest, ev.time_s)
+    assert any("out of order:" in line for line in lines)
+
+
+def test_a_plant_clock_set_back_starts_a_new_run_of_lines():
+    view, stream = terminal(), io.StringIO()
+    log = LineLog(UTC, stream=stream)
+    day_before = T0 - 86400.0
+    for ev in (RunEvent(T0, "visit", "H0001 onto T1"), RunEvent(T0 + 60, "visit_end", "H0001 off T1"),
+               RunEvent(day_before, "fault", "plant time went backwards"), RunEvent(day_before + 30, "visit", "H0002 onto T1")):
+        view.on_event(ev)
+        log.on_event(ev)
+    view.on_snapshot(snapshot(time_s=day_before + 30))
+    text = draw(view)
+    assert text.index("H0001 off T1") < text.index("stamped 24.0 h before those above") < text.index("H0002 onto T1")
+    lines = stream.getvalue().splitlines()
+    assert "stamped 24.0 h before those above" in lines[2] and "out of order" not in lines[3]

@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import datetime as dt
 import json
+import math
 import sys
 import threading
 import time
@@ -44,6 +45,51 @@ def _clock(t_s: float, tz: dt.tzinfo) -> str:
 
 def _fmt(x: float | None, unit: str = "", nd: int = 1) -> str:
     return "—" if x is None else f"{x:.{nd}f}{unit}"
+
+
+def duration(seconds: float) -> str:
+    """A span of time in a few characters: ``"45 s"``, ``"4.0 min"``, ``"3.1 h"``, ``"2.0 d"``."""
+    seconds = max(0.0, float(seconds))
+    if seconds < 90.0:
+        return f"{seconds:.0f} s"
+    if seconds < 5400.0:
+        return f"{seconds / 60.0:.1f} min"
+    if seconds < 2 * 86400.0:
+        return f"{seconds / 3600.0:.1f} h"
+    return f"{seconds / 86400.0:.1f} d"
+
+
+CLOCK_JUMP_S = 1800.0
+"""An event stamped this much [plant s] before the newest one shown starts a new run of lines (the
+plant's clock went back, or a step ran that late) instead of being sorted in among the old ones."""
+
+
+class PlantOrder:
+    """The plant times of the lines shown so far, to place (or label) a line stamped earlier.
+
+    Events reach a view in the order they happen in the controller, not in plant-time order: a
+    measurement carries its frame's capture time, and a step's closing events (``visit_end``,
+    ``verdict``) the plant time the step began, while events made during the step (a
+    ``tracking_written`` after the track command) read the clock afresh; at 240x a step of two
+    real seconds is eight plant minutes. :meth:`place` says how far behind the newest line a new one
+    is, or that it starts a new run of lines after a jump back of more than :data:`CLOCK_JUMP_S`."""
+
+    def __init__(self):
+        self.newest_s: float | None = None
+        self.run = 0
+
+    def place(self, t_s: float) -> tuple[float, str | None]:
+        """(seconds ``t_s`` lies before the newest line so far (0 if not), a sentence when it starts a new run)."""
+        if self.newest_s is None or t_s >= self.newest_s:
+            self.newest_s = t_s
+            return 0.0, None
+        behind = self.newest_s - t_s
+        if behind <= CLOCK_JUMP_S:
+            return behind, None
+        self.run += 1
+        self.newest_s = t_s
+        return 0.0, (f"the lines below are stamped {duration(behind)} before those above (the plant's clock went "
+                     "back, or a step ran that late)")
 
 
 def gate_text(s: Snapshot) -> str:
@@ -91,26 +137,39 @@ class _Lines:
 
 
 class LineLog(_Lines):
-    """One line per event on ``stream`` (stderr by default): for logs, journals and CI."""
+    """One line per event on ``stream`` (stderr by default): for logs, journals and CI.
+
+    Lines go out as the events happen; a line stamped before the newest line above it says so
+    (``out of order: 4.0 min before the newest line above``), and a jump back of more than
+    :data:`CLOCK_JUMP_S` gets a line of its own (:class:`PlantOrder`)."""
 
     def __init__(self, tz: dt.tzinfo, stream=None, monotonic=time.monotonic):
         super().__init__(tz, stream or sys.stderr, monotonic)
+        self._order = PlantOrder()
 
     def message(self, text: str) -> None:
         self._write(text)
 
+    def _stamped(self, t_s: float, kind: str, text: str, controller: bool = False) -> None:
+        stamp = iso_utc(t_s).replace("+00:00", "Z")
+        with self._lock:
+            behind, jump = self._order.place(t_s)
+        if jump is not None:
+            self._write(f"{stamp} {'clock':<16} {jump}")
+        late = f" (out of order: {duration(behind)} before the newest line above)" if behind > 0 else ""
+        self._write(f"{stamp}{' (controller clock)' if controller else ''} {kind:<16} {text}{late}")
+
     def on_event(self, ev: RunEvent) -> None:
-        stamp = iso_utc(ev.time_s).replace("+00:00", "Z") + (" (controller clock)" if ev.clock != "plant" else "")
-        self._write(f"{stamp} {ev.kind:<16} {ev.reason}")
+        self._stamped(ev.time_s, ev.kind, ev.reason, ev.clock != "plant")
 
     def on_snapshot(self, s: Snapshot) -> None:
         if not self._status_due():
             return
         boards = ", ".join(f"{b.target_id}: {'+'.join((b.heliostat_id, *b.others)) if b.heliostat_id else 'free'}"
                            for b in s.boards)
-        self._write(f"{iso_utc(s.time_s).replace('+00:00', 'Z')} status           {s.accepted}/{s.heliostats} "
-                    f"accepted, {s.in_progress} in progress, {s.waiting} waiting; {s.visits} visits; "
-                    f"{gate_text(s)}; {boards}; {s.next_band}")
+        self._stamped(s.time_s, "status", f"{s.accepted}/{s.heliostats} accepted, {s.in_progress} in progress, "
+                                          f"{s.waiting} waiting; {s.visits} visits; {gate_text(s)}; {boards}; "
+                                          f"{s.next_band}")
 
 
 class JsonLines(_Lines):
@@ -143,7 +202,11 @@ class TerminalView:
 
         self.tz, self.title = tz, title
         self.console = console or Console(stderr=True)
-        self.events: collections.deque[tuple[str, RunEvent]] = collections.deque(maxlen=events_shown)
+        # the newest events as they arrived, each with its place in plant-time order (PlantOrder)
+        self.events: collections.deque[tuple[tuple, str, RunEvent]] = collections.deque(maxlen=events_shown)
+        self._order = PlantOrder()
+        self._seq = 0
+        self._events_lock = threading.Lock()
         self.snap: Snapshot | None = None
         self.note = ""
         self._live = None
@@ -168,8 +231,20 @@ class TerminalView:
             self.console.print(text, markup=False, highlight=False)  # names and paths from outside: text
 
     def on_event(self, ev: RunEvent) -> None:
-        if ev.kind != "measurement" or not ev.data.get("valid", True):
-            self.events.append((_style(ev), ev))
+        if ev.kind == "measurement" and ev.data.get("valid", True):
+            return
+        with self._events_lock:
+            self._seq += 1
+            _behind, jump = self._order.place(ev.time_s)
+            if jump is not None:  # first in its run of lines, whatever the plant times in it
+                self.events.append(((self._order.run, -math.inf, self._seq), "bold yellow",
+                                    RunEvent(ev.time_s, "clock", jump)))
+            self.events.append(((self._order.run, ev.time_s, self._seq), _style(ev), ev))
+
+    def shown_events(self) -> list[tuple[str, RunEvent]]:
+        """The events the view shows, in plant-time order (style, event)."""
+        with self._events_lock:
+            return [(style, ev) for _key, style, ev in sorted(self.events, key=lambda row: row[0])]
 
     def on_snapshot(self, s: Snapshot) -> None:
         if self._plant0 is None:
@@ -220,11 +295,11 @@ class TerminalView:
         log.add_column(no_wrap=True, style="dim", width=9)
         log.add_column(no_wrap=True, width=16)
         log.add_column(overflow="fold", ratio=1)
-        for style_, ev in list(self.events):
+        for style_, ev in self.shown_events():
             t = dt.datetime.fromtimestamp(ev.time_s, tz=self.tz).strftime("%H:%M:%S")
             # reasons carry text from outside (an operator's name, a device's message): never markup
             log.add_row(t + ("*" if ev.clock != "plant" else ""), Text(ev.kind, style=style_), Text(ev.reason))
-        parts = [head, Text(""), boards, Text(""), Panel(log, title="events (site time; * controller clock)")]
+        parts = [head, Text(""), boards, Text(""), Panel(log, title="events in plant-time order (site time; * controller clock)")]
         if self.note:
             parts.append(Text(self.note, style="bold yellow"))
         return Panel(Group(*parts), title=title)
@@ -245,4 +320,5 @@ def make_output(kind: str, tz: dt.tzinfo, title: str):
     return TerminalView(tz, title)
 
 
-__all__ = ["JsonLines", "LineLog", "TerminalView", "make_output", "site_timezone", "gate_text"]
+__all__ = ["JsonLines", "LineLog", "PlantOrder", "TerminalView", "duration", "make_output", "site_timezone",
+           "gate_text"]
