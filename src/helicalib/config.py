@@ -11,11 +11,13 @@ any other key is refused.
 from __future__ import annotations
 
 import csv
+import functools
 import math
 import re
+import types
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import numpy as np
 import yaml
@@ -109,6 +111,49 @@ Vec2 = Annotated[tuple[float, float], _numbers(2)]
 Vec3 = Annotated[tuple[float, float, float], _numbers(3)]
 PositiveFloat = Annotated[float, Field(gt=0)]
 
+# Physical bounds of every dimension (docs/field-config.md, "Bounds"): beyond them a value is a typing
+# error, and numbers such as 1e308 would overflow the geometry or the plant's clocks downstream.
+MAX_MIRROR_SIDE_M = 50.0
+"""Largest mirror side [m] (the largest heliostats built are about 12 m across)."""
+MAX_BOARD_SIDE_M = 100.0
+"""Largest calibration board side [m] (tower boards are some 8-15 m)."""
+MAX_ARM_M = 20.0
+"""Largest actuator triangle arm [m]."""
+MAX_ACTUATOR_LENGTH_M = 50.0
+"""Largest actuator length at zero stroke [m]."""
+MAX_STROKE_MM = 100_000.0
+"""Largest stroke magnitude [mm] (100 m)."""
+MAX_STANDBY_OFFSET_M = 1000.0
+"""Largest standby offset from the board centre [m]."""
+MAX_TIMEOUT_S = 300.0
+"""Longest Modbus request timeout [s]."""
+MAX_MRAD = 1000.0
+"""Largest angle threshold or limit [mrad] (1 rad)."""
+MAX_WIND_MS = 100.0
+"""Largest wind speed limit [m/s]."""
+MAX_DNI_WM2 = 2000.0
+"""Largest irradiance limit [W/m²] (the solar constant is 1361)."""
+MAX_FOCAL_PX = 1e6
+"""Largest focal length or principal-point coordinate [px]."""
+MAX_DISTORTION = 1000.0
+"""Largest magnitude of a lens distortion coefficient."""
+
+
+def _at_most(limit: float, unit: str):
+    """A check that every number of a tuple lies within ±``limit``."""
+    def check(value: tuple[float, ...]) -> tuple[float, ...]:
+        for k, x in enumerate(value):
+            if abs(x) > limit:
+                raise ValueError(f"[{k}] {x:g}{unit} is beyond the physical bound of {limit:g}{unit}")
+        return value
+
+    return AfterValidator(check)
+
+
+def Side(limit: float):  # noqa: N802 - a type
+    """A positive number at most ``limit`` (a length, a duration, a threshold)."""
+    return Annotated[float, Field(gt=0, le=limit)]
+
 MAX_COORDINATE_M = 100_000.0
 """Largest plant coordinate [m] (ENU): a field of 100 km is none; larger numbers are typing errors."""
 
@@ -128,6 +173,24 @@ _FRAMES: dict[tuple[float, ...], np.ndarray] = {}
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _numbers_are_numbers(cls, value: Any, info):
+        # pydantic's lax mode reads true as 1 and "40" as 40.0: a number is written as a number
+        if isinstance(value, (bool, str, bytes)) and _wants_number(cls.model_fields[info.field_name].annotation):
+            raise ValueError(f"expected a number, got {_short(value)}")
+        return value
+
+
+@functools.lru_cache(maxsize=None)
+def _wants_number(annotation: Any) -> bool:
+    """Whether a field of this type takes a number and neither a bool nor a string."""
+    args = get_args(annotation) if get_origin(annotation) in (Union, types.UnionType) else (annotation,)
+    kinds: set[Any] = set()
+    for a in args:
+        kinds |= {type(x) for x in get_args(a)} if get_origin(a) is Literal else {a}
+    return bool(kinds & {int, float}) and not kinds & {bool, str}
 
 
 # ---------------------------------------------------------------------------- sections
@@ -290,8 +353,9 @@ class Target(_Model):
     id: Id
     center_enu_m: PointENU
     normal_enu: Vec3
-    size_m: Annotated[tuple[PositiveFloat, PositiveFloat], _numbers(2)]
-    standby_offset_m: Annotated[tuple[float, ...], BeforeValidator(lambda v: _standby(v))] | None = None
+    size_m: Annotated[tuple[Side(MAX_BOARD_SIDE_M), Side(MAX_BOARD_SIDE_M)], _numbers(2)]
+    standby_offset_m: Annotated[tuple[float, ...], BeforeValidator(lambda v: _standby(v)),
+                                _at_most(MAX_STANDBY_OFFSET_M, " m")] | None = None
     marks: AnyMarks | None = None
 
     _normal = field_validator("normal_enu")(classmethod(lambda cls, v: _unit(v)))
@@ -374,10 +438,10 @@ def _standby(value: Any) -> tuple[float, ...]:
 
 
 class Intrinsics(_Model):
-    fx: PositiveFloat
-    fy: PositiveFloat
-    cx: float
-    cy: float
+    fx: Side(MAX_FOCAL_PX)
+    fy: Side(MAX_FOCAL_PX)
+    cx: float = Field(ge=-MAX_FOCAL_PX, le=MAX_FOCAL_PX)
+    cy: float = Field(ge=-MAX_FOCAL_PX, le=MAX_FOCAL_PX)
 
 
 MAX_FRAME_SIDE_PX = 20000
@@ -389,7 +453,8 @@ class Camera(_Model):
     target: str
     url: str
     intrinsics: Intrinsics | None = None
-    distortion: Annotated[tuple[float, ...], BeforeValidator(lambda v: _distortion(v))] | None = None
+    distortion: Annotated[tuple[float, ...], BeforeValidator(lambda v: _distortion(v)),
+                          _at_most(MAX_DISTORTION, "")] | None = None
     # helicalib's own optional keys: where the camera stands and its frame size (the simulated
     # plant renders from them; a real camera's frames say their own size)
     position_enu_m: PointENU | None = None
@@ -421,12 +486,12 @@ def _distortion(value: Any) -> tuple[float, ...]:
 
 
 class Actuator(_Model):
-    arm_fixed_m: PositiveFloat
-    arm_moving_m: PositiveFloat
-    gamma0_deg: float  # γ at θ = 0; may lie outside (0, 180) as long as the operating γ stays inside
+    arm_fixed_m: Side(MAX_ARM_M)
+    arm_moving_m: Side(MAX_ARM_M)
+    gamma0_deg: float = Field(ge=-360, le=360)  # γ at θ = 0; may lie outside (0, 180) if the operating γ stays inside
     sign: Literal[1, -1]
-    length_at_zero_stroke_m: PositiveFloat
-    stroke_range_mm: Annotated[tuple[float, float], _numbers(2)]
+    length_at_zero_stroke_m: Side(MAX_ACTUATOR_LENGTH_M)
+    stroke_range_mm: Annotated[tuple[float, float], _numbers(2), _at_most(MAX_STROKE_MM, " mm")]
 
     @field_validator("stroke_range_mm")
     @classmethod
@@ -447,7 +512,7 @@ PRESETS: dict[str, tuple[tuple[float, float, float], ...]] = {
 class Drive(_Model):
     kind: DriveKind
     mirror_offset_m: float = Field(ge=-10, le=10)
-    mirror_size_m: Annotated[tuple[PositiveFloat, PositiveFloat], _numbers(2)]
+    mirror_size_m: Annotated[tuple[Side(MAX_MIRROR_SIDE_M), Side(MAX_MIRROR_SIDE_M)], _numbers(2)]
     actuators: tuple[Actuator, Actuator]
     axis1_enu: Vec3 | None = None
     axis2_enu: Vec3 | None = None
@@ -473,10 +538,10 @@ class Heliostat(_Model):
 
 
 class Endpoint(_Model):
-    host: str
+    host: str = Field(min_length=1, max_length=253)
     port: int = Field(ge=1, le=65535)
     unit: int = Field(default=1, ge=0, le=255)
-    timeout_s: PositiveFloat = 2.0
+    timeout_s: Side(MAX_TIMEOUT_S) = 2.0
 
 
 class Plant(_Model):
@@ -490,35 +555,35 @@ class Plant(_Model):
 
 
 class Calibration(_Model):
-    loop_threshold_mrad: PositiveFloat
+    loop_threshold_mrad: Side(MAX_MRAD)
     max_iterations: int = Field(ge=1, le=100)
     # helicalib's own optional keys
     after_frames: int = Field(default=1, ge=1, le=50)
     spot_method: Literal["grlm", "grlm-centroid", "centroid"] = "grlm-centroid"
-    settle_timeout_s: PositiveFloat = 300.0
+    settle_timeout_s: Side(86400.0) = 300.0
     reflectivity_clean: float = Field(default=0.93, gt=0, le=1)  # clean mirror, for the measured cleanliness
     approach_mm: float = Field(default=1.0, ge=0, le=20)  # last move in the tracking direction (backlash)
-    max_jitter_mrad: float = Field(default=2.0, gt=0)  # several after frames: their spread limit, as an angle
+    max_jitter_mrad: float = Field(default=2.0, gt=0, le=MAX_MRAD)  # several after frames: their spread limit, as an angle
     share_targets: bool = True  # gaps planner: a free board may take heliostats of a busy one (docs/campaign.md)
     max_capture_skew_s: float = Field(default=5.0, gt=0, le=3600)  # a frame's capture time vs the plant clock
 
 
 class Gating(_Model):
-    wind_max_ms: PositiveFloat
-    wind_preferred_ms: PositiveFloat
-    stow_wind_ms: PositiveFloat
-    dni_min_wm2: float = Field(ge=0)
-    dni_preferred_wm2: float = Field(ge=0)
+    wind_max_ms: Side(MAX_WIND_MS)
+    wind_preferred_ms: Side(MAX_WIND_MS)
+    stow_wind_ms: Side(MAX_WIND_MS)
+    dni_min_wm2: float = Field(ge=0, le=MAX_DNI_WM2)
+    dni_preferred_wm2: float = Field(ge=0, le=MAX_DNI_WM2)
     cleanliness_min: float = Field(ge=0, le=1)
     cleanliness_preferred: float = Field(ge=0, le=1)
 
 
 class Acceptance(_Model):
-    low_band_deg: Annotated[tuple[float, float], _numbers(2)]
-    high_elevation_deg: float
-    high_window_h: PositiveFloat
-    min_points: int = Field(ge=1)
-    max_rms_mrad: PositiveFloat
+    low_band_deg: Annotated[tuple[float, float], _numbers(2), _at_most(90.0, "°")]
+    high_elevation_deg: float = Field(ge=-90, le=90)
+    high_window_h: Side(24.0)
+    min_points: int = Field(ge=1, le=100_000)
+    max_rms_mrad: Side(MAX_MRAD)
 
     @field_validator("low_band_deg")
     @classmethod
@@ -529,14 +594,14 @@ class Acceptance(_Model):
 
 
 class WindBin(_Model):
-    wind_ms: float = Field(ge=0)
+    wind_ms: float = Field(ge=0, le=MAX_WIND_MS)
     min_fraction: float = Field(ge=0, le=1)
 
 
 class TrackingTest(_Model):
-    threshold_mrad: PositiveFloat
+    threshold_mrad: Side(MAX_MRAD)
     wind_bins: tuple[WindBin, ...] = Field(min_length=1)
-    bin_half_width_ms: PositiveFloat
+    bin_half_width_ms: Side(MAX_WIND_MS)
 
 
 class Storage(_Model):
@@ -621,6 +686,13 @@ class FieldConfig(_Model):
 
     def cameras_for(self, target_id: str) -> tuple[Camera, ...]:
         return tuple(c for c in self.cameras if c.target == target_id)
+
+    def require_cameras(self) -> None:
+        """Refuse, in one line, a field without any camera for a command that measures (run, check,
+        simulate): such a file (a PAINT import) describes a plant for fitting and reports only."""
+        if not self.cameras:
+            raise ConfigError(f"{self._where()}cameras: none given: this field can be fitted, reported and "
+                              "exported, not measured; give every target a camera (cameras[].target)")
 
     def heliostat_positions_enu_m(self) -> np.ndarray:
         """Pivot positions of all heliostats, shape (N, 3) [m, ENU]."""
@@ -819,6 +891,13 @@ def _cross_check(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
         if h.target not in target_ids:
             problems.append(f"{heliostat_loc}[{i}].target: unknown target {_short(h.target)} (defined: {', '.join(target_ids)})")
     problems += _apart_from_their_boards(cfg, heliostat_loc)
+    problems += _in_front_of_their_boards(cfg, heliostat_loc)
+    problems += _apart_from_each_other(cfg, heliostat_loc)
+    if cfg.cameras:  # a field without any camera describes a plant (an import) and is not run
+        for i, t in enumerate(cfg.targets):
+            if not cfg.cameras_for(t.id):
+                problems.append(f"targets[{i}]: no camera looks at target {_short(t.id)} (give it one in cameras[], "
+                                "with target: " + t.id + "); every board is measured by its camera")
     problems += _beams_off_other_boards(cfg)
     for name, d in cfg.drives.items():
         if d.kind == "custom" and None in (d.axis1_enu, d.axis2_enu, d.normal0_enu):
@@ -841,6 +920,55 @@ def _apart_from_their_boards(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
     return [f"{heliostat_loc}[{i}].position_enu_m: {_short(h.id)} stands within 1 m of the centre of its "
             f"target {_short(h.target)}" for i, h in enumerate(cfg.heliostats or ())
             if h.target in centre and np.linalg.norm(np.asarray(h.position_enu_m) - centre[h.target]) < 1.0][:20]
+
+
+def _in_front_of_their_boards(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
+    """A heliostat's beam reaches its board's front (white, marked) face only from in front of the
+    board's plane: its pivot must lie on the side the board's normal points to."""
+    if not cfg.heliostats:
+        return []
+    boards = {t.id: t for t in cfg.targets}
+    pos = cfg.heliostat_positions_enu_m()
+    problems = []
+    for i, h in enumerate(cfg.heliostats):
+        t = boards.get(h.target)
+        if t is None:
+            continue
+        ahead = float(np.dot(pos[i] - np.asarray(t.center_enu_m), t.normal_enu))
+        if ahead <= 0.0:
+            problems.append(f"{heliostat_loc}[{i}].position_enu_m: {_short(h.id)} stands {-ahead:.1f} m behind the "
+                            f"board of its target {_short(h.target)} (the board faces {_facing(t.normal_enu)}); its "
+                            "beam cannot reach the board's front")
+    return problems[:20]
+
+
+def _facing(normal: Sequence[float]) -> str:
+    """A board normal in words: "north", "south-east", "up"."""
+    e, n, u = normal
+    if abs(u) > 0.9:
+        return "up" if u > 0 else "down"
+    az = math.degrees(math.atan2(e, n)) % 360
+    return ("north", "north-east", "east", "south-east", "south", "south-west", "west", "north-west")[round(az / 45) % 8]
+
+
+def _apart_from_each_other(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
+    """Two pivots closer than half the smaller mirror side of the two stand at one place: their mirrors
+    would collide (a position given twice, as a copied row)."""
+    from scipy.spatial import cKDTree
+
+    if not cfg.heliostats or len(cfg.heliostats) < 2:
+        return []
+    pos = cfg.heliostat_positions_enu_m()
+    half = np.array([min(cfg.drives[h.drive].mirror_size_m) / 2 if h.drive in cfg.drives else 0.0
+                     for h in cfg.heliostats])
+    problems = []
+    for i, j in sorted(cKDTree(pos).query_pairs(float(half.max()))):
+        d = float(np.linalg.norm(pos[i] - pos[j]))
+        if d < min(half[i], half[j]) or d == 0.0:
+            a, b = cfg.heliostats[i], cfg.heliostats[j]
+            problems.append(f"{heliostat_loc}[{j}].position_enu_m: {_short(b.id)} stands {d:.2f} m from "
+                            f"{_short(a.id)} ({heliostat_loc}[{i}]): closer than half a mirror, the two would collide")
+    return problems[:20]
 
 
 STANDBY_CLEARANCE_M = 1.0

@@ -47,6 +47,7 @@ def summarise(cfg) -> dict:
         "ground_distance_to_tower_m": {"min": round(float(ground.min()), 1), "max": round(float(ground.max()), 1)},
         "targets": per_target,
         "drives": {name: {"kind": cfg.drives[name].kind, "heliostats": n} for name, n in per_drive.items()},
+        "cameras": len(cfg.cameras),  # 0: a plant description (an import), fitted and reported but not measured
         "plant": {"scs": f"{cfg.plant.scs.host}:{cfg.plant.scs.port}", "clock": cfg.plant.clock},
         "database": str(cfg.database_path),
     }
@@ -132,6 +133,8 @@ def run(args) -> int:
         rng = "no heliostats" if r is None else f"slant range {r['min']}-{r['max']} m (mean {r['mean']})"
         cams = ", ".join(t["cameras"]) or "NO CAMERA"
         print(f"target    {tid}: {t['heliostats']} heliostats, camera {cams}, {rng}")
+    if not summary["cameras"]:
+        print("cameras   none: this field can be fitted, reported and exported, not measured (run, check, simulate)")
     for name, d in summary["drives"].items():
         print(f"drive     {name} ({d['kind']}): {d['heliostats']} heliostats")
     print(f"plant     SCS {summary['plant']['scs']}, clock {summary['plant']['clock']}")
