@@ -5,69 +5,50 @@ shipped fields, the simulated fields and PAINT use still passes."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
-import yaml
 
-from helicalib.cli import main
 from helicalib.config import parse_field_config
 from helicalib.errors import ConfigError
 
-ROOT = Path(__file__).resolve().parents[1]
-FIELD = ROOT / "field_config" / "demo_north.yaml"
+from inputs_helpers import validate_problems
+
 MAX_ID_LENGTH = 32  # docs/field-config.md
 
 HOSTILE_IDS = ["[/]", "[link=http://evil.example]H3[/link]", "H<script>x</script>", "../escaped", "H 03", "H/03",
                "-H03", ".hidden", "Hé03", "H\u202e03", "H\t03", "", "x" * (MAX_ID_LENGTH + 1), "H" * 100_000]
 
 
-@pytest.fixture()
-def field_data() -> dict:
-    return yaml.safe_load(FIELD.read_text())
-
-
-def _problems(capsys, data: dict, tmp_path: Path) -> list[str]:
-    path = tmp_path / "f.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    assert main(["validate", str(path), "--no-sweep"]) == 1
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = err.strip().split("\n")
-    assert lines[-1] == f"{path}: {len(lines) - 1} problem(s); not valid"
-    return [ln[len(f"{path}: "):] for ln in lines[:-1]]
-
 
 @pytest.mark.parametrize("bad", HOSTILE_IDS, ids=lambda s: repr(s)[:30])
-def test_a_hostile_heliostat_id_is_refused_in_one_short_line(tmp_path, field_data, bad, capsys):
-    field_data["heliostats"][3]["id"] = bad
-    problems = _problems(capsys, field_data, tmp_path)
+def test_a_hostile_heliostat_id_is_refused_in_one_short_line(tmp_path, demo_data, bad, capsys):
+    demo_data["heliostats"][3]["id"] = bad
+    problems = validate_problems(capsys, demo_data, tmp_path)
     assert len(problems) == 1 and problems[0].startswith("heliostats[3].id: ")
     assert len(problems[0]) < 200  # the 100 000-character id is not echoed
 
 
 @pytest.mark.parametrize("where", ["targets", "cameras"])
-def test_hostile_target_and_camera_ids_are_refused(tmp_path, field_data, where, capsys):
-    field_data[where][1]["id"] = "[link=http://e.x]T2[/link]"
-    problems = _problems(capsys, field_data, tmp_path)
+def test_hostile_target_and_camera_ids_are_refused(tmp_path, demo_data, where, capsys):
+    demo_data[where][1]["id"] = "[link=http://e.x]T2[/link]"
+    problems = validate_problems(capsys, demo_data, tmp_path)
     assert problems[0].startswith(f"{where}[1].id: ") and "letters A-Z" in problems[0]
 
 
-def test_a_hostile_drive_name_is_refused(tmp_path, field_data, capsys):
-    field_data["drives"]["[/]"] = field_data["drives"]["tr20"]
-    problems = _problems(capsys, field_data, tmp_path)
+def test_a_hostile_drive_name_is_refused(tmp_path, demo_data, capsys):
+    demo_data["drives"]["[/]"] = demo_data["drives"]["tr20"]
+    problems = validate_problems(capsys, demo_data, tmp_path)
     assert problems == ["drives: '[/]': an id holds only the letters A-Z and a-z, digits, '.', '_' and '-', "
                         "and starts with a letter or digit"]
 
 
-def test_a_hostile_id_in_a_heliostat_csv_names_its_row(tmp_path, field_data, capsys):
+def test_a_hostile_id_in_a_heliostat_csv_names_its_row(tmp_path, demo_data, capsys):
     rows = ["id,e_m,n_m,u_m,drive,target"] + [
         f"{h['id']},{h['position_enu_m'][0]},{h['position_enu_m'][1]},{h['position_enu_m'][2]},{h['drive']},{h['target']}"
-        for h in field_data.pop("heliostats")]
+        for h in demo_data.pop("heliostats")]
     rows[3] = "[/]" + rows[3][5:]
     (tmp_path / "h.csv").write_text("\n".join(rows) + "\n")
-    field_data["heliostats_csv"] = "h.csv"
-    problems = _problems(capsys, field_data, tmp_path)
+    demo_data["heliostats_csv"] = "h.csv"
+    problems = validate_problems(capsys, demo_data, tmp_path)
     assert problems == ["heliostats_csv(h.csv)[2].id: '[/]': an id holds only the letters A-Z and a-z, digits, "
                         "'.', '_' and '-', and starts with a letter or digit"]
 
@@ -79,36 +60,36 @@ def test_a_hostile_id_in_a_heliostat_csv_names_its_row(tmp_path, field_data, cap
     ("x" * 100_000, "a name of 100000 characters: at most 200"),
     ("   ", "expected a non-empty name"),
 ])
-def test_site_name_is_printable_text_of_bounded_length(tmp_path, field_data, name, says, capsys):
-    field_data["site"]["name"] = name
-    assert _problems(capsys, field_data, tmp_path) == [f"site.name: {says}" if says.startswith(("a name", "expected"))
+def test_site_name_is_printable_text_of_bounded_length(tmp_path, demo_data, name, says, capsys):
+    demo_data["site"]["name"] = name
+    assert validate_problems(capsys, demo_data, tmp_path) == [f"site.name: {says}" if says.startswith(("a name", "expected"))
                                                        else f"site.name: expected printable text, got the {says}"]
 
 
 @pytest.mark.parametrize("name", ["[/]", "[link=http://evil.example]Plant[/link]", "Jülich solar tower (PAINT import)",
                                   "敦煌 100 MW"])
-def test_site_name_may_hold_any_printable_text(field_data, name):
+def test_site_name_may_hold_any_printable_text(demo_data, name):
     # brackets are text: the views print the name as text, never as markup
-    field_data["site"]["name"] = name
-    assert parse_field_config(field_data).site.name == name
+    demo_data["site"]["name"] = name
+    assert parse_field_config(demo_data).site.name == name
 
 
 @pytest.mark.parametrize("hid", ["AA39", "AA23", "H0001", "H00001", "T1", "solar_tower_juelich_upper",
                                  "multi_focus_tower", "paint_AA39", "h-1.2_b", "x" * MAX_ID_LENGTH])
-def test_every_id_in_use_passes(field_data, hid):
-    field_data["heliostats"][0]["id"] = hid
-    field_data["targets"][0]["id"] = hid
-    for c in field_data["cameras"]:
+def test_every_id_in_use_passes(demo_data, hid):
+    demo_data["heliostats"][0]["id"] = hid
+    demo_data["targets"][0]["id"] = hid
+    for c in demo_data["cameras"]:
         c["target"] = hid if c["target"] == "T1" else c["target"]
-    for h in field_data["heliostats"]:
+    for h in demo_data["heliostats"]:
         h["target"] = hid if h["target"] == "T1" else h["target"]
-    field_data["cameras"][0]["id"] = hid
-    cfg = parse_field_config(field_data)
+    demo_data["cameras"][0]["id"] = hid
+    cfg = parse_field_config(demo_data)
     assert cfg.heliostats[0].id == hid and cfg.target(hid).id == hid
 
 
-def test_config_error_names_the_key_in_memory(field_data):
-    field_data["heliostats"][0]["id"] = "[/]"
+def test_config_error_names_the_key_in_memory(demo_data):
+    demo_data["heliostats"][0]["id"] = "[/]"
     with pytest.raises(ConfigError) as exc:
-        parse_field_config(field_data)
+        parse_field_config(demo_data)
     assert exc.value.problems[0].startswith("heliostats[0].id: '[/]': ")

@@ -14,26 +14,12 @@ from helicalib.cli import main
 from helicalib.config import load_field_config, parse_field_config
 from helicalib.errors import ConfigError
 
+from inputs_helpers import validate_problems
+
 ROOT = Path(__file__).resolve().parents[1]
-FIELD = ROOT / "field_config" / "demo_north.yaml"
 SHIPPED = [ROOT / "field_config" / "demo_north.yaml", ROOT / "simulations" / "fields" / "bench500.yaml",
            ROOT / "simulations" / "fields" / "dots_cylinder.yaml"]
 
-
-@pytest.fixture()
-def field_data() -> dict:
-    return yaml.safe_load(FIELD.read_text())
-
-
-def _problems(capsys, data: dict, tmp_path: Path) -> list[str]:
-    path = tmp_path / "f.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    assert main(["validate", str(path), "--no-sweep"]) == 1
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = err.strip().split("\n")
-    assert lines[-1] == f"{path}: {len(lines) - 1} problem(s); not valid"
-    return [ln[len(f"{path}: "):] for ln in lines[:-1]]
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
@@ -41,45 +27,45 @@ def test_every_shipped_field_validates(path, capsys):
     assert main(["validate", str(path), "--no-sweep", "--json"]) == 0
 
 
-def test_a_target_without_a_camera_is_refused(tmp_path, field_data, capsys):
-    field_data["cameras"] = [c for c in field_data["cameras"] if c["target"] != "T2"]
-    assert _problems(capsys, field_data, tmp_path) == [
+def test_a_target_without_a_camera_is_refused(tmp_path, demo_data, capsys):
+    demo_data["cameras"] = [c for c in demo_data["cameras"] if c["target"] != "T2"]
+    assert validate_problems(capsys, demo_data, tmp_path) == [
         "targets[1]: no camera looks at target 'T2' (give it one in cameras[], with target: T2); every board is "
         "measured by its camera"]
 
 
-def test_a_field_without_any_camera_is_a_description_only(field_data):
-    field_data["cameras"] = []
-    cfg = parse_field_config(field_data)  # an import (PAINT) has no cameras: it is fitted and reported
+def test_a_field_without_any_camera_is_a_description_only(demo_data):
+    demo_data["cameras"] = []
+    cfg = parse_field_config(demo_data)  # an import (PAINT) has no cameras: it is fitted and reported
     with pytest.raises(ConfigError, match=r"^cameras: none given: this field can be fitted, reported and exported, "
                                           r"not measured"):
         cfg.require_cameras()
 
 
-def test_a_heliostat_behind_its_board_is_refused(tmp_path, field_data, capsys):
-    h = field_data["heliostats"][4]
-    board = next(t for t in field_data["targets"] if t["id"] == h["target"])
+def test_a_heliostat_behind_its_board_is_refused(tmp_path, demo_data, capsys):
+    h = demo_data["heliostats"][4]
+    board = next(t for t in demo_data["targets"] if t["id"] == h["target"])
     # mirror the pivot through the board's plane: same distance, behind the board
     c, n = board["center_enu_m"], board["normal_enu"]
     ahead = sum((p - q) * m for p, q, m in zip(h["position_enu_m"], c, n))
     h["position_enu_m"] = [p - 2 * ahead * m for p, m in zip(h["position_enu_m"], n)]
-    problems = _problems(capsys, field_data, tmp_path)
+    problems = validate_problems(capsys, demo_data, tmp_path)
     assert problems == [f"heliostats[4].position_enu_m: '{h['id']}' stands {ahead:.1f} m behind the board of its "
                         f"target '{h['target']}' (the board faces north); its beam cannot reach the board's front"]
 
 
-def test_two_heliostats_at_one_place_are_refused(tmp_path, field_data, capsys):
-    field_data["heliostats"][7]["position_enu_m"] = list(field_data["heliostats"][2]["position_enu_m"])
-    a, b = field_data["heliostats"][2]["id"], field_data["heliostats"][7]["id"]
-    assert _problems(capsys, field_data, tmp_path) == [
+def test_two_heliostats_at_one_place_are_refused(tmp_path, demo_data, capsys):
+    demo_data["heliostats"][7]["position_enu_m"] = list(demo_data["heliostats"][2]["position_enu_m"])
+    a, b = demo_data["heliostats"][2]["id"], demo_data["heliostats"][7]["id"]
+    assert validate_problems(capsys, demo_data, tmp_path) == [
         f"heliostats[7].position_enu_m: '{b}' stands 0.00 m from '{a}' (heliostats[2]): closer than half a mirror, "
         "the two would collide"]
 
 
-def test_heliostats_a_mirror_apart_pass(field_data):
-    x, y, z = field_data["heliostats"][2]["position_enu_m"]
-    field_data["heliostats"][7]["position_enu_m"] = [x + 2.3, y, z]  # 4.5 m mirrors: more than half a side apart
-    parse_field_config(field_data)
+def test_heliostats_a_mirror_apart_pass(demo_data):
+    x, y, z = demo_data["heliostats"][2]["position_enu_m"]
+    demo_data["heliostats"][7]["position_enu_m"] = [x + 2.3, y, z]  # 4.5 m mirrors: more than half a side apart
+    parse_field_config(demo_data)
 
 
 @pytest.mark.parametrize("edit, says", [
@@ -114,14 +100,14 @@ def test_heliostats_a_mirror_apart_pass(field_data):
      "cameras[0].distortion: [0] 1e+30 is beyond the physical bound of 1000"),
     (lambda d: d["plant"]["scs"].update(host=""), "plant.scs.host: String should have at least 1 character"),
 ])
-def test_values_that_fail_later_are_refused_by_key(tmp_path, field_data, edit, says, capsys):
-    edit(field_data)
-    assert _problems(capsys, field_data, tmp_path) == [says]
+def test_values_that_fail_later_are_refused_by_key(tmp_path, demo_data, edit, says, capsys):
+    edit(demo_data)
+    assert validate_problems(capsys, demo_data, tmp_path) == [says]
 
 
-def test_refusals_reach_run_before_any_plant_contact(tmp_path, field_data, capsys):
-    field_data["plant"]["scs"]["timeout_s"] = 1e300  # an OverflowError in run, before
+def test_refusals_reach_run_before_any_plant_contact(tmp_path, demo_data, capsys):
+    demo_data["plant"]["scs"]["timeout_s"] = 1e300  # an OverflowError in run, before
     path = tmp_path / "f.yaml"
-    path.write_text(yaml.safe_dump(field_data, sort_keys=False))
+    path.write_text(yaml.safe_dump(demo_data, sort_keys=False))
     with pytest.raises(ConfigError, match=r"plant.scs.timeout_s: Input should be less than or equal to 300"):
         load_field_config(path)
