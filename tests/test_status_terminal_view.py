@@ -6,6 +6,7 @@ from __future__ import annotations
 import collections
 import datetime as dt
 import io
+import json
 import math
 import re
 
@@ -14,7 +15,7 @@ import pytest
 from helicalib.campaign.console import LineLog, TerminalView
 from helicalib.campaign.events import BoardState, RunEvent, Snapshot
 
-T0 = 1_795_010_000.0  # 2026-11-18 ~12:33 UTC
+T0 = 1_795_010_000.0  # 2026-11-18 13:53:20 UTC
 UTC = dt.timezone.utc
 LINK = "[link=http://evil.example]H3[/link]"
 
@@ -142,3 +143,38 @@ def test_a_plant_clock_set_back_starts_a_new_run_of_lines():
     assert text.index("H0001 off T1") < text.index("stamped 24.0 h before those above") < text.index("H0002 onto T1")
     lines = stream.getvalue().splitlines()
     assert "stamped 24.0 h before those above" in lines[2] and "out of order" not in lines[3]
+
+
+def test_a_plant_that_stopped_answering_is_shown_first_and_the_readings_with_their_age():
+    lost = snapshot(time_s=T0 + 600, plant_unreachable_since_s=T0 + 300, weather_time_s=T0 + 270)
+    view = terminal()
+    view.on_event(RunEvent(T0 + 240, "measurement", "H0001 on T1, placement 0: 1.25 mrad", "H0001", "T1",
+                           {"valid": True}))
+    view.on_snapshot(lost)
+    text = draw(view)
+    head = text[:text.index("progress")]
+    assert "UNREACHABLE  plant unreachable since 2026-11-18 13:58:20 UTC" in head and "(5.0 min)" in head
+    assert head.index("plant unreachable since") < head.index("plant time") < head.index("gate")
+    assert "(the controller’s estimate)" in head
+    gate = next(line for line in text.splitlines() if " gate " in line)
+    assert "unknown, plant unreachable (last known: open: calibration allowed)" in gate
+    assert "weather read 5.5 min ago" in gate
+    assert "last error [mrad]" in text and "1.25 (6.0 min ago)" in text  # the board's last error and its age
+    lines, js = io.StringIO(), io.StringIO()
+    LineLog(UTC, stream=lines).on_snapshot(lost)
+    from helicalib.campaign.console import JsonLines
+
+    JsonLines(UTC, stream=js).on_snapshot(lost)
+    assert "status           plant unreachable since 2026-11-18T13:58:20Z (5.0 min)" in lines.getvalue()
+    assert "weather read 5.5 min ago" in lines.getvalue() and "last known: open" in lines.getvalue()
+    status = json.loads(js.getvalue())
+    assert status["plant_unreachable_for_s"] == 300.0 and status["weather_age_s"] == 330.0
+
+
+def test_while_the_plant_answers_the_gate_is_shown_with_the_age_of_its_reading():
+    view = terminal()
+    view.on_snapshot(snapshot())
+    text = draw(view)
+    assert "unreachable" not in text.lower() and "unknown" not in text
+    gate = next(line for line in text.splitlines() if " gate " in line)
+    assert "open: calibration allowed" in gate and "weather read 30 s ago" in gate

@@ -93,14 +93,35 @@ class PlantOrder:
 
 
 def gate_text(s: Snapshot) -> str:
-    """The gate in words: why calibration runs or waits."""
+    """The gate in words: why calibration runs or waits (only "last known" while the plant is unreachable)."""
     if s.stowed:
-        return f"STOWED for wind ({s.gate_reason or 'wind above the stow limit'})"
-    if s.gate_open is None:
-        return "no weather reading yet"
-    if s.night:
-        return f"night: {s.gate_reason}"
-    return ("open: " if s.gate_open else "paused: ") + s.gate_reason
+        text = f"STOWED for wind ({s.gate_reason or 'wind above the stow limit'})"
+    elif s.gate_open is None:
+        text = "no weather reading yet"
+    elif s.night:
+        text = f"night: {s.gate_reason}"
+    else:
+        text = ("open: " if s.gate_open else "paused: ") + s.gate_reason
+    # (the web console passes the gate alone, without the plant's state)
+    lost = getattr(s, "plant_unreachable_since_s", None)
+    return text if lost is None else f"unknown, plant unreachable (last known: {text})"
+
+
+def unreachable_text(s: Snapshot, tz: dt.tzinfo | None = None) -> str | None:
+    """``plant unreachable since <time> (<how long>)…`` while the plant does not answer, else None."""
+    since = s.plant_unreachable_since_s
+    if since is None:
+        return None
+    when = _clock(since, tz) if tz is not None else iso_utc(since).replace("+00:00", "Z")
+    return (f"plant unreachable since {when} ({duration(s.time_s - since)}): no visit starts; the readings "
+            "shown are as of when it last answered")
+
+
+def weather_age_text(s: Snapshot) -> str:
+    """How old the weather reading behind wind, DNI and the gate is."""
+    if s.weather_time_s is None:
+        return "no weather reading yet" if s.wind_ms is None and s.dni_wm2 is None else "weather reading of unknown age"
+    return f"weather read {duration(s.time_s - s.weather_time_s)} ago"
 
 
 class _Lines:
@@ -167,9 +188,10 @@ class LineLog(_Lines):
             return
         boards = ", ".join(f"{b.target_id}: {'+'.join((b.heliostat_id, *b.others)) if b.heliostat_id else 'free'}"
                            for b in s.boards)
-        self._stamped(s.time_s, "status", f"{s.accepted}/{s.heliostats} accepted, {s.in_progress} in progress, "
-                                          f"{s.waiting} waiting; {s.visits} visits; {gate_text(s)}; {boards}; "
-                                          f"{s.next_band}")
+        lost = unreachable_text(s)
+        self._stamped(s.time_s, "status", ("" if lost is None else f"{lost}; ")
+                      + f"{s.accepted}/{s.heliostats} accepted, {s.in_progress} in progress, {s.waiting} waiting; "
+                        f"{s.visits} visits; {gate_text(s)} ({weather_age_text(s)}); {boards}; {s.next_band}")
 
 
 class JsonLines(_Lines):
@@ -191,7 +213,11 @@ class JsonLines(_Lines):
 
     def on_snapshot(self, s: Snapshot) -> None:
         if self._status_due():
-            self.emit(s.to_json(self.tz))
+            obj = s.to_json(self.tz)
+            obj["weather_age_s"] = None if s.weather_time_s is None else round(s.time_s - s.weather_time_s, 1)
+            obj["plant_unreachable_for_s"] = (None if s.plant_unreachable_since_s is None
+                                              else round(s.time_s - s.plant_unreachable_since_s, 1))
+            self.emit(obj)
 
 
 class TerminalView:
@@ -207,6 +233,7 @@ class TerminalView:
         self._order = PlantOrder()
         self._seq = 0
         self._events_lock = threading.Lock()
+        self._measured: dict[str, float] = {}  # board -> plant time of its newest measurement
         self.snap: Snapshot | None = None
         self.note = ""
         self._live = None
@@ -231,6 +258,8 @@ class TerminalView:
             self.console.print(text, markup=False, highlight=False)  # names and paths from outside: text
 
     def on_event(self, ev: RunEvent) -> None:
+        if ev.kind == "measurement" and ev.target_id is not None:
+            self._measured[ev.target_id] = ev.time_s  # the age of the board's last error
         if ev.kind == "measurement" and ev.data.get("valid", True):
             return
         with self._events_lock:
@@ -268,15 +297,19 @@ class TerminalView:
         head.add_column()
         elapsed = max(time.monotonic() - self._real0, 1e-6)
         rate = (s.time_s - (self._plant0 or s.time_s)) / elapsed
-        head.add_row("plant time", f"{_clock(s.time_s, self.tz)}   rate {s.rate:g}x (seen {rate:.0f}x)   "
-                                   f"sun {s.sun_elevation_deg:.1f}°")
+        lost = unreachable_text(s, self.tz)
+        if lost is not None:  # first, and loud: everything below is as of when the plant last answered
+            head.add_row(Text("UNREACHABLE", style="bold white on red"), Text(lost, style="bold red"))
+        head.add_row("plant time", f"{_clock(s.time_s, self.tz)}"
+                                   f"{'' if lost is None else ' (the controller’s estimate)'}   rate {s.rate:g}x "
+                                   f"(seen {rate:.0f}x)   sun {s.sun_elevation_deg:.1f}°")
         head.add_row("mode", Text("ARMED", style="green") + Text(": calibrating") if s.armed else
                      Text("not armed", style="yellow") + Text(": reading and planning only, nothing written to "
                                                               "the plant"))
-        style = "red" if s.stowed else ("green" if s.gate_open else "yellow")
+        style = "dim" if lost is not None else ("red" if s.stowed else ("green" if s.gate_open else "yellow"))
         weather = "" if "wind" in s.gate_reason else (f"   wind {_fmt(s.wind_ms, ' m/s')}   "
                                                       f"DNI {_fmt(s.dni_wm2, ' W/m²', 0)}")
-        head.add_row("gate", Text(gate_text(s), style=style) + Text(weather))
+        head.add_row("gate", Text(gate_text(s), style=style) + Text(weather) + Text(f"   ({weather_age_text(s)})"))
         head.add_row("progress", Text(str(s.accepted), style="bold") + Text(
             f"/{s.heliostats} accepted · {s.in_progress} on boards · {s.waiting} waiting · {s.visits} visits "
             f"({s.valid_visits} valid) · {s.next_band}"))
@@ -285,12 +318,14 @@ class TerminalView:
                          + Text(" (retrying until the plant confirms state 1)"))
         boards = Table(box=None, expand=False, header_style="bold")
         for col in ("board", "heliostat", "placement", "last error [mrad]", "on board for"):
-            boards.add_column(col)
+            boards.add_column(Text(col))  # a str header is markup: "[mrad]" would vanish
         for b in s.boards:
             since = "" if b.since_s is None else f"{(s.time_s - b.since_s) / 60.0:.1f} min"
             who = Text(" + ".join((b.heliostat_id, *b.others))) if b.heliostat_id else Text("free", style="dim")
-            boards.add_row(Text(b.target_id), who,
-                           "—" if b.iteration is None else str(b.iteration + 1), _fmt(b.last_error_mrad, "", 2), since)
+            error = _fmt(b.last_error_mrad, "", 2)
+            if b.last_error_mrad is not None and b.target_id in self._measured:
+                error += f" ({duration(s.time_s - self._measured[b.target_id])} ago)"
+            boards.add_row(Text(b.target_id), who, "—" if b.iteration is None else str(b.iteration + 1), error, since)
         log = Table(box=None, show_header=False, expand=True)
         log.add_column(no_wrap=True, style="dim", width=9)
         log.add_column(no_wrap=True, width=16)
@@ -321,4 +356,4 @@ def make_output(kind: str, tz: dt.tzinfo, title: str):
 
 
 __all__ = ["JsonLines", "LineLog", "PlantOrder", "TerminalView", "duration", "make_output", "site_timezone",
-           "gate_text"]
+           "gate_text", "unreachable_text", "weather_age_text"]
