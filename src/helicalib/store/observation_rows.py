@@ -9,8 +9,10 @@ from __future__ import annotations
 import json
 import math
 import sqlite3
+from pathlib import Path
 from typing import Any
 
+from helicalib.store.damage import loads
 from helicalib.store.records import Observation
 
 OBSERVATION_COLUMNS: tuple[str, ...] = (
@@ -81,8 +83,9 @@ def observation_to_row(obs: Observation, before_path: str | None, after_paths: t
     }
 
 
-def observation_from_row(r: sqlite3.Row) -> Observation:
-    """An :class:`Observation` (with ``id`` and frame paths) from a database row."""
+def observation_from_row(r: sqlite3.Row, db: str | Path = "database") -> Observation:
+    """An :class:`Observation` (with ``id`` and frame paths) from a database row of ``db`` (its
+    values checked by the store's reader; a frame path list that is not JSON is named here)."""
     read = None if r["stroke_read_1_mm"] is None else (r["stroke_read_1_mm"], r["stroke_read_2_mm"])
     spot = None if r["spot_e_m"] is None else (r["spot_e_m"], r["spot_n_m"], r["spot_u_m"])
     return Observation(
@@ -101,5 +104,5 @@ def observation_from_row(r: sqlite3.Row) -> Observation:
         offset_u_m=r["offset_u_m"], offset_v_m=r["offset_v_m"], spot_x_px=r["spot_x_px"], spot_y_px=r["spot_y_px"],
         spot_area_px=r["spot_area_px"], threshold=r["threshold"], jitter_px=r["jitter_px"], spot_enu_m=spot,
         error_mrad=r["error_mrad"], before_frame_path=r["before_frame_path"],
-        after_frame_paths=tuple(json.loads(r["after_frame_paths_json"])),
+        after_frame_paths=tuple(loads(db, "observations", r, "after_frame_paths_json")),
     )

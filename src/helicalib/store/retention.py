@@ -16,11 +16,11 @@ folder that holds none of the files to delete (a wrong ``--images``) is refused.
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from dataclasses import dataclass
 
 from helicalib.errors import ConfigError
+from helicalib.store.damage import loads
 
 
 @dataclass(frozen=True)
@@ -78,13 +78,13 @@ def _retain(store, keep_last: int, keep_invalid: bool, campaign_id: int | None, 
 
     where, params = ("WHERE campaign_id = ?", (int(campaign_id),)) if campaign_id is not None else ("", ())
     rows = store._read("SELECT id, heliostat_id, visit_id, valid, before_frame_path, after_frame_paths_json "
-                       f"FROM observations {where} ORDER BY id DESC", params)
-    running = {int(r[0]) for r in store._read("SELECT id FROM visits WHERE outcome = 'running'")}
+                       f"FROM observations {where} ORDER BY id DESC", params, table="observations")
+    running = {int(r[0]) for r in store._read("SELECT id FROM visits WHERE outcome = 'running'", table="visits")}
     seen: dict[str, int] = defaultdict(int)
     kept_paths: set[str] = set()
     dropped: list[tuple[int, str | None, list[str]]] = []
     for r in rows:
-        before, after = r["before_frame_path"], json.loads(r["after_frame_paths_json"] or "[]")
+        before, after = r["before_frame_path"], loads(store.path, "observations", r, "after_frame_paths_json")
         paths = ([before] if before else []) + list(after)
         if not paths:
             continue

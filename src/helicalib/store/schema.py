@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sqlite3
 
-from helicalib.errors import ConfigError
+from helicalib.errors import ConfigError, DataError
 
 SCHEMA_VERSION = 3
 
@@ -162,6 +162,17 @@ MIGRATIONS: dict[int, tuple[str, ...]] = {
 """Statements that take a database from the version before the key to the key's version."""
 
 
+def _version(conn: sqlite3.Connection, where: str) -> int:
+    """The version in ``schema_version`` (0 when the row is missing); :class:`DataError` when it is
+    not a whole number (a damaged row)."""
+    row = conn.execute("SELECT rowid, version FROM schema_version").fetchone()
+    if row is None:
+        return 0
+    if type(row[1]) is not int:
+        raise DataError(f"{where}: table schema_version, row {row[0]}: version is not an integer ({row[1]!r:.40})")
+    return row[1]
+
+
 def check_schema(conn: sqlite3.Connection, where: str) -> int:
     """The schema version of an existing database, checked without writing anything (readers).
 
@@ -173,8 +184,7 @@ def check_schema(conn: sqlite3.Connection, where: str) -> int:
         raise ConfigError(f"{where}: empty database, no helicalib campaign in it")
     if "schema_version" not in tables:
         raise ConfigError(f"{where}: not a helicalib database (tables {sorted(tables)[:5]} but no schema_version)")
-    row = conn.execute("SELECT version FROM schema_version").fetchone()
-    version = int(row[0]) if row else 0
+    version = _version(conn, where)
     if version > SCHEMA_VERSION:
         raise ConfigError(
             f"{where}: database schema version {version} is newer than this helicalib's ({SCHEMA_VERSION}); upgrade helicalib")
@@ -196,8 +206,7 @@ def ensure_schema(conn: sqlite3.Connection, where: str) -> int:
     if tables and "schema_version" not in tables:
         raise ConfigError(f"{where}: not a helicalib database (tables {sorted(tables)[:5]} but no schema_version)")
     if "schema_version" in tables:
-        row = conn.execute("SELECT version FROM schema_version").fetchone()
-        version = int(row[0]) if row else 0
+        version = _version(conn, where)
         if version > SCHEMA_VERSION:
             raise ConfigError(
                 f"{where}: database schema version {version} is newer than this helicalib's ({SCHEMA_VERSION}); upgrade helicalib"

@@ -22,6 +22,7 @@ import numpy as np
 
 from helicalib.errors import ConfigError
 from helicalib.store import frames as _frames
+from helicalib.store.damage import RowCheck, is_corrupt, loads, read_error, write_error
 from helicalib.store.observation_rows import OBSERVATION_COLUMNS, observation_from_row, observation_to_row
 from helicalib.store.records import (Campaign, CampaignHeliostat, Event, Fit, Observation, OperatorAction, Verdict,
                                      Visit)
@@ -74,6 +75,7 @@ class Store:
         self._pending = 0
         self._batch_t0 = time.monotonic()
         self._conn = conn
+        self._check = RowCheck(conn, path)
         self._lock = threading.RLock()
         self._lock_file = None
         self.path = path
@@ -129,7 +131,7 @@ class Store:
         except sqlite3.DatabaseError as exc:
             if lock_file is not None:
                 lock_file.close()
-            raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
+            raise _open_error(db, exc) from None
         except BaseException:
             if lock_file is not None:
                 lock_file.close()
@@ -182,13 +184,13 @@ class Store:
         if not folder.is_dir():
             return 0
         interrupted = {int(r[0]) for r in self._read("SELECT id FROM visits WHERE campaign_id = ? AND outcome = "
-                                                     "'interrupted'", (int(campaign_id),))}
+                                                     "'interrupted'", (int(campaign_id),), table="visits")}
         referenced = set()
-        for before, after in self._read("SELECT before_frame_path, after_frame_paths_json FROM observations"
-                                        " WHERE campaign_id = ?", (int(campaign_id),)):
-            if before:
-                referenced.add(before)
-            referenced.update(json.loads(after or "[]"))
+        for r in self._read("SELECT id, before_frame_path, after_frame_paths_json FROM observations"
+                            " WHERE campaign_id = ?", (int(campaign_id),), table="observations"):
+            if r["before_frame_path"]:
+                referenced.add(r["before_frame_path"])
+            referenced.update(loads(self.path, "observations", r, "after_frame_paths_json"))
         removed = 0
         for f in folder.rglob("v*_*.png"):
             visit = f.name[1:].split("_", 1)[0]
@@ -232,11 +234,21 @@ class Store:
             self._conn.commit()
             self._pending, self._batch_t0 = 0, time.monotonic()
 
-    def _read(self, sql: str, params: Sequence[Any] = ()) -> list[sqlite3.Row]:
+    def _read(self, sql: str, params: Sequence[Any] = (), *, table: str | None = None) -> list[sqlite3.Row]:
+        """The rows of a query; with ``table``, each value checked against its declared column type.
+
+        Raises :class:`DataError` naming the database, table, row and column for a value the column
+        cannot hold, and one line for damaged pages (:mod:`helicalib.store.damage`)."""
         with self._lock:
-            cur = self._conn.execute(sql, params)
-            cur.row_factory = sqlite3.Row
-            return cur.fetchall()
+            try:
+                cur = self._conn.execute(sql, params)
+                cur.row_factory = sqlite3.Row
+                rows = cur.fetchall()
+            except sqlite3.Error as exc:
+                raise read_error(self.path, exc, table) from None
+        if table is not None:
+            self._check.check(table, rows)
+        return rows
 
     # ------------------------------------------------------------------ campaigns
     def start_campaign(self, *, name: str, mode: str, started_s: float,
@@ -279,14 +291,14 @@ class Store:
         self._write("UPDATE campaigns SET ended_s = NULL, status = 'running' WHERE id = ?", (int(campaign_id),))
 
     def campaign(self, campaign_id: int) -> Campaign:
-        rows = self._read("SELECT * FROM campaigns WHERE id = ?", (int(campaign_id),))
+        rows = self._read("SELECT * FROM campaigns WHERE id = ?", (int(campaign_id),), table="campaigns")
         if not rows:
             raise ConfigError(f"{self.path}: no campaign {campaign_id}")
-        return _campaign(rows[0])
+        return _campaign(self.path, rows[0])
 
     def campaigns(self) -> list[Campaign]:
         """All campaigns, oldest first."""
-        return [_campaign(r) for r in self._read("SELECT * FROM campaigns ORDER BY id")]
+        return [_campaign(self.path, r) for r in self._read("SELECT * FROM campaigns ORDER BY id", table="campaigns")]
 
     def unfinished_campaign(self, mode: str | None = None) -> Campaign | None:
         """The newest campaign still ``'running'`` (optionally of one mode), or None: what ``run`` resumes."""
@@ -295,12 +307,12 @@ class Store:
         if mode is not None:
             sql += " AND mode = ?"
             params = (mode,)
-        rows = self._read(sql + " ORDER BY id DESC LIMIT 1", params)
-        return _campaign(rows[0]) if rows else None
+        rows = self._read(sql + " ORDER BY id DESC LIMIT 1", params, table="campaigns")
+        return _campaign(self.path, rows[0]) if rows else None
 
     def campaign_heliostats(self, campaign_id: int) -> list[CampaignHeliostat]:
-        rows = self._read("SELECT heliostat_id, block_index, target_id FROM heliostats WHERE campaign_id = ?"
-                          " ORDER BY block_index", (int(campaign_id),))
+        rows = self._read("SELECT rowid AS id, heliostat_id, block_index, target_id FROM heliostats WHERE campaign_id = ?"
+                          " ORDER BY block_index", (int(campaign_id),), table="heliostats")
         return [CampaignHeliostat(r["heliostat_id"], int(r["block_index"]), r["target_id"]) for r in rows]
 
     # ------------------------------------------------------------------ visits
@@ -332,7 +344,8 @@ class Store:
 
     def visits(self, campaign_id: int | None = None, heliostat_id: str | None = None) -> list[Visit]:
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
-        return [Visit(**{k: r[k] for k in r.keys()}) for r in self._read(f"SELECT * FROM visits{where} ORDER BY id", params)]
+        return [Visit(**{k: r[k] for k in r.keys()})
+                for r in self._read(f"SELECT * FROM visits{where} ORDER BY id", params, table="visits")]
 
     # ------------------------------------------------------------------ observations
     def save_frame(self, frame: FrameData, *, campaign_id: int, heliostat_id: str, visit_id: int | None,
@@ -384,7 +397,8 @@ class Store:
         """Observations in recording order, filtered by campaign, heliostat and validity."""
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id,
                                valid=None if valid is None else int(bool(valid)))
-        return [observation_from_row(r) for r in self._read(f"SELECT * FROM observations{where} ORDER BY id", params)]
+        return [observation_from_row(r, self.path)
+                for r in self._read(f"SELECT * FROM observations{where} ORDER BY id", params, table="observations")]
 
     def observations_frame(self, campaign_id: int | None = None, heliostat_id: str | None = None,
                            valid: bool | None = None):
@@ -393,7 +407,10 @@ class Store:
 
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id,
                                valid=None if valid is None else int(bool(valid)))
-        rows = self._read(f"SELECT {', '.join(OBSERVATION_COLUMNS)} FROM observations{where} ORDER BY id", params)
+        rows = self._read(f"SELECT {', '.join(OBSERVATION_COLUMNS)} FROM observations{where} ORDER BY id", params,
+                          table="observations")
+        for r in rows:  # the frame keeps the text; a reader that decodes it later must find JSON there
+            loads(self.path, "observations", r, "after_frame_paths_json")
         frame = pd.DataFrame([tuple(r) for r in rows], columns=list(OBSERVATION_COLUMNS))
         frame["valid"] = frame["valid"].astype(bool)
         return frame
@@ -403,12 +420,12 @@ class Store:
         an after frame), by target id."""
         frames = " AND before_frame_path IS NOT NULL AND after_frame_paths_json != '[]'" if with_frames else ""
         rows = self._read(f"SELECT * FROM observations WHERE id IN (SELECT MAX(id) FROM observations WHERE "
-                          f"campaign_id = ?{frames} GROUP BY target_id)", (int(campaign_id),))
-        return {r["target_id"]: observation_from_row(r) for r in rows}
+                          f"campaign_id = ?{frames} GROUP BY target_id)", (int(campaign_id),), table="observations")
+        return {r["target_id"]: observation_from_row(r, self.path) for r in rows}
 
     def count_observations(self, campaign_id: int | None = None, valid: bool | None = None) -> int:
         where, params = _where(campaign_id=campaign_id, valid=None if valid is None else int(bool(valid)))
-        return int(self._read(f"SELECT COUNT(*) FROM observations{where}", params)[0][0])
+        return int(self._read(f"SELECT COUNT(*) FROM observations{where}", params, table="observations")[0][0])
 
     def export_observations_csv(self, path: str | Path, campaign_id: int | None = None,
                                 valid: bool | None = None) -> int:
@@ -459,12 +476,12 @@ class Store:
     def latest_fit(self, heliostat_id: str, campaign_id: int | None = None) -> Fit | None:
         """The newest fit of a heliostat (in a campaign, or in any when ``campaign_id`` is None)."""
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
-        rows = self._read(f"SELECT * FROM fits{where} ORDER BY id DESC LIMIT 1", params)
-        return _fit(rows[0]) if rows else None
+        rows = self._read(f"SELECT * FROM fits{where} ORDER BY id DESC LIMIT 1", params, table="fits")
+        return _fit(self.path, rows[0]) if rows else None
 
     def fits(self, campaign_id: int | None = None, heliostat_id: str | None = None) -> list[Fit]:
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
-        return [_fit(r) for r in self._read(f"SELECT * FROM fits{where} ORDER BY id", params)]
+        return [_fit(self.path, r) for r in self._read(f"SELECT * FROM fits{where} ORDER BY id", params, table="fits")]
 
     def record_verdict(self, *, campaign_id: int, heliostat_id: str, time_s: float, accepted: bool,
                        n_points: int, rms_mrad: float | None, reasons: Sequence[str],
@@ -480,14 +497,15 @@ class Store:
     def verdicts(self, campaign_id: int, heliostat_id: str | None = None) -> list[Verdict]:
         """Every verdict of a campaign (or of one heliostat in it), oldest first."""
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
-        return [_verdict(r) for r in self._read(f"SELECT * FROM verdicts{where} ORDER BY time_s, id", params)]
+        return [_verdict(self.path, r)
+                for r in self._read(f"SELECT * FROM verdicts{where} ORDER BY time_s, id", params, table="verdicts")]
 
     def latest_verdicts(self, campaign_id: int) -> dict[str, Verdict]:
         """The newest verdict of each heliostat of a campaign, by heliostat id."""
         rows = self._read(
             "SELECT * FROM verdicts WHERE id IN (SELECT MAX(id) FROM verdicts WHERE campaign_id = ? GROUP BY heliostat_id)",
-            (int(campaign_id),))
-        return {r["heliostat_id"]: _verdict(r) for r in rows}
+            (int(campaign_id),), table="verdicts")
+        return {r["heliostat_id"]: _verdict(self.path, r) for r in rows}
 
     def record_event(self, *, campaign_id: int, time_s: float, kind: str, reason: str,
                      heliostat_id: str | None = None, data: dict[str, Any] | None = None) -> int:
@@ -500,8 +518,8 @@ class Store:
     def events(self, campaign_id: int | None = None, kind: str | None = None) -> list[Event]:
         where, params = _where(campaign_id=campaign_id, kind=kind)
         return [Event(id=r["id"], campaign_id=r["campaign_id"], time_s=r["time_s"], kind=r["kind"], reason=r["reason"],
-                      heliostat_id=r["heliostat_id"], data=json.loads(r["data_json"]))
-                for r in self._read(f"SELECT * FROM events{where} ORDER BY time_s, id", params)]
+                      heliostat_id=r["heliostat_id"], data=loads(self.path, "events", r, "data_json"))
+                for r in self._read(f"SELECT * FROM events{where} ORDER BY time_s, id", params, table="events")]
 
     # ------------------------------------------------------------------ operator actions (the console)
     def request_action(self, *, campaign_id: int, kind: str, heliostat_ids: Sequence[str] = (), who: str,
@@ -521,11 +539,12 @@ class Store:
         """A campaign's operator actions, oldest first (``pending`` True: not applied yet; False: applied)."""
         extra = "" if pending is None else (" AND done_s IS NULL" if pending else " AND done_s IS NOT NULL")
         return [OperatorAction(id=r["id"], campaign_id=r["campaign_id"], kind=r["kind"],
-                               heliostat_ids=tuple(json.loads(r["heliostats_json"])), who=r["who"],
+                               heliostat_ids=tuple(loads(self.path, "operator_actions", r, "heliostats_json")),
+                               who=r["who"],
                                requested_wall_s=r["requested_wall_s"], requested_s=r["requested_s"],
                                done_s=r["done_s"], outcome=r["outcome"])
                 for r in self._read(f"SELECT * FROM operator_actions WHERE campaign_id = ?{extra} ORDER BY id",
-                                    (int(campaign_id),))]
+                                    (int(campaign_id),), table="operator_actions")]
 
     # ------------------------------------------------------------------ summary
     def progress(self, campaign_id: int) -> list[dict[str, Any]]:
@@ -535,19 +554,26 @@ class Store:
         """
         rows = self._read(
             """
-            SELECT h.heliostat_id, h.target_id,
+            SELECT h.rowid AS id, h.heliostat_id, h.target_id,
               (SELECT COUNT(*) FROM visits v WHERE v.campaign_id = h.campaign_id AND v.heliostat_id = h.heliostat_id) AS visits,
               (SELECT COUNT(*) FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id) AS observations,
               (SELECT COUNT(*) FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id AND o.valid = 1) AS valid,
-              (SELECT o.error_mrad FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id
-                 AND o.valid = 1 ORDER BY o.id DESC LIMIT 1) AS last_error_mrad
+              (SELECT o.id FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id
+                 AND o.valid = 1 ORDER BY o.id DESC LIMIT 1) AS last_valid_id
             FROM heliostats h WHERE h.campaign_id = ? ORDER BY h.block_index
-            """, (int(campaign_id),))
+            """, (int(campaign_id),), table="heliostats")
+        last = [r["last_valid_id"] for r in rows if r["last_valid_id"] is not None]
+        errors = {r["id"]: r["error_mrad"] for r in self._read(
+            f"SELECT id, error_mrad FROM observations WHERE id IN ({', '.join('?' * len(last))})", last,
+            table="observations")} if last else {}
         verdicts = self.latest_verdicts(campaign_id)
         out = []
         for r in rows:
             v = verdicts.get(r["heliostat_id"])
-            out.append({**{k: r[k] for k in r.keys()}, "accepted": None if v is None else v.accepted,
+            out.append({"heliostat_id": r["heliostat_id"], "target_id": r["target_id"], "visits": r["visits"],
+                        "observations": r["observations"], "valid": r["valid"],
+                        "last_error_mrad": errors.get(r["last_valid_id"]),
+                        "accepted": None if v is None else v.accepted,
                         "rms_mrad": None if v is None else v.rms_mrad, "reasons": () if v is None else v.reasons})
         return out
 
@@ -584,8 +610,16 @@ def _connect_readonly(db: Path) -> sqlite3.Connection:
                                timeout=30.0, check_same_thread=False)
         check_schema(conn, str(db))
     except sqlite3.DatabaseError as exc:
-        raise ConfigError(f"{db}: cannot open as a SQLite database ({exc})") from None
+        raise _open_error(db, exc) from None
     return conn
+
+
+def _open_error(db: Path, exc: sqlite3.DatabaseError) -> Exception:
+    """Damaged pages name the check to run (:class:`DataError`); any other failure to open the file
+    as a SQLite database (not one, say) is a :class:`ConfigError`."""
+    if is_corrupt(exc):
+        return read_error(db, exc)
+    return ConfigError(f"{db}: cannot open as a SQLite database ({exc})")
 
 
 def _lock_file_of(db: Path) -> Path:
@@ -651,19 +685,20 @@ def _where(**filters: Any) -> tuple[str, tuple]:
     return (" WHERE " + " AND ".join(parts) if parts else ""), tuple(params)
 
 
-def _campaign(r: sqlite3.Row) -> Campaign:
+def _campaign(db: Path, r: sqlite3.Row) -> Campaign:
     return Campaign(id=r["id"], name=r["name"], mode=r["mode"], started_s=r["started_s"], ended_s=r["ended_s"],
                     status=r["status"], config_path=r["config_path"], config_sha256=r["config_sha256"],
-                    settings=json.loads(r["settings_json"]))
+                    settings=loads(db, "campaigns", r, "settings_json"))
 
 
-def _fit(r: sqlite3.Row) -> Fit:
+def _fit(db: Path, r: sqlite3.Row) -> Fit:
     return Fit(id=r["id"], campaign_id=r["campaign_id"], heliostat_id=r["heliostat_id"], time_s=r["time_s"],
-               model=r["model"], params=json.loads(r["params_json"]), sigma=json.loads(r["sigma_json"]),
+               model=r["model"], params=loads(db, "fits", r, "params_json"), sigma=loads(db, "fits", r, "sigma_json"),
                rms_mrad=r["rms_mrad"], n_points=r["n_points"])
 
 
-def _verdict(r: sqlite3.Row) -> Verdict:
+def _verdict(db: Path, r: sqlite3.Row) -> Verdict:
     return Verdict(id=r["id"], campaign_id=r["campaign_id"], heliostat_id=r["heliostat_id"], time_s=r["time_s"],
                    accepted=bool(r["accepted"]), n_points=r["n_points"], rms_mrad=r["rms_mrad"],
-                   reasons=tuple(json.loads(r["reasons_json"])), details=json.loads(r["details_json"]))
+                   reasons=tuple(loads(db, "verdicts", r, "reasons_json")),
+                   details=loads(db, "verdicts", r, "details_json"))
