@@ -703,6 +703,10 @@ class FieldConfig(_Model):
 
 
 # ---------------------------------------------------------------------------- loading
+SQLITE_MAGIC = b"SQLite format 3\x00"
+"""The first 16 bytes of every SQLite database file (a helicalib campaign database is one)."""
+
+
 def read_text(path: str | Path, error: type[HelicalibError] = ConfigError) -> str:
     """A text file's contents (UTF-8, a leading byte-order mark dropped).
 
@@ -716,6 +720,8 @@ def read_text(path: str | Path, error: type[HelicalibError] = ConfigError) -> st
         raw = path.read_bytes()
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if raw.startswith(SQLITE_MAGIC):
+        raise error(f"{path}: an SQLite database, not a text file")
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -1077,7 +1083,36 @@ def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConf
 def load_field_config(path: str | Path) -> FieldConfig:
     """Read and validate a field config YAML file (and its heliostat CSV)."""
     path = Path(path)
+    _not_a_database(path)
     return parse_field_config(read_yaml(path), path)
+
+
+def _not_a_database(path: Path) -> None:
+    """A database given where the field config belongs (``run helicalib.db``) is refused in one line
+    that says so, naming the config its newest campaign was run with when the database tells."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(len(SQLITE_MAGIC))
+    except OSError:
+        return  # read_text names the problem
+    if head != SQLITE_MAGIC:
+        return
+    import sqlite3
+
+    kind, hint = "an SQLite database", ""
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=0.5)
+        try:
+            if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'campaigns'").fetchone():
+                kind = "a helicalib database"
+                row = con.execute("SELECT config_path FROM campaigns ORDER BY id DESC LIMIT 1").fetchone()
+                if row and isinstance(row[0], str) and row[0] and len(row[0]) <= 300 and row[0].isprintable():
+                    hint = f" (its newest campaign ran with {row[0]})"
+        finally:
+            con.close()
+    except sqlite3.Error:
+        pass
+    raise ConfigError(f"{path}: this is {kind}, not a field config; give the field config YAML{hint}")
 
 
 def clear_standby_points(data: Mapping[str, Any]) -> dict:
