@@ -37,13 +37,15 @@ def run(args) -> int:
         camp, why = shown_campaign(store, campaigns, owner, args.campaign)
         rows = store.progress(camp.id)
         events = store.events(camp.id)
+        newest_obs = max(store.latest_by_target(camp.id).values(), key=lambda o: o.id, default=None)
     finally:
         store.close()
     accepted = sum(1 for r in rows if r["accepted"])
     state = shown_status(camp.status, owner)
+    plant = plant_state(events, newest_obs)
     if args.json:
         print(json.dumps({"campaign": camp.id, "shown_because": why, "name": camp.name, "mode": camp.mode, "status": state,
-                          "owner": owner, "accepted": accepted, "heliostats": rows,
+                          "owner": owner, **plant, "accepted": accepted, "heliostats": rows,
                           "stows": sum(e.kind == "stow" for e in events),
                           "off_tracking": off_tracking(events)}, indent=2, default=list))
         return 0
@@ -51,6 +53,8 @@ def run(args) -> int:
     # printed as rich Text, never parsed as markup: "[/]" must not crash, "[link=...]" not become a link
     console = Console()
     console.print(Text(f"campaign {camp.id}: {why}"))
+    for text, style in plant_lines(plant, running=owner is not None):
+        console.print(Text(text, style=style))
     table = Table(title=Text(f"campaign {camp.id}: {camp.name} ({state}) — {accepted}/{len(rows)} accepted"))
     for col in ("heliostat", "target", "visits", "valid", "last error mrad", "RMS mrad", "verdict"):
         table.add_column(col, justify="right" if col not in ("heliostat", "target", "verdict") else "left")
@@ -68,6 +72,62 @@ def run(args) -> int:
     if stows:
         console.print(Text(f"{len(stows)} wind stow(s); last: {stows[-1].reason}"))
     return 0
+
+
+def _utc(t_s: float | None) -> str | None:
+    from helicalib.campaign.events import iso_utc
+
+    return None if t_s is None else iso_utc(t_s).replace("T", " ").replace("+00:00", " UTC")
+
+
+def plant_state(events, newest_obs) -> dict:
+    """What the database says of the plant: unreachable since when (the newest ``plant_lost`` /
+    ``plant_back`` event, in the order recorded), the gate's last change (``gated``, ``ungated``,
+    ``stow``, ``resume``), the weather of the newest measurement, each with its plant time, and the
+    plant time of the newest record (events and measurements) that their ages are counted to."""
+    by_row = sorted(events, key=lambda e: e.id)  # recorded order: a plant clock set back stamps earlier
+    lost = [e for e in by_row if e.kind in ("plant_lost", "plant_back")]
+    since = lost[-1].time_s if lost and lost[-1].kind == "plant_lost" else None
+    gates = [e for e in by_row if e.kind in ("gated", "ungated", "stow", "resume")]
+    gate = None if not gates else {"kind": gates[-1].kind, "reason": gates[-1].reason, "since": _utc(gates[-1].time_s),
+                                   "since_s": gates[-1].time_s}
+    weather = None if newest_obs is None or (newest_obs.wind_ms is None and newest_obs.dni_wm2 is None) else {
+        "wind_ms": newest_obs.wind_ms, "dni_wm2": newest_obs.dni_wm2, "as_of": _utc(newest_obs.capture_time_s),
+        "as_of_s": newest_obs.capture_time_s}
+    newest = [t for t in (by_row[-1].time_s if by_row else None,
+                          None if newest_obs is None else newest_obs.capture_time_s) if t is not None]
+    return {"plant_unreachable_since": _utc(since), "plant_unreachable_since_s": since, "gate": gate,
+            "weather": weather, "newest_record": _utc(max(newest, default=None)),
+            "newest_record_s": max(newest, default=None)}
+
+
+def plant_lines(plant: dict, running: bool) -> list[tuple[str, str]]:
+    """``status``'s lines on the plant (text, rich style): unreachable first, then the gate and the
+    weather, each with its plant time and its age before the newest record."""
+    from helicalib.campaign.console import duration
+
+    newest = plant["newest_record_s"]
+    age = lambda t: "" if newest is None else f", {duration(newest - t)} before the newest record"  # noqa: E731
+    lines = []
+    since = plant["plant_unreachable_since_s"]
+    if since is not None:
+        lines.append((f"plant unreachable since {plant['plant_unreachable_since']}"
+                      + (" (the newest record" if newest is None else f" ({duration(newest - since)} before the "
+                         f"newest record, {plant['newest_record']}") + ")"
+                      + ("" if running else "; so it was when the campaign's process stopped")
+                      + ": the gate and weather below are as of before", "bold red"))
+    if plant["gate"] is not None:
+        g = plant["gate"]
+        what = {"gated": "paused", "ungated": "open", "stow": "STOWED for wind", "resume": "tracking again after a stow"}
+        lines.append((f"gate{' (last known)' if since is not None else ''}: {what[g['kind']]}: {g['reason']} "
+                      f"(since {g['since']}{age(g['since_s'])})", "dim" if since is not None else ""))
+    if plant["weather"] is not None:
+        w = plant["weather"]
+        wind = "—" if w["wind_ms"] is None else f"{w['wind_ms']:.1f} m/s"
+        dni = "—" if w["dni_wm2"] is None else f"{w['dni_wm2']:.0f} W/m²"
+        lines.append((f"weather of the newest measurement: wind {wind}, DNI {dni} (as of {w['as_of']}"
+                      f"{age(w['as_of_s'])})", "dim" if since is not None else ""))
+    return lines
 
 
 SQLITE_MAX_ID = 2**63 - 1
