@@ -20,6 +20,13 @@ of 32 such measurements refused by the vision's own checks. Taking turns keeps e
 as good as a lone visit's.
 
 The lock is handed to waiting visits in the order they asked (no visit starves another).
+
+**Whose beam may still cross the board.** A beam whose turn has ended travels from the standby
+point back to tracking, and a visit on its way in travels from tracking to the standby point; on
+some layouts that path crosses the board. The board remembers the plant index of every heliostat
+in a visit on it and of the ones whose turn ended (:meth:`Board.movers`), so a visit whose before
+frame held another beam can wait until none of them is moving any more (the plant's state) before
+it takes its before frame again (:mod:`.controller`, :func:`~.controller.retake_before`).
 """
 
 from __future__ import annotations
@@ -33,6 +40,8 @@ the standby point (at most three beams meet there; more adds little: the measure
 docs/benchmarks.md)."""
 LOCK_POLL_S = 1.0
 """Plant seconds a waiting visit lets pass before it asks for the board again."""
+DEPARTED_KEPT = 8
+"""Heliostats whose turn ended that a board remembers (the newest), until they stop moving."""
 
 
 @dataclass
@@ -48,6 +57,11 @@ class Board:
     visitors: list[str] = field(default_factory=list)
     lock_holder: str | None = None
     waiting: list[str] = field(default_factory=list)
+    indices: dict[str, int] = field(default_factory=dict)
+    """Plant index of each heliostat that came into a visit on this board (:meth:`arrive`)."""
+    departed: list[str] = field(default_factory=list)
+    """Heliostats whose turn on this board ended, oldest first, until the plant says they stopped
+    moving (:meth:`settled`); at most :data:`DEPARTED_KEPT`."""
 
     @property
     def empty(self) -> bool:
@@ -89,9 +103,33 @@ class Board:
                 self.waiting.remove(hid)
 
     def release(self, hid: str) -> None:
-        """``hid`` is done with the board: the lock goes to the longest waiter, if any."""
+        """``hid`` is done with the board: the lock goes to the longest waiter, if any. Its beam is
+        still on its way back (to tracking), so the board remembers it (:attr:`departed`)."""
         if self.lock_holder == hid:
             self.lock_holder = self.waiting[0] if self.waiting else None
+            if hid in self.departed:
+                self.departed.remove(hid)
+            self.departed.append(hid)
+            del self.departed[:-DEPARTED_KEPT]
+
+    # ------------------------------------------------------------------ beams that may cross it
+    def arrive(self, hid: str, index: int) -> None:
+        """``hid`` (plant index ``index``) starts a visit on this board."""
+        self.indices[hid] = int(index)
+        if hid in self.departed:
+            self.departed.remove(hid)
+
+    def movers(self, hid: str) -> list[tuple[str, int]]:
+        """(id, plant index) of the heliostats other than ``hid`` whose beams may be travelling near
+        the board: those whose turn ended (newest last) and the other visits under way."""
+        out = [h for h in self.departed if h != hid]
+        out += [h for h in self.visitors if h != hid and h not in out]
+        return [(h, self.indices[h]) for h in out if h in self.indices]
+
+    def settled(self, hid: str) -> None:
+        """The plant says ``hid``'s beam has stopped moving: forget it as a departed one."""
+        if hid in self.departed:
+            self.departed.remove(hid)
 
     @property
     def measuring(self) -> str | None:

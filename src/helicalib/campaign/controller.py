@@ -21,6 +21,14 @@ Several heliostats in one board visit (:mod:`.board`): each visit holds the boar
 from its before frame until its beam is back at standby, so one beam at a time lights the board;
 the other visits travel to the standby point and wait there meanwhile.
 
+A before frame that held another beam (the previous heliostat's on its way back to tracking, a
+visit's on its way to the standby point, a neighbouring board's): the reading says so
+(``before_beam``). Before it is called invalid, :func:`retake_before` moves the beam to the standby
+point, waits until the board's other heliostats have stopped moving (their plant state) and takes
+the before frame again, up to :data:`MAX_BEFORE_RETAKES` times; the same after frames are judged
+against each new one, so a clean frame makes the reading valid (its message says the before frame
+was retaken, and why).
+
 Safety: every stroke is checked against the drive's range before it is sent; beams rest only on
 the board or at the standby point (search aims never leave the board); on any fault the
 heliostat is returned to tracking.
@@ -29,7 +37,7 @@ heliostat is returned to tracking.
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -51,6 +59,19 @@ POLL_S = 2.0
 """Plant seconds between status polls while waiting for a heliostat to settle."""
 APPROACH_LEAD_S = 300.0
 """Plant seconds ahead at which the tracking direction of each actuator is read off the model."""
+MAX_BEFORE_RETAKES = 3
+"""A reading whose before frame held another beam takes the before frame again at most this many
+times (each with the beam at the standby point); then it is refused (``ambient_change``)."""
+RETAKE_WAIT_S = 4.0
+"""Plant seconds at least between the beam reaching the standby point and a retaken before frame,
+doubled at each further retake (4, 8, 16 s): a beam whose plant state the visit does not follow (a
+neighbouring board's) passes meanwhile."""
+BEAM_CLEAR_TIMEOUT_S = 60.0
+"""At most this many plant seconds of waiting, per retake, for the board's other heliostats to stop
+moving (:meth:`.board.Board.movers`); the before frame is taken again then even if one still moves
+(the new frame is judged by the same check)."""
+RETAKEN = "before frame retaken"
+"""Words in the message of a reading whose before frame was taken again."""
 
 
 @dataclass(frozen=True)
@@ -306,6 +327,8 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     out = VisitOutcome(status="invalid", reason="not started", model=ctx.model)
     target = ctx.target
     centre = np.asarray(target.center_enu_m, dtype=float)
+    if ctx.board is not None:  # the board follows where this beam travels (another visit's retake waits for it)
+        ctx.board.arrive(ctx.heliostat_id, ctx.index)
     try:
         yield from move_and_hold(ctx, _aim_strokes(ctx, _standby(ctx), ctx.now(), on_board=False), on_board=False)
         yield from _lock(ctx)  # the board's turn: every other beam is off it until this one is back at standby
@@ -318,7 +341,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         attempt, placements, searches = 0, 0, 0
         while True:
             read = yield from approach_and_hold(ctx, strokes, aim)
-            obs = yield from _measure(ctx, before, strokes, read, aim, attempt)
+            obs, before = yield from _measure(ctx, before, strokes, read, aim, attempt)
             out.observations.append(obs)
             attempt += 1
             if not obs.valid:
@@ -369,8 +392,12 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
 
 
 def _measure(ctx, before: Before, strokes_cmd, strokes_read, aim, iteration):
-    """One "after" measurement at the held strokes; always returns an Observation (recorded)."""
+    """One "after" measurement at the held strokes; always returns an Observation (recorded) and the
+    before reference the visit goes on with (a new one when it was taken again: :func:`retake_before`)."""
+    approach = ctx.approach  # of this placement (a retake moves the beam to standby and back)
     reading = yield from ctx.sensor.after(ctx, before)
+    if reading.before_beam:
+        before, reading = yield from retake_before(ctx, before, reading, iteration)
     capture_s = reading.capture_time_s
     sun_vec, az, el, rising = ctx.sun(capture_s)
     weather = _safe(ctx.plant.weather)
@@ -380,7 +407,7 @@ def _measure(ctx, before: Before, strokes_cmd, strokes_read, aim, iteration):
         visit_id=ctx.visit_id, iteration=iteration, capture_time_s=float(capture_s),
         strokes_cmd_mm=tuple(float(x) for x in strokes_cmd),
         strokes_read_mm=None if strokes_read is None else tuple(float(x) for x in strokes_read),
-        approach=None if ctx.approach is None else tuple(int(x) for x in ctx.approach),
+        approach=None if approach is None else tuple(int(x) for x in approach),
         sun_enu=tuple(float(x) for x in sun_vec), sun_azimuth_deg=float(az), sun_elevation_deg=float(el),
         sun_rising=bool(rising), before_frame_path=ctx.before_path,
         wind_ms=getattr(weather, "wind_ms", None), wind_direction_deg=getattr(weather, "wind_direction_deg", None),
@@ -399,7 +426,7 @@ def _measure(ctx, before: Before, strokes_cmd, strokes_read, aim, iteration):
                      spot_enu_m=tuple(float(x) for x in spot_enu))
     if reading.valid:
         held = np.asarray([strokes_read if strokes_read is not None else strokes_cmd], dtype=float)
-        predicted_uv = ctx.model.spot_on_target(held, sun_vec, ctx.target, ctx.approach)[0]
+        predicted_uv = ctx.model.spot_on_target(held, sun_vec, ctx.target, approach)[0]
         predicted = ctx.target.uvw_to_enu(predicted_uv)
         extra["error_mrad"] = float(optics.tracking_error_mrad(np.asarray(extra["spot_enu_m"]), predicted,
                                                                ctx.model.pivots_enu[0]))
@@ -408,7 +435,79 @@ def _measure(ctx, before: Before, strokes_cmd, strokes_read, aim, iteration):
             extra["cleanliness_measured"] = clean
     obs = Observation(valid=bool(reading.valid), reason=reading.reason, message=reading.message, **base, **extra)
     obs_id = yield Record(obs, {"before_frame": _before_data(ctx, before), "after_frames": list(reading.frames)})
-    return _with_id(obs, obs_id)
+    return _with_id(obs, obs_id), before
+
+
+def retake_before(ctx: VisitContext, before: Before, reading, iteration: int):
+    """A reading whose before frame held another beam, judged again against new before frames.
+
+    Up to :data:`MAX_BEFORE_RETAKES` times: the beam to the standby point (the board's turn is kept),
+    a wait of at least :data:`RETAKE_WAIT_S` (doubled each time) and until none of the board's other
+    heliostats is moving by the plant's state (at most :data:`BEAM_CLEAR_TIMEOUT_S`), a new before
+    frame (saved; the visit's later placements use it), and the same after frames judged against it:
+    a clean frame gives the reading the after frames hold; one that holds a beam again is retaken.
+    Returns ``(before, reading)``; the reading's message says how many times and why. A sensor
+    without ``retake`` keeps the refusal; a frame that cannot be had ends the retakes (the refusal
+    stands, with that said)."""
+    retake = getattr(ctx.sensor, "retake", None)
+    if retake is None:
+        return before, reading
+    n, waited_for, still = 0, [], []
+    while reading.before_beam and n < MAX_BEFORE_RETAKES:
+        n += 1
+        yield from move_and_hold(ctx, _aim_strokes(ctx, _standby(ctx), ctx.now(), on_board=False), on_board=False)
+        seen, still = yield from _beams_gone(ctx, RETAKE_WAIT_S * 2 ** (n - 1))
+        waited_for += [h for h in seen if h not in waited_for]
+        try:
+            before, reading = retake(ctx, before, reading)
+        except MeasurementError as err:
+            return before, replace(reading, message=f"{reading.message.rstrip('.')} [{RETAKEN} {n - 1} time(s); "
+                                                    f"then no before frame could be had: {err}].")
+        if before.data is not None:
+            ctx.before_path = yield SaveFrame(before.data, iteration, before.capture_time_s, "before")
+    if n == 0:
+        return before, reading
+    times = f"{n} time{'s' if n > 1 else ''}"
+    waits = f"; waited for {', '.join(waited_for)} to stop moving" if waited_for else ""
+    if reading.before_beam:
+        note = (f"{RETAKEN} {times} (the limit), another beam on the board in each{waits}"
+                + (f"; {', '.join(still)} still moving after {BEAM_CLEAR_TIMEOUT_S:.0f} s" if still else ""))
+    else:
+        note = f"{RETAKEN} {times}: another beam lay on the board in the first{waits}"
+    return before, replace(reading, message=f"{reading.message.rstrip('.')} [{note}].")
+
+
+def _beams_gone(ctx: VisitContext, least_s: float) -> Generator[float, None, tuple[list[str], list[str]]]:
+    """Wait at least ``least_s`` plant seconds and until none of the board's other heliostats (whose
+    turn ended, or on their way in) is moving by the plant's state, at most
+    :data:`BEAM_CLEAR_TIMEOUT_S`; returns the ids seen moving and those still moving at the end
+    (none: the beams have left)."""
+    waited, seen = 0.0, []
+    while True:
+        moving = _moving(ctx)
+        seen += [h for h in moving if h not in seen]
+        if waited >= least_s and (not moving or waited >= BEAM_CLEAR_TIMEOUT_S):
+            return seen, moving
+        yield POLL_S
+        waited += POLL_S
+
+
+def _moving(ctx: VisitContext) -> list[str]:
+    """The board's other heliostats the plant says are moving (one unreadable is not waited for:
+    the new before frame is judged anyway)."""
+    if ctx.board is None:
+        return []
+    out = []
+    for hid, index in ctx.board.movers(ctx.heliostat_id):
+        try:
+            state = ctx.plant.status(index).state
+        except PlantError:
+            continue
+        if state == HeliostatState.MOVING:
+            out.append(hid)
+        else:
+            ctx.board.settled(hid)
+    return out
 
 
 def _before_data(ctx: VisitContext, before: Before):
@@ -417,8 +516,6 @@ def _before_data(ctx: VisitContext, before: Before):
 
 
 def _with_id(obs: Observation, obs_id: int) -> Observation:
-    from dataclasses import replace
-
     return replace(obs, id=obs_id)
 
 

@@ -9,6 +9,13 @@ frames altogether (``helicalib.sim.fast_sensor``) sits behind the same protocol.
 
 Both return a :class:`Reading` with the same fields and the same reason codes; the frames a
 reading carries are stored with its observation (none for a sensor that has no frames).
+
+**A before frame that held another beam.** A reading whose before frame held another heliostat's
+beam (light on the board in the before frame that is gone in the after frames) says so
+(``Reading.before_beam``; reason ``ambient_change``). Both sensors can then take the before frame
+again and judge the same after frames against it (``retake``): the visit moves its beam to the
+standby point, waits until the other beams have left the board, and asks for it
+(:func:`~.controller.retake_before`).
 """
 
 from __future__ import annotations
@@ -72,6 +79,8 @@ class Reading:
     spot_area_px: float | None = None
     threshold: float | None = None
     frames: tuple[bytes, ...] = ()
+    before_beam: bool = False
+    """The before frame held another beam (an ``ambient_change`` a new before frame may mend)."""
     state: object = field(default=None, compare=False)
 
 
@@ -90,6 +99,10 @@ class SpotSensor(Protocol):
     def cleanliness(self, ctx, before: Before, reading: Reading, held_mm: np.ndarray, weather,
                     sun_enu: np.ndarray) -> float | None:
         """The mirror's present cleanliness from a valid reading, or None when it cannot be told."""
+
+    # Optional (a sensor without it refuses a reading whose before frame held another beam):
+    #   retake(ctx, before, reading) -> (Before, Reading): a new before frame, taken with the beam at
+    #   standby, and ``reading``'s after frames judged against it.
 
 
 class CaptureTimeError(MeasurementError):
@@ -209,6 +222,20 @@ class CameraSensor:
         self._marks, self._marks_uses = marks, 1  # this visit uses them
         return marks
 
+    def retake(self, ctx, before: Before, reading: Reading) -> tuple[Before, Reading]:
+        """A new before frame (the beam at standby) and ``reading``'s after frames measured against it.
+
+        The old before frame held another beam: it leaves the mean the marks are found on. The after
+        frames were taken a few seconds earlier; the difference after − k·before still holds only the
+        spot (``k`` takes up a change of daylight in between, as for any before frame). Raises
+        :class:`MeasurementError` as :meth:`before` does."""
+        if self._recent and before.state is not None and self._recent[-1] is before.state[0]:
+            self._recent.pop()
+        new = self.before(ctx)
+        if reading.state is None:  # no after image to judge again (the reading failed before the vision)
+            return new, reading
+        return new, self._judge(ctx, new, reading.state, reading.frames, reading.capture_time_s)
+
     def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
         frames, images, reason, message, refused = [], [], None, "", []
         for _ in range(ctx.settings.after_frames):
@@ -228,6 +255,10 @@ class CameraSensor:
         data = tuple(f.data for f in frames) + tuple(refused)
         if reason is not None:
             return Reading(False, reason, message, capture_s, frames=data)
+        return self._judge(ctx, before, images, data, capture_s)
+
+    def _judge(self, ctx, before: Before, images: list, data: tuple, capture_s: float) -> Reading:
+        """The spot of the after ``images`` against ``before`` (``data``: the frames to store)."""
         image, marks = before.state
         # the jitter limit as an angle: a far heliostat's beam wanders as many metres for less mrad
         distance_m = float(np.linalg.norm(np.asarray(ctx.target.center_enu_m, dtype=float) - ctx.model.pivots_enu[0]))
@@ -241,7 +272,8 @@ class CameraSensor:
             offset_m=None if spot.offset_m is None else (float(spot.offset_m[0]), float(spot.offset_m[1])),
             spot_px=None if spot.spot_center_px is None else (float(spot.spot_center_px[0]),
                                                              float(spot.spot_center_px[1])),
-            spot_area_px=_f(spot.spot_area_px), threshold=_f(spot.threshold), frames=data, state=images)
+            spot_area_px=_f(spot.spot_area_px), threshold=_f(spot.threshold), frames=data,
+            before_beam=bool(spot.before_beam), state=images)
 
     def cleanliness(self, ctx, before: Before, reading: Reading, held_mm: np.ndarray, weather,
                     sun_enu: np.ndarray) -> float | None:

@@ -15,7 +15,12 @@ instead of from pixels:
   on rendered spots) reaches the board's rim; its centre is then the visible part's centroid;
 * ``ambient_change``: the ambient light changed by more than ``max_ambient_change`` between the
   before and the after frames (DNI moved);
-* ``jitter``: with several after frames, the RMS spread of their spot centres above the limit.
+* ``jitter``: with several after frames, the RMS spread of their spot centres above the limit;
+* ``ambient_change`` with ``before_beam``: another heliostat's beam lay on the board at the before
+  frame (one the plant shows moving, drawn as the renderer would, not stopped by another board) and
+  its light is gone in the after frames over at least ``max_lost_light_share`` of the spot's area,
+  judged on one grid over the board (:func:`lost_light_share`). As the camera sensor, the sensor can
+  take the before frame again (:meth:`FastSensor.retake`) and judge the same after spots against it.
 
 A valid spot's measured centre is the mean true centre plus the vision's error: a bias and a
 Gaussian spread ``sqrt(floor² + (k · σ_spot)²)`` per board axis, both fitted on rendered
@@ -35,7 +40,8 @@ import numpy as np
 from scipy.special import ndtr
 
 from helicalib.campaign.sensor import Before, Reading
-from helicalib.sim.camera import spot_geometry
+from helicalib.devices.registers import HeliostatState
+from helicalib.sim.camera import spot_geometry, stopped_before
 from helicalib.vision.spot import SATURATED_LEVEL, SpotLimits
 
 MODEL_PATH = Path(__file__).with_name("fast_sensor.json")
@@ -132,6 +138,46 @@ def judge_spot(s: SpotPhysics, target, spec, limits: SpotLimits, threshold_fract
     return "ok", "ok", centroid
 
 
+LOST_GRID = 128
+"""Cells per side of the board grid on which light lost since the before frame is compared."""
+
+
+def _board_flux(s: SpotPhysics, gu: np.ndarray, gv: np.ndarray) -> np.ndarray:
+    """The irradiance of spot ``s`` on the board grid (rows v, columns u) [W/m²]."""
+    return s.power_w * np.multiply.outer(_profile(gv, s.uv_m[1], s.width_m[1], s.sigma_m[1]),
+                                         _profile(gu, s.uv_m[0], s.width_m[0], s.sigma_m[0]))
+
+
+def lost_light_share(s: SpotPhysics, others, target, threshold_fraction: float, contrast_scale: float = 1.0) -> float:
+    """The board area where the before frame was lit by the beams ``others`` at least the threshold
+    above what the after frame shows (the spot ``s`` there), over the spot's own thresholded area:
+    the vision's lost-light test (``SpotLimits.max_lost_light_share``), on one grid over the board
+    (:data:`LOST_GRID`). 0 when there is no other beam or no spot."""
+    if not others or not s.on_plane:
+        return 0.0
+    half = np.asarray(target.size_m, dtype=float) / 2.0
+    gu, gv = (np.linspace(-h, h, LOST_GRID) for h in half)
+    ours = _board_flux(s, gu, gv)
+    peak = contrast_scale * float(ours.max())
+    if peak <= 0.0:
+        return 0.0
+    T = threshold_fraction * peak
+    area = np.count_nonzero(contrast_scale * ours >= T)
+    lost = np.zeros_like(ours)
+    for o in others:
+        lost += _board_flux(o, gu, gv)
+    return float(np.count_nonzero(contrast_scale * (lost - ours) >= T)) / max(area, 1)
+
+
+@dataclass(frozen=True)
+class _Reference:
+    """What the fast sensor keeps of a before frame: the diffuse light on the board [W/m²] and the
+    spots of other beams on it then."""
+
+    ambient_wm2: float
+    others: tuple[SpotPhysics, ...] = ()
+
+
 class FastSensor:
     """The simulated fast sensor of one board (see the module docstring).
 
@@ -157,6 +203,7 @@ class FastSensor:
         self.spec = plant.scenario.camera
         self.optics = plant.scenario.optics
         index = [t.id for t in plant.cfg.targets].index(target_id)
+        self.boards = tuple(t for t in plant.cfg.targets if t.id != target_id)  # boards that may stop a beam
         self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 7919, index])
 
     # ------------------------------------------------------------------ physics
@@ -179,10 +226,31 @@ class FastSensor:
                                                       dni, clean)
         return SpotPhysics(uv[0], width[0], sigma[0], float(power[0]), bool(near[0]))
 
+    def other_spots(self, index: int, t_s: float) -> tuple[SpotPhysics, ...]:
+        """The spots on this board of the beams of heliostats other than ``index`` that the plant
+        shows moving at ``t_s`` (now): the ones the renderer would draw there, less those another
+        board stops first. (Resting beams are on their own boards, at standby points kept off
+        other boards by ``validate``, or on the receiver.)"""
+        p = self.plant
+        rows = np.flatnonzero(p.state == int(HeliostatState.MOVING))
+        rows = rows[rows != int(index)]
+        if not rows.size:
+            return ()
+        sun, _ = p.sun(t_s)
+        beams = p.truth.beam(p.strokes_mm, sun, t_s, float(p.weather_model.wind_ms(t_s)), p.approach,
+                             p.stroke_noise_mm, True, rows=rows)
+        uv, power, width, sigma, near = spot_geometry(
+            self.target, self.optics, beams.origin_enu, beams.direction_enu, sun, beams.normal_enu,
+            p.nominal.drives.mirror_size_m[rows], float(p.weather().dni_wm2), p.cleanliness_many(rows))
+        if near.any() and self.boards:
+            idx = np.flatnonzero(near)
+            near[idx[stopped_before(self.target, self.boards, beams.origin_enu[idx], beams.direction_enu[idx])]] = False
+        return tuple(SpotPhysics(uv[i], width[i], sigma[i], float(power[i]), True) for i in np.flatnonzero(near))
+
     # ------------------------------------------------------------------ the protocol
     def before(self, ctx) -> Before:
         t = float(ctx.now())
-        return Before(capture_time_s=t, data=None, state=self._ambient_wm2(t))
+        return Before(capture_time_s=t, data=None, state=_Reference(self._ambient_wm2(t), self.other_spots(ctx.index, t)))
 
     def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
         spots, times = [], []
@@ -191,12 +259,29 @@ class FastSensor:
             spots.append(self.spot(ctx.index, times[-1]))
             if ctx.settings.after_frames > 1:
                 yield 1.0
+        return self._judge(ctx, before, spots, times)
+
+    def retake(self, ctx, before: Before, reading: Reading) -> tuple[Before, Reading]:
+        """A new before frame now (the beam at standby) and the same after spots judged against it."""
+        new = self.before(ctx)
+        return new, self._judge(ctx, new, *reading.state)
+
+    def _judge(self, ctx, before: Before, spots: list[SpotPhysics], times: list[float]) -> Reading:
+        """The reading of the after ``spots`` (taken at ``times``) against ``before``."""
         capture_s = float(np.mean(times))
+        state = (spots, times)
         s = spots[-1]
         m = self.model
+        ref = before.state
         reason, message, centroid = judge_spot(s, self.target, self.spec, self.limits, m.threshold_fraction,
-                                               float(before.state), self._ambient_wm2(times[-1]), m.contrast_scale,
+                                               ref.ambient_wm2, self._ambient_wm2(times[-1]), m.contrast_scale,
                                                m.no_spot_fraction)
+        if reason in ("ok", "clipped", "saturated") and ref.others:  # where the vision tests for lost light
+            share = lost_light_share(s, ref.others, self.target, m.threshold_fraction, m.contrast_scale)
+            if share >= self.limits.max_lost_light_share:
+                return Reading(False, "ambient_change", f"a patch of {100 * share:.0f} % of the spot's area was lit in "
+                               "the before frame and is dark in the after frame: another beam crossed the board "
+                               "while the before frame was taken.", capture_s, before_beam=True, state=state)
         if reason == "ok" and len(spots) > 1:
             uvs = np.array([x.uv_m for x in spots])
             jitter = float(np.sqrt(np.mean(np.sum((uvs - uvs.mean(axis=0)) ** 2, axis=1))))
@@ -207,10 +292,10 @@ class FastSensor:
             centroid = centroid + (uvs.mean(axis=0) - s.uv_m)
         if reason != "ok":
             offset = None if centroid is None else (float(centroid[0]), float(centroid[1]))
-            return Reading(False, reason, message, capture_s, offset_m=offset)
+            return Reading(False, reason, message, capture_s, offset_m=offset, state=state)
         measured = (centroid + np.asarray(self.model.bias_m)
                     + self._rng.normal(0.0, 1.0, 2) * self.model.spread_m(s.sigma_m) / math.sqrt(len(spots)))
-        return Reading(True, "ok", "ok", capture_s, offset_m=(float(measured[0]), float(measured[1])))
+        return Reading(True, "ok", "ok", capture_s, offset_m=(float(measured[0]), float(measured[1])), state=state)
 
     def cleanliness(self, ctx, before: Before, reading: Reading, held_mm, weather, sun_enu) -> float | None:
         true = self.plant.cleanliness_of(ctx.index)

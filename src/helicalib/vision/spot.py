@@ -117,6 +117,10 @@ class SpotResult:
     frame_offsets_m: np.ndarray | None = None
     frames: tuple[FrameSpot, ...] = field(default_factory=tuple)
     failed_frame: int | None = None
+    before_beam: bool = False
+    """True for an "ambient_change" whose cause is light on the board in the before frame that is
+    gone in the after frame (another beam lay on the board while the before frame was taken): a
+    campaign takes the before frame again (``campaign.controller.retake_before``)."""
 
     def to_json(self) -> dict:
         """A JSON-ready dict (lists and floats; None where not measured)."""
@@ -144,9 +148,9 @@ class SpotResult:
 
 
 class _Invalid(Exception):
-    def __init__(self, reason: str, message: str, partial: FrameSpot | None = None):
+    def __init__(self, reason: str, message: str, partial: FrameSpot | None = None, before_beam: bool = False):
         super().__init__(message)
-        self.reason, self.message, self.partial = reason, message, partial
+        self.reason, self.message, self.partial, self.before_beam = reason, message, partial, before_beam
 
 
 # ---------------------------------------------------------------------------- annex A core
@@ -331,7 +335,7 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
     if lost >= max(limits.min_area_cells, limits.max_lost_light_share * S):
         raise _Invalid("ambient_change", f"{lost} cells of the board were lit in the before frame and are "
                        f"{T:.0f} grey levels or more darker in the after frame (the spot has {S}): another beam "
-                       "crossed the board while the before frame was taken.", partial)
+                       "crossed the board while the before frame was taken.", partial, before_beam=True)
     side = math.sqrt(S)
     if clipped > limits.max_clipped_cells or side >= min(grid.shape):
         # the visible part's centroid (biased toward the board): tells a search which way the beam lies
@@ -454,7 +458,8 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
                 extra["offset_m"] = np.asarray(bad.partial.offset_m, dtype=float)
             where = f" (after frame {i + 1})" if len(afters) > 1 else ""
             return SpotResult(False, bad.reason, bad.message.rstrip(".") + where + ".", failed_frame=i,
-                              frames=tuple(frames) + ((bad.partial,) if bad.partial else ()), **extra, **base)
+                              frames=tuple(frames) + ((bad.partial,) if bad.partial else ()),
+                              before_beam=bad.before_beam, **extra, **base)
     offsets = np.array([f.offset_m for f in frames])
     mean = offsets.mean(axis=0)
     jitter = float(np.sqrt(np.mean(np.sum((offsets - mean) ** 2, axis=1)))) if len(frames) > 1 else None
