@@ -194,9 +194,6 @@ def figure_pass_rate(fig_data: dict, number: int, threshold_mrad: float | None =
     if np.isfinite(rate_good).any():
         ax.plot(mid, rate_good, "o-", color="#c0392b", label=f"other conditions good ({fig_data['good_other']['condition']})")
     ax.axhline(100 * fig_data["paper_rate"], color="k", ls="--", lw=1, label="paper: 60 % in good conditions")
-    for x, n, k in zip(mid, fig_data["all"]["n"], fig_data["all"]["passed"]):
-        if n:
-            ax.text(x, 101, f"{k}/{n}", ha="center", va="bottom", fontsize=SMALL_PT, color="#444", rotation=90 if len(mid) > 20 else 0)
     ax.set_ylim(0, 118)
     ax.set_xlim(edges[0], edges[-1])
     ax.set_xlabel(f"{fig_data['label']} [{fig_data['unit']}]")
@@ -209,6 +206,7 @@ def figure_pass_rate(fig_data: dict, number: int, threshold_mrad: float | None =
     if not any(fig_data["all"]["n"]):
         _empty(ax, f"no visit with a recorded {fig_data['label']}")
     finish(fig)
+    count_labels(fig, ax, [(x, f"{k}/{n}") for x, n, k in zip(mid, fig_data["all"]["n"], fig_data["all"]["passed"]) if n])
     return fig
 
 
@@ -225,10 +223,6 @@ def figure_3(tt: dict):
     mid = (edges[:-1] + edges[1:]) / 2
     frac = np.array([np.nan if f is None else 100 * f for f in f3["fraction"]])
     ax.bar(mid, np.nan_to_num(frac), width=0.85 * np.diff(edges), color="#7fa7c9", label="measured")
-    for x, n, k in zip(mid, f3["n"], f3["within"]):
-        if n:
-            ax.text(x, 101, f"{k}/{n}", ha="center", va="bottom", fontsize=SMALL_PT, color="#444",
-                    rotation=90 if len(mid) > 20 else 0)
     for b in field["bins"]:
         colour = {True: "#2a9d3a", False: "#d1495b", None: "#999"}[b["pass"]]
         ax.hlines(100 * b["required"], b["low_ms"], b["high_ms"], colors=colour, lw=3)
@@ -252,7 +246,37 @@ def figure_3(tt: dict):
     if not field["n"]:
         _empty(ax, "no valid first placement with a recorded wind")
     finish(fig)
+    count_labels(fig, ax, [(x, f"{k}/{n}") for x, n, k in zip(mid, f3["n"], f3["within"]) if n])
     return fig
+
+
+LABEL_GAP_PX = 3.0
+"""Least gap [px] between two neighbouring count labels above the bars."""
+
+
+def count_labels(fig, ax, labels: list[tuple[float, str]], y: float = 101.0) -> list:
+    """Write each ``(x, text)`` count label above its bar of a percent axis, level when no two
+    neighbours touch (closer than :data:`LABEL_GAP_PX`, measured on the drawn figure), else all
+    turned upright; the axis then grows upward until the tallest label fits inside it. Returns the
+    text artists."""
+    texts = [ax.text(x, y, t, ha="center", va="bottom", fontsize=SMALL_PT, color="#444") for x, t in labels]
+    if not texts:
+        return texts
+    fig.draw_without_rendering()  # the final layout, so the extents are the PNG's
+    boxes = sorted((t.get_window_extent() for t in texts), key=lambda b: b.x0)
+    if any(b.x0 - a.x1 < LABEL_GAP_PX for a, b in zip(boxes, boxes[1:])):
+        for t in texts:
+            t.set_rotation(90)
+        fig.draw_without_rendering()
+    box = ax.get_window_extent()
+    tall = max(t.get_window_extent().height for t in texts)
+    lo, hi = ax.get_ylim()
+    # the labels' foot sits (y − lo)/(hi − lo) of the axis' height up; their tops must stay inside it
+    need = lo + (y - lo) * box.height / max(box.height - tall - LABEL_GAP_PX, 1.0)
+    if need > hi:
+        ax.set_ylim(lo, need)
+        fig.draw_without_rendering()
+    return texts
 
 
 def plot_figure_3(tt: dict, path: Path) -> Path:

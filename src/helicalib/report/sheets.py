@@ -107,9 +107,15 @@ def latest_frame_observation(obs: pd.DataFrame) -> dict | None:
     return {"id": int(r["id"]), "visit_id": None if pd.isna(r["visit_id"]) else int(r["visit_id"]),
             "iteration": int(r["iteration"]), "time_utc": iso(r["capture_time_s"]), "target_id": r["target_id"],
             "before": r["before_frame_path"], "after": json.loads(r["after_frame_paths_json"]),
-            "valid": bool(r["valid"]), "reason": r["reason"], "message": r["message"],
+            "valid": bool(r["valid"]), "reason": r["reason"], "message": _clause(r["message"]),
             "spot_px": None if pd.isna(r["spot_x_px"]) else [float(r["spot_x_px"]), float(r["spot_y_px"])],
             "error_mrad": num(r["error_mrad"])}
+
+
+def _clause(message):
+    """A stored message as a clause the page ends with its own full stop (the vision's messages
+    are sentences that end with one already)."""
+    return message.rstrip().rstrip(".") if isinstance(message, str) else message
 
 
 def cleanliness_history(obs: pd.DataFrame, limit: float | None) -> dict:
