@@ -23,6 +23,10 @@ from helicalib.errors import DataError, StorageError
 
 CORRUPT = ("SQLITE_CORRUPT",)
 """SQLite's result codes of damaged pages (extended codes start with these names)."""
+CANNOT_WRITE = ("SQLITE_READONLY", "SQLITE_CANTOPEN", "SQLITE_FULL", "SQLITE_IOERR", "SQLITE_PERM", "SQLITE_BUSY",
+                "SQLITE_LOCKED")
+"""SQLite's result codes of a file or folder that cannot be written (full disk, read-only file or
+folder, I/O error, another writer holding it past the timeout)."""
 
 _ALLOWED = {"REAL": (int, float), "INTEGER": (int,), "TEXT": (str,)}
 """Python types a column of each declared type holds when it is intact (SQLite's affinity turns
@@ -50,6 +54,10 @@ def integrity_hint(db: str | Path) -> str:
 def is_corrupt(exc: sqlite3.Error) -> bool:
     name = getattr(exc, "sqlite_errorname", "") or ""
     return name.startswith(CORRUPT) or "malformed" in str(exc)
+
+
+def cannot_write(exc: sqlite3.Error) -> bool:
+    return (getattr(exc, "sqlite_errorname", "") or "").startswith(CANNOT_WRITE)
 
 
 def read_error(db: str | Path, exc: sqlite3.Error, table: str | None = None) -> DataError:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from helicalib.errors import MeasurementError
+from helicalib.store.damage import os_write_error
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 JPEG_MAGIC = b"\xff\xd8\xff"
@@ -67,6 +68,9 @@ def to_png_bytes(frame: bytes | np.ndarray) -> bytes:
 def write_atomic(path: Path, data: bytes, *, durable: bool = True) -> None:
     """Write ``data`` to ``path`` atomically (temporary file + rename).
 
+    Raises :class:`~helicalib.errors.StorageError` naming the file when it cannot be written (full
+    disk, read-only folder); no temporary file is left behind.
+
     Parameters
     ----------
     path : Path
@@ -76,14 +80,21 @@ def write_atomic(path: Path, data: bytes, *, durable: bool = True) -> None:
     durable : bool
         fsync the file and its directory, so the frame survives a power cut, not only a killed process.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        if durable:
-            os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            if durable:
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:  # full disk, read-only folder, a path through a file
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
+        raise os_write_error(path, exc, "write the frame") from None
     if durable and hasattr(os, "O_DIRECTORY"):
         fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
         try:

@@ -14,7 +14,8 @@ import json
 import sqlite3
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,8 @@ import numpy as np
 
 from helicalib.errors import ConfigError
 from helicalib.store import frames as _frames
-from helicalib.store.damage import RowCheck, is_corrupt, loads, read_error, write_error
+from helicalib.store.damage import (RowCheck, cannot_write, is_corrupt, loads, os_write_error, read_error,
+                                    write_error)
 from helicalib.store.observation_rows import OBSERVATION_COLUMNS, observation_from_row, observation_to_row
 from helicalib.store.records import (Campaign, CampaignHeliostat, Event, Fit, Observation, OperatorAction, Verdict,
                                      Visit)
@@ -112,6 +114,11 @@ class Store:
         ------
         ConfigError
             The file is not a helicalib database, is of a newer schema, or cannot be opened.
+        StorageError
+            A writer: the database, its folder or its lock file cannot be written (read-only file or
+            folder, a path through a file, full disk).
+        DataError
+            The file's pages are damaged.
         """
         db = database_path(path)
         images = Path(images_dir) if images_dir is not None else Path("images")
@@ -119,7 +126,10 @@ class Store:
             images = db.parent / images
         if readonly:
             return cls(_connect_readonly(db), db, images, durable)
-        db.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            db.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise os_write_error(db.parent, exc, "create the database's folder") from None
         real = db.resolve()  # every path to one file (a symlink, dir/../dir/x.db) shares one lock and one WAL
         lock_file = _owner_lock(_lock_file_of(real), owner) if owner is not None else None
         try:
@@ -128,10 +138,11 @@ class Store:
             conn.execute(f"PRAGMA synchronous={'FULL' if durable else 'NORMAL'}")
             conn.execute("PRAGMA foreign_keys=ON")
             ensure_schema(conn, str(db))
+            _probe_write(conn)
         except sqlite3.DatabaseError as exc:
             if lock_file is not None:
                 lock_file.close()
-            raise _open_error(db, exc) from None
+            raise _open_error(db, exc, writing=True) from None
         except BaseException:
             if lock_file is not None:
                 lock_file.close()
@@ -201,14 +212,20 @@ class Store:
         return removed
 
     def close(self) -> None:
-        """Close the connection (every write is already committed) and release the ownership."""
+        """Close the connection (every write is already committed) and release the ownership.
+
+        The connection is closed and the ownership released even when a batched store's last
+        commit fails (:class:`StorageError`, raised after)."""
         with self._lock:
-            if self.batched:
-                self._conn.commit()
-            self._conn.close()
-            if self._lock_file is not None:
-                self._lock_file.close()
-                self._lock_file = None
+            try:
+                if self.batched:
+                    with self._writing():
+                        self._conn.commit()
+            finally:
+                self._conn.close()
+                if self._lock_file is not None:
+                    self._lock_file.close()
+                    self._lock_file = None
 
     def __enter__(self) -> "Store":
         return self
@@ -216,12 +233,22 @@ class Store:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """The store's lock; a write SQLite refuses (full disk, read-only file or folder, damaged
+        pages) leaves as one :class:`StorageError` line naming the database and what SQLite said."""
+        with self._lock:
+            try:
+                yield
+            except sqlite3.Error as exc:
+                raise write_error(self.path, exc) from None
+
     def _write(self, sql: str, params: Sequence[Any] = ()) -> int:
         if not self.batched:
-            with self._lock, self._conn:
+            with self._writing(), self._conn:
                 cur = self._conn.execute(sql, params)
                 return int(cur.lastrowid or 0)
-        with self._lock:
+        with self._writing():
             cur = self._conn.execute(sql, params)
             self._pending += 1
             if self._pending >= BATCH_ROWS or time.monotonic() - self._batch_t0 >= BATCH_S:
@@ -230,7 +257,7 @@ class Store:
 
     def flush(self) -> None:
         """Commit the writes of a batched store now (a no-op otherwise: each write is committed)."""
-        with self._lock:
+        with self._writing():
             self._conn.commit()
             self._pending, self._batch_t0 = 0, time.monotonic()
 
@@ -264,7 +291,7 @@ class Store:
         settings.setdefault("images_dir", str(Path(self.images_dir).resolve()))
         rows = [h if isinstance(h, CampaignHeliostat) else CampaignHeliostat(str(h[0]), int(h[1]), str(h[2]))
                 for h in heliostats]
-        with self._lock, self._conn:
+        with self._writing(), self._conn:
             cur = self._conn.execute(
                 "INSERT INTO campaigns (name, mode, started_s, status, config_path, config_sha256, settings_json)"
                 " VALUES (?, ?, ?, 'running', ?, ?, ?)",
@@ -336,7 +363,7 @@ class Store:
         """Mark visits left ``'running'`` by a killed process ``'interrupted'`` (of one campaign, or of
         all with None: the owner at its start); returns how many."""
         where, params = _where(campaign_id=None if campaign_id is None else int(campaign_id))
-        with self._lock, self._conn:
+        with self._writing(), self._conn:
             cur = self._conn.execute(
                 "UPDATE visits SET outcome = 'interrupted', reason = 'process ended during the visit', ended_s = ?"
                 + (where + " AND" if where else " WHERE") + " outcome = 'running'", (float(time_s), *params))
@@ -354,7 +381,7 @@ class Store:
 
         ``capture_time_s`` is the camera's (untrusted) stamp: it is not part of the file name."""
         data = _frames.to_png_bytes(frame)
-        with self._lock:
+        with self._lock:  # write_atomic: StorageError naming the frame file when it cannot be written
             rel = _frames.unique_path(self.images_dir, _frames.frame_relpath(
                 campaign_id, heliostat_id, visit_id, iteration, kind))
             _frames.write_atomic(self.images_dir / rel, data, durable=self.durable)
@@ -385,7 +412,7 @@ class Store:
     def set_frame_paths(self, rows: Sequence[tuple[int, str | None, Sequence[str]]]) -> None:
         """Replace the frame paths of observations ``(id, before_frame_path, after_frame_paths)``
         in one transaction (frame retention, :mod:`helicalib.store.retention`)."""
-        with self._lock:
+        with self._writing():
             self.flush()
             with self._conn:
                 self._conn.executemany(
@@ -614,12 +641,24 @@ def _connect_readonly(db: Path) -> sqlite3.Connection:
     return conn
 
 
-def _open_error(db: Path, exc: sqlite3.DatabaseError) -> Exception:
-    """Damaged pages name the check to run (:class:`DataError`); any other failure to open the file
-    as a SQLite database (not one, say) is a :class:`ConfigError`."""
+def _open_error(db: Path, exc: sqlite3.DatabaseError, writing: bool = False) -> Exception:
+    """Damaged pages name the check to run (:class:`DataError`); a writer refused by the file system
+    (read-only file or folder, full disk) is a :class:`StorageError`; any other failure to open the
+    file as a SQLite database (not one, say) is a :class:`ConfigError`."""
     if is_corrupt(exc):
         return read_error(db, exc)
+    if writing and cannot_write(exc):
+        return write_error(db, exc)
     return ConfigError(f"{db}: cannot open as a SQLite database ({exc})")
+
+
+def _probe_write(conn: sqlite3.Connection) -> None:
+    """Ask SQLite for a write transaction and roll it back: a file SQLite could open only for reading
+    (read-only file, folder or medium) fails here, at the open, not at the first record."""
+    try:
+        conn.execute("UPDATE schema_version SET version = version WHERE 0")
+    finally:
+        conn.rollback()
 
 
 def _lock_file_of(db: Path) -> Path:
@@ -634,7 +673,10 @@ def _owner_lock(path: Path, what: str):
     import fcntl
     import os
 
-    fh = open(path, "a+")
+    try:
+        fh = open(path, "a+")
+    except OSError as exc:
+        raise os_write_error(path, exc, "create the database's owner lock") from None
     for attempt in range(20):  # a reader's momentary probe (see _lock_holder) is not an owner: try again
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
