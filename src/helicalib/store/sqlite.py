@@ -271,10 +271,10 @@ class Store:
                 cur = self._conn.execute(sql, params)
                 cur.row_factory = sqlite3.Row
                 rows = cur.fetchall()
+                if table is not None:  # under the lock: the check reads the schema on the shared connection
+                    self._check.check(table, rows)
             except sqlite3.Error as exc:
                 raise read_error(self.path, exc, table) from None
-        if table is not None:
-            self._check.check(table, rows)
         return rows
 
     # ------------------------------------------------------------------ campaigns
