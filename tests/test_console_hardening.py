@@ -160,7 +160,8 @@ def test_beyond_loopback_every_route_needs_the_token(armed, tmp_path):
                      "heliostat/H0001"):
             code, text = _get(base + path)
             assert code == 401 and "token required" in text, (path, code)
-        assert _get(base + "api/view", {"X-Helicalib-Token": "s3cret-token"})[0] == 200
+        code, text = _get(base + "api/view", {"X-Helicalib-Token": "s3cret-token"})
+        assert code == 200, text
     finally:
         server.stop()
         reader.close()

@@ -13,14 +13,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "the page updates by itself as the campaign records. Operator actions need the "
                                    "controller itself (run/check --arm --console). See docs/console.md.")
     p.add_argument("db", help="helicalib SQLite database (file path or sqlite:/// URL)")
-    p.add_argument("--campaign", type=int, default=None, help="campaign id (default the newest)")
+    p.add_argument("--campaign", type=int, default=None,
+                   help="campaign id (default: the one the process holding the database runs, else the newest "
+                        "running one, else the newest)")
     p.add_argument("--listen", metavar="[HOST:]PORT", default="8765",
                    help="address to serve on (default 8765 on 127.0.0.1; a host beyond loopback needs "
                         "--console-public)")
     p.add_argument("--console-public", action="store_true",
                    help="allow listening beyond loopback; every request then needs the token printed at start")
     p.add_argument("--field", default=None, help="field config to use instead of the one the campaign recorded")
-    p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
+    p.add_argument("--images", default=None, help="frames directory (default: the folder the campaign recorded at "
+                                                   "its start, else images beside the database)")
     p.add_argument("--json", action="store_true", help="print the address as one JSON line instead of a sentence")
     p.set_defaults(func=run)
 
@@ -50,13 +53,17 @@ def run(args) -> int:
             campaigns = store.campaigns()
             if not campaigns:
                 raise ConfigError(f"{args.db}: no campaign in this database yet")
-            campaign = store.campaign(args.campaign) if args.campaign is not None else campaigns[-1]
+            if args.campaign is not None:
+                campaign, why = store.campaign(args.campaign), "asked for"
+            else:
+                campaign, why = live_campaign(store, campaigns)
             cfg, note = find_config(campaign, path, args.field)
     except BaseException:
         store.close()
         raise
     token = secrets.token_urlsafe(18) if args.console_public else None
-    sources = Sources(store=store, cfg=cfg, campaign_id=campaign.id, site=site_time(cfg))
+    sources = Sources(store=store, cfg=cfg, campaign_id=campaign.id, site=site_time(cfg),
+                      images_dir=store.images_dir if args.images else None)  # else where the campaign wrote them
     console = Console(sources, token=token, reopen=reopen,
                       title=f"helicalib · {cfg.site.name if cfg is not None else campaign.name}")
     server = ConsoleServer(create_app(console), host, port, "--listen")
@@ -64,9 +71,10 @@ def run(args) -> int:
     address = url(host, server.port, token)
     if args.json:
         print(json.dumps({"event": "console", "url": address, "token": token, "campaign": campaign.id,
-                          "database": str(path), "config_note": note}), flush=True)
+                          "campaign_name": campaign.name, "campaign_chosen": why, "database": str(path),
+                          "config_note": note}), flush=True)
     else:
-        print(f"console of campaign {campaign.id} ({campaign.name}) in {path}: {address} (read-only"
+        print(f"console of campaign {campaign.id} ({campaign.name}; {why}) in {path}: {address} (read-only"
               + ("; the token is required on every request" if token else "; this machine only")
               + ("" if cfg is not None else f"; no field map: {note}") + "); Ctrl-C stops", file=sys.stderr,
               flush=True)
@@ -79,3 +87,20 @@ def run(args) -> int:
         sources.store.close()
         console.remove_cache()
     return 0
+
+
+def live_campaign(store, campaigns) -> tuple:
+    """The campaign a console shows by default, and why: the one the process holding the database
+    runs (the running campaign whose process recorded its start last), else the newest running one,
+    else the newest."""
+    running = {c.id: c for c in campaigns if c.status == "running"}
+    owner = store.owner()
+    if owner is not None and running:
+        starts = [e for e in store.events(kind="campaign") if e.campaign_id in running]
+        if starts:
+            newest = max(starts, key=lambda e: e.id or 0)
+            return running[newest.campaign_id], f"the campaign the controller holding the database runs ({owner})"
+    if running:
+        return running[max(running)], ("the newest running campaign" if owner is None else
+                                        f"the newest running campaign; the database is held by {owner}")
+    return campaigns[-1], "the newest campaign; none is running"

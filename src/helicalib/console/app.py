@@ -116,7 +116,7 @@ class Console:
             now = time.monotonic()
             if self._report is None or now - self._report[0] >= REPORT_EVERY_S:
                 with reading(self.src.store, self.src.campaign_id):
-                    data = load_campaign(self.src.store.path, self.src.campaign_id, images_dir=self.src.store.images_dir)
+                    data = load_campaign(self.src.store.path, self.src.campaign_id, images_dir=self.src.frames_dir())
                     if self.src.cfg is not None:
                         data.cfg = data.cfg or self.src.cfg
                     self._report = (now, data, None, compute(data, self.src.site))
@@ -130,9 +130,14 @@ class Console:
         with self._draw_lock:
             stamp = self._report[0]
             if not path.exists() or self._report[2] != stamp:
-                plots.plot_progress(rep["progress"], path, self.src.site)
+                plots.plot_progress(progress_until(rep["progress"], self._now_s()), path, self.src.site)
                 self._report = (self._report[0], self._report[1], stamp, self._report[3])
         return path
+
+    def _now_s(self) -> float | None:
+        """The plant time the page shows now (the newest view's clock)."""
+        with self._lock:
+            return None if self._view is None else self._view[2]["clock"]["time_s"]
 
     def frames_png(self, obs_id: int) -> Path | None:
         from helicalib.report.overlay import overlay_latest
@@ -142,8 +147,10 @@ class Console:
             return None
         path = self.cache / "frames" / f"{int(obs_id)}.png"
         if not path.exists():
+            with reading(self.src.store, self.src.campaign_id):
+                images = self.src.frames_dir()
             with self._draw_lock:
-                drawn = overlay_latest(self.src.store.images_dir, latest, self.src.cfg, path, width_px=800)
+                drawn = overlay_latest(images, latest, self.src.cfg, path, width_px=800)
             if drawn["png"] is None:
                 return None
             old = sorted(path.parent.glob("*.png"), key=lambda f: int(f.stem))[:-FRAMES_KEPT]
@@ -159,6 +166,21 @@ class Console:
         with self._draw_lock:
             summary = write_sheet(data, rep, self.cache / "sheets", heliostat_id, self.src.site)
         return summary["href"]
+
+
+def progress_until(pr: dict, now_s: float | None) -> dict:
+    """The report's progress series carried on, unchanged, to the plant time ``now_s`` the page
+    shows: early in a run the series holds one instant (an axis of years); after this, the time
+    axis runs from the campaign's start to now."""
+    times = list(pr.get("times_s") or [])
+    if not times or now_s is None or not now_s > times[-1]:
+        return pr
+    out = dict(pr)
+    for key, values in pr.items():
+        if isinstance(values, list) and len(values) == len(times) and key != "times_s" and not key.endswith("spans_s"):
+            out[key] = values + values[-1:]
+    out["times_s"] = times + [float(now_s)]
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- token

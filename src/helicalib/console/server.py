@@ -152,7 +152,7 @@ def attach_console(args, runner, output):
     reader = Store.open(runner.store.path, runner.store.images_dir, readonly=True)
     feed = LiveFeed()
     sources = Sources(store=reader, cfg=runner.cfg, campaign_id=runner.campaign_id, site=site_time(runner.cfg),
-                      armed_actions=runner.armed)
+                      armed_actions=runner.armed, images_dir=runner.store.images_dir)
 
     def act(kind, ids, who):
         from helicalib.campaign.operator import check_request

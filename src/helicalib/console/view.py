@@ -34,6 +34,8 @@ STATES = {
 EVENTS_SHOWN = 300
 FRAMES_KEPT = 50
 """Observations whose frames the page may ask for (the boards' newest; older ones are forgotten)."""
+PLOT_AFTER_S = 600.0
+"""The acceptance plot is drawn once the campaign has run this long (plant time); before, the panel says so."""
 _DAYS: dict = {}
 
 
@@ -48,6 +50,15 @@ class Sources:
     armed_actions: bool = False
     frames: dict = field(default_factory=dict)
     """Observation id → the ``latest`` dict :func:`helicalib.report.overlay.overlay_latest` draws."""
+    images_dir: object = None
+    """The frames folder when given (``--images``, or the controller's own); None: the folder the
+    campaign recorded at its start (:meth:`~helicalib.store.sqlite.Store.campaign_images_dir`)."""
+
+    def frames_dir(self):
+        """Where the campaign's frame files are (the paths in its observations are relative to it)."""
+        from pathlib import Path
+
+        return Path(self.images_dir) if self.images_dir is not None else self.store.campaign_images_dir(self.campaign_id)
 
 
 def _num(x, nd: int = 2):
@@ -111,30 +122,69 @@ def _spacing(pos, ids) -> float:
     return float(np.median(d[:, 1]))
 
 
-def _gate(cfg, snapshot, events, last_obs, standing) -> dict:
+def _age(now_s, then_s):
+    return None if now_s is None or then_s is None else max(0.0, float(now_s) - float(then_s))
+
+
+def _reading_gate(cfg, wind_ms, dni_wm2, sun_elevation_deg, stowed: bool, fallback):
+    """(open, night, reason) of the gate for one weather reading, as the controller decides it
+    (:func:`helicalib.campaign.policy.field_gate`), so the banner and the figures beside it agree;
+    ``fallback`` (open, night, reason) when there is no config or the sun is below the low band."""
+    from types import SimpleNamespace
+
+    from helicalib.campaign.policy import field_gate
+
+    if cfg is None or sun_elevation_deg is None or sun_elevation_deg < cfg.acceptance.low_band_deg[0]:
+        return fallback
+    nan = float("nan")
+    weather = None if wind_ms is None and dni_wm2 is None else SimpleNamespace(
+        wind_ms=nan if wind_ms is None else float(wind_ms), dni_wm2=nan if dni_wm2 is None else float(dni_wm2))
+    g = field_gate(cfg, weather, float(sun_elevation_deg), 0.0, None, stowed=stowed)
+    return g.open, g.night, g.reason
+
+
+def _gate(cfg, snapshot, events, last_obs, standing, now_s) -> dict:
+    """The gate panel: the banner and every figure of it from ONE weather reading, with its time and
+    age; the plant unreachable since when (the snapshot's, else the newest plant_lost/plant_back)."""
+    from types import SimpleNamespace
+
     from helicalib.campaign.console import gate_text
 
     g = cfg.gating if cfg is not None else None
     limits = None if g is None else {"wind_max_ms": g.wind_max_ms, "stow_wind_ms": g.stow_wind_ms,
                                      "dni_min_wm2": g.dni_min_wm2, "cleanliness_min": g.cleanliness_min}
+    changes = [e for e in events if e.kind in ("gated", "ungated")]
+    logged = None if not changes else {"kind": changes[-1].kind, "reason": changes[-1].reason,
+                                       "time_s": changes[-1].time_s}
     if snapshot is not None:
-        return {"source": "controller", "wind_ms": _num(snapshot.wind_ms, 1), "dni_wm2": _num(snapshot.dni_wm2, 0),
-                "stowed": snapshot.stowed, "text": gate_text(snapshot), "limits": limits, "paused": standing.paused,
-                "night": snapshot.night}
-    marks = [e for e in events if e.kind in ("stow", "resume")]
-    gates = [e for e in events if e.kind in ("gated", "ungated")]
-    stowed = bool(marks) and marks[-1].kind == "stow"
-    if stowed:
-        text = f"STOWED for wind ({marks[-1].reason})"
-    elif gates:
-        text = ("open: " if gates[-1].kind == "ungated" else "paused: ") + gates[-1].reason
+        wind, dni, time_s = snapshot.wind_ms, snapshot.dni_wm2, snapshot.weather_time_s
+        stowed, unreachable = snapshot.stowed, snapshot.plant_unreachable_since_s
+        open_, night, reason = _reading_gate(cfg, wind, dni, snapshot.sun_elevation_deg, stowed,
+                                             (snapshot.gate_open, snapshot.night, snapshot.gate_reason))
+        if wind is None and dni is None:
+            open_ = None if open_ is False and not night else open_
+        source = "controller"
     else:
-        text = "no gate change recorded"
-    obs = max(last_obs.values(), key=lambda o: o.capture_time_s, default=None)
-    return {"source": "database", "wind_ms": None if obs is None else _num(obs.wind_ms, 1),
-            "dni_wm2": None if obs is None else _num(obs.dni_wm2, 0), "stowed": stowed, "text": text,
-            "limits": limits, "paused": standing.paused, "night": False,
-            "as_of_s": None if obs is None else obs.capture_time_s}
+        marks = [e for e in events if e.kind in ("stow", "resume")]
+        stowed = bool(marks) and marks[-1].kind == "stow"
+        lost = [e for e in events if e.kind in ("plant_lost", "plant_back")]
+        unreachable = lost[-1].time_s if lost and lost[-1].kind == "plant_lost" else None
+        obs = max(last_obs.values(), key=lambda o: o.capture_time_s, default=None)
+        wind = None if obs is None else obs.wind_ms
+        dni = None if obs is None else obs.dni_wm2
+        time_s = None if obs is None else obs.capture_time_s
+        el = None if obs is None else obs.sun_elevation_deg
+        open_, night, reason = _reading_gate(cfg, wind, dni, el, stowed,
+                                             (None, False, "no measurement recorded yet") if obs is None
+                                             else (False, False, "no field config to judge the reading"))
+        if obs is None:
+            open_ = None
+        source = "database"
+    text = gate_text(SimpleNamespace(stowed=stowed, gate_open=open_, night=night, gate_reason=reason))
+    return {"source": source, "wind_ms": _num(wind, 1), "dni_wm2": _num(dni, 0), "stowed": stowed, "text": text,
+            "open": bool(open_) and not stowed and unreachable is None, "limits": limits, "paused": standing.paused,
+            "night": night, "as_of_s": time_s, "age_s": _age(now_s, time_s),
+            "unreachable_since_s": unreachable, "unreachable_s": _age(now_s, unreachable), "logged": logged}
 
 
 def _frames_of(obs) -> dict:
@@ -144,7 +194,7 @@ def _frames_of(obs) -> dict:
             "spot_px": None if obs.spot_x_px is None else [float(obs.spot_x_px), float(obs.spot_y_px)]}
 
 
-def _boards(cfg, snapshot, visits, last_obs, framed, frames_cache, live_visits: bool) -> list[dict]:
+def _boards(cfg, snapshot, visits, last_obs, framed, frames_cache, live_visits: bool, now_s) -> list[dict]:
     running = {v.target_id: v for v in visits if v.outcome == "running"} if live_visits else {}
     targets = [t.id for t in cfg.targets] if cfg is not None else sorted({v.target_id for v in visits})
     live = {b.target_id: b for b in snapshot.boards} if snapshot is not None else {}
@@ -169,11 +219,18 @@ def _boards(cfg, snapshot, visits, last_obs, framed, frames_cache, live_visits: 
             frames_cache[int(f.id)] = _frames_of(f)
             for old in sorted(frames_cache)[:-FRAMES_KEPT]:
                 frames_cache.pop(old, None)
+            # the frames are labelled with the visit they belong to: the heliostat on the board
+            # now, or an earlier one (a visit starts before its first frames are taken)
+            this_visit = (hid is not None and f.heliostat_id == hid
+                          and (row["since_s"] is None or f.capture_time_s >= row["since_s"] - 1.0))
             row["frames"] = {"id": int(f.id), "heliostat": f.heliostat_id, "iteration": int(f.iteration),
-                             "time_s": f.capture_time_s, "valid": bool(f.valid), "reason": f.reason,
-                             "error_mrad": _num(f.error_mrad)}
+                             "time_s": f.capture_time_s, "age_s": _age(now_s, f.capture_time_s),
+                             "valid": bool(f.valid), "reason": f.reason, "error_mrad": _num(f.error_mrad),
+                             "this_visit": this_visit, "cleanliness": _num(f.cleanliness),
+                             "cleanliness_measured": _num(getattr(f, "cleanliness_measured", None))}
         else:
             row["frames"] = None
+        row["since_age_s"] = _age(now_s, row["since_s"])
         out.append(row)
     return out
 
@@ -331,17 +388,19 @@ def read_view(src: Sources, snapshot=None) -> dict:
         counts[st] += 1
     pending = [a for a in actions if a.done_s is None]
     return {
-        "campaign": {"id": campaign.id, "name": campaign.name, "mode": campaign.mode, "status": campaign.status},
+        "campaign": {"id": campaign.id, "name": campaign.name, "mode": campaign.mode, "status": campaign.status,
+                     "owner": store.owner()},
         "clock": {"time_s": now, "source": "plant" if snapshot is not None else "newest record",
                   "rate": None if snapshot is None else snapshot.rate, "armed": None if snapshot is None
                   else snapshot.armed},
-        "gate": _gate(cfg, snapshot, events, last_obs, standing),
-        "boards": _boards(cfg, snapshot, visits, last_obs, framed, src.frames, campaign.status == "running"),
+        "gate": _gate(cfg, snapshot, events, last_obs, standing, now),
+        "boards": _boards(cfg, snapshot, visits, last_obs, framed, src.frames, campaign.status == "running", now),
         "map": _map(cfg, ids, states),
         "states": states,
         "counts": counts,
         "progress": {"heliostats": len(ids), "accepted": counts["accepted"],
                      "next_band": None if snapshot is None else snapshot.next_band,
+                     "started_s": campaign.started_s, "plot": now - campaign.started_s >= PLOT_AFTER_S,
                      "visits": len(visits), "bands": _bands(cfg, now, ids, verdicts, states)},
         "events": log_rows(events, visits),
         "kinds": sorted({e.kind for e in events} | ({"visit_end"} if visits else set())),
