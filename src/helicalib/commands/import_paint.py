@@ -31,6 +31,7 @@ def check_files(dirs) -> None:
     naming the file, line and column (the reader itself would stop with a traceback)."""
     from helicalib.config import read_csv_rows, read_text
     from helicalib.errors import ConfigError
+    from helicalib.realdata.paint import _int
 
     for d in map(Path, dirs):
         files = [d] if d.is_file() else sorted(p for p in d.rglob("*") if p.is_file()) if d.is_dir() else []
@@ -41,7 +42,7 @@ def check_files(dirs) -> None:
                 read_csv_rows(p)
             elif p.suffix == ".json":
                 try:
-                    data = json.loads(read_text(p))
+                    data = json.loads(read_text(p), parse_int=_int)
                 except json.JSONDecodeError as exc:
                     raise ConfigError(f"{p}: line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})") from None
                 if not isinstance(data, dict):
@@ -65,7 +66,7 @@ def _culprit(exc: BaseException) -> str | None:
 
 def run(args) -> int:
     from helicalib.calibration.observations import write_observations
-    from helicalib.config import clear_standby_points, write_field_config
+    from helicalib.config import clear_standby_points, parse_field_config, write_field_config
     from helicalib.errors import ConfigError
     from helicalib.realdata.paint import field_config_dict, observations, scan
 
@@ -79,8 +80,15 @@ def run(args) -> int:
         what = f"missing key {exc}" if isinstance(exc, KeyError) else f"{type(exc).__name__}: {exc}"
         where = _culprit(exc) or ", ".join(str(d) for d in args.dirs)
         raise ConfigError(f"{where}: not the PAINT layout helicalib reads ({what})") from None
+    data = clear_standby_points(data)
+    try:
+        parse_field_config(data)  # before anything is written: field.yaml is always valid
+    except ConfigError as exc:
+        sources = ", ".join(str(d) for d in args.dirs)
+        problems = [f"{sources}: the imported field would not be valid: {p}" for p in exc.problems]
+        raise ConfigError("\n".join(problems), problems=problems) from None
     out = Path(args.out)
-    cfg = write_field_config(clear_standby_points(data), out / "field.yaml")
+    cfg = write_field_config(data, out / "field.yaml")
     comments = [f"helicalib import-paint from {', '.join(str(d) for d in args.dirs)}",
                 f"spot centre: {args.spot}; plant reference WGS84 {list(imp.tower.reference_llh)}",
                 "PAINT data: CDLA-Permissive-2.0 (DLR / KIT)"]
@@ -92,6 +100,9 @@ def run(args) -> int:
                               "records": sum(r.heliostat_id == h.id for r in rows)} for h in cfg.heliostats},
         "targets": [t.id for t in cfg.targets],
         "records": len(rows),
+        # records, heliostats and boards left out for a value no plant can have (each named in "bad")
+        "skipped": {kind: len(lines) for kind, lines in imp.bad.items()},
+        "bad": [line for lines in imp.bad.values() for line in lines],
         "notes": imp.notes + notes,
     }
     if args.json:
@@ -101,6 +112,16 @@ def run(args) -> int:
               f"{summary['observations']} ({len(rows)} records)")
         for hid, h in summary["heliostats"].items():
             print(f"  {hid}: ENU {h['position_enu_m']} m, {h['records']} records")
+        skipped = summary["skipped"]
+        if any(skipped.values()):
+            print(f"skipped for impossible values: {_count(skipped['records'], 'record')}, "
+                  f"{_count(skipped['heliostats'], 'heliostat')}, {_count(skipped['targets'], 'target')}")
+        for line in summary["bad"]:
+            print(f"  skipped: {line}")
         for n in summary["notes"]:
             print(f"  note: {n}")
     return 0
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from helicalib.calibration.observations import Observation
+from helicalib.config import MAX_COORDINATE_M, _short
 from helicalib.errors import ConfigError
 from helicalib.realdata.geodesy import gauss_krueger_offset_to_enu, wgs84_to_enu
 from helicalib.realdata.paint_kinematics import PaintActuator, PaintKinematics, sun_vector_paint
@@ -129,58 +130,207 @@ class PaintImport:
     heliostats: dict[str, PaintHeliostat] = field(default_factory=dict)
     records: list[PaintRecord] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    bad: dict[str, list[str]] = field(default_factory=lambda: {"records": [], "heliostats": [], "targets": []})
+    """Records, heliostats and targets skipped for a value no plant can have: one line each naming
+    the file and key (``FILE: motor_position.axis_1_motor_position: expected a finite number, got nan``)."""
+
+
+# ---------------------------------------------------------------------------- value checks
+class BadValue(ConfigError):
+    """A PAINT file holds a value no plant can have; the message names the file and the key."""
+
+
+SUN_ELEVATION_DEG = (-1.0, 90.0)
+"""A calibration record's sun: above the horizon (apparent elevation, refraction lifts it ≈ 0.6°)."""
+MAX_STEPS = 1e9
+"""Largest motor position or increment magnitude [steps] (PAINT's are below 10⁶)."""
+
+
+def _number(value, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    """``value`` as a finite float within [lo, hi], or :class:`BadValue` naming ``where`` (FILE: key)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise BadValue(f"{where}: expected a number, got {_short(value)}")
+    try:
+        x = float(value)
+    except OverflowError:
+        raise BadValue(f"{where}: {_short(value)} is too large for a number") from None
+    if not math.isfinite(x):
+        raise BadValue(f"{where}: expected a finite number, got {x}")
+    if not lo <= x <= hi:
+        raise BadValue(f"{where}: {x:g} is outside {lo:g}..{hi:g}")
+    return x
+
+
+def _numbers(value, where: str, n: int, bounds=None) -> tuple[float, ...]:
+    """``n`` finite numbers (a JSON list), each within its ``bounds`` (lo, hi) when given."""
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise BadValue(f"{where}: expected {n} numbers, got {_short(value)}")
+    return tuple(_number(x, f"{where}[{k}]", *(bounds[k] if bounds else ())) for k, x in enumerate(value))
+
+
+def _object(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise BadValue(f"{where}: expected an object, got {_short(value)}")
+    return value
+
+
+def _int(digits: str) -> int | float:
+    """A JSON integer; one of more digits than any count has is read as a float (infinite when huge,
+    refused by :func:`_number`) instead of stopping Python's integer-string limit with a traceback."""
+    return int(digits) if len(digits) <= 30 else float(digits)
+
+
+def load_json(path: str | Path):
+    """A PAINT JSON file (UTF-8); integers of any length are read (see :func:`_int`)."""
+    return json.loads(Path(path).read_text(encoding="utf-8-sig"), parse_int=_int)
+
+
+LLH_BOUNDS = ((-90.0, 90.0), (-180.0, 180.0), (-1000.0, 10000.0))
+"""WGS84 latitude, longitude [deg] and ellipsoidal height [m] of a point of a plant."""
+
+
+def _llh(value, where: str) -> tuple[float, float, float]:
+    return _numbers(value, where, 3, LLH_BOUNDS)
+
+
+def _in_plant(enu: np.ndarray, where: str) -> np.ndarray:
+    if not np.all(np.abs(enu) <= MAX_COORDINATE_M):
+        raise BadValue(f"{where}: lies {float(np.max(np.abs(enu))):.0f} m from the plant's reference point "
+                       f"(more than {MAX_COORDINATE_M:g} m)")
+    return enu
 
 
 # ---------------------------------------------------------------------------- readers
-def read_tower(path: str | Path) -> PaintTower:
-    d = json.loads(Path(path).read_text())
+def read_tower(path: str | Path, bad: list[str] | None = None) -> PaintTower:
+    """The plant reference and its planar targets. A bad reference point refuses the file
+    (:class:`BadValue`); a target whose name is no helicalib id or whose values no board can have is
+    left out, its line added to ``bad``."""
+    from helicalib.config import Target
+
+    d = load_json(path)
     try:
-        ref = tuple(float(x) for x in d["power_plant_properties"]["coordinates"])
+        coords = d["power_plant_properties"]["coordinates"]
     except (KeyError, TypeError):
         raise ConfigError(f"{path}: power_plant_properties.coordinates: missing") from None
+    ref = _llh(coords, f"{path}: power_plant_properties.coordinates")
     targets = {}
     receiver = None
     for name, t in d.items():
         if name == "power_plant_properties" or not isinstance(t, dict):
             continue
         coords = t.get("coordinates", {})
-        if t.get("type") == "planar" and all(c in coords for c in CORNERS):
-            corners = {c: wgs84_to_enu(coords[c], ref) for c in CORNERS}
-            n = np.asarray(t.get("normal_vector", [0, 1, 0]), dtype=float)
-            targets[name] = PaintTarget(name, corners, n / np.linalg.norm(n))
-        elif name == "receiver" and "center" in coords:
-            receiver = wgs84_to_enu(coords["center"], ref)
+        try:
+            if t.get("type") == "planar" and isinstance(coords, dict) and all(c in coords for c in CORNERS):
+                corners = {c: _in_plant(wgs84_to_enu(_llh(coords[c], f"{path}: {name}.coordinates.{c}"), ref),
+                                        f"{path}: {name}.coordinates.{c}") for c in CORNERS}
+                n = np.asarray(_numbers(t.get("normal_vector", [0, 1, 0]), f"{path}: {name}.normal_vector", 3,
+                                        [(-1.5, 1.5)] * 3))
+                if np.linalg.norm(n) < 0.5:
+                    raise BadValue(f"{path}: {name}.normal_vector: expected a unit vector, got {n.tolist()}")
+                target = PaintTarget(name, corners, n / np.linalg.norm(n))
+                try:
+                    Target.model_validate(target_config(target))
+                except ValueError as exc:  # pydantic's ValidationError: a name or size no board has
+                    raise BadValue(f"{path}: {_short(name)}: not a board helicalib can use "
+                                   f"({_first_problem(exc)})") from None
+                targets[name] = target
+            elif name == "receiver" and isinstance(coords, dict) and "center" in coords:
+                receiver = _in_plant(wgs84_to_enu(_llh(coords["center"], f"{path}: receiver.coordinates.center"), ref),
+                                     f"{path}: receiver.coordinates.center")
+        except BadValue as exc:
+            if bad is None:
+                raise
+            bad.append(f"{exc}; target skipped")
     return PaintTower(ref, targets, receiver)
 
 
-def _actuator(a: dict) -> PaintActuator:
+def _first_problem(exc: Exception) -> str:
+    """The first problem of a pydantic ValidationError, as ``key: what``."""
+    from pydantic import ValidationError
+
+    from helicalib.config import validation_error
+
+    return validation_error(exc).problems[0] if isinstance(exc, ValidationError) else str(exc)
+
+
+HELIOS_COLUMNS = {"increment": "PulseRatio", "initial_stroke_length": "B", "offset": "C", "pivot_radius": "D",
+                  "initial_angle": "AngleK", "clockwise_axis_movement": "Reversed", "min_increment": "MinCounts",
+                  "max_increment": "MaxCounts", "type_axis": "Type"}
+"""The HeliOS axis table's column of each PAINT actuator key (PAINT's mapping)."""
+
+
+def _actuator(a: dict, where: str, columns: dict[str, str] | None = None) -> PaintActuator:
+    """One actuator, every value checked; a problem names ``where`` and the key (``FILE:
+    ...actuators[0].increment``) or, given ``columns``, the table's column (``FILE: line 2: PulseRatio``)."""
+    def at(key: str) -> str:
+        return f"{where}: {columns[key]}" if columns else f"{where}.{key}"
+
+    a = _object(a, where)
+    turn = a["clockwise_axis_movement"]
+    if isinstance(turn, bool) or turn not in (0, 1):
+        raise BadValue(f"{at('clockwise_axis_movement')}: expected 0 or 1, got {_short(turn)}")
+    lo = _number(a.get("min_increment", 0), at("min_increment"), -MAX_STEPS, MAX_STEPS)
+    hi = a.get("max_increment")
+    hi = math.inf if hi is None else _number(hi, at("max_increment"), -MAX_STEPS, MAX_STEPS)
+    if not lo < hi:
+        raise BadValue(f"{at('max_increment')}: {hi:g} is not above the minimum {lo:g}")
+    kind = a.get("type_axis", "linear")
+    if not isinstance(kind, str) or kind not in ("linear", "ideal"):
+        raise BadValue(f"{at('type_axis')}: expected linear or ideal, got {_short(kind)}")
     return PaintActuator(
-        increment=float(a["increment"]),
-        initial_stroke_length=float(a["initial_stroke_length"]),
-        offset=float(a["offset"]),
-        pivot_radius=float(a["pivot_radius"]),
-        initial_angle=float(a["initial_angle"]),
-        clockwise_axis_movement=int(a["clockwise_axis_movement"]),
-        min_increment=float(a.get("min_increment", 0)),
-        max_increment=float(a.get("max_increment", float("inf"))),
-        type_axis=str(a.get("type_axis", "linear")),
+        increment=_number(a["increment"], at("increment"), 1e-6, MAX_STEPS),
+        initial_stroke_length=_number(a["initial_stroke_length"], at("initial_stroke_length"), 1e-6, 50.0),
+        offset=_number(a["offset"], at("offset"), 1e-6, 20.0),
+        pivot_radius=_number(a["pivot_radius"], at("pivot_radius"), 1e-6, 20.0),
+        initial_angle=_number(a["initial_angle"], at("initial_angle"), -2 * math.pi, 2 * math.pi),
+        clockwise_axis_movement=int(turn),
+        min_increment=lo,
+        max_increment=hi,
+        type_axis=kind,
     )
 
 
 def read_heliostat_properties(path: str | Path, heliostat_id: str, reference_llh) -> PaintHeliostat:
-    d = json.loads(Path(path).read_text())
-    k = d["kinematics_properties"]
-    pos = wgs84_to_enu(d["heliostat_position"], reference_llh)
+    """A heliostat's properties file, every value checked: :class:`BadValue` names the file and key."""
+    d = load_json(path)
+    k = _object(d["kinematics_properties"], f"{path}: kinematics_properties")
+    pos = _in_plant(wgs84_to_enu(_llh(d["heliostat_position"], f"{path}: heliostat_position"), reference_llh),
+                    f"{path}: heliostat_position")
+    acts = k["actuators"]
+    if not isinstance(acts, list) or len(acts) != 2:
+        raise BadValue(f"{path}: kinematics_properties.actuators: expected 2 actuators, got {_short(acts)}")
+    shift = (-10.0, 10.0)
     kin = PaintKinematics(
         position_enu_m=tuple(float(x) for x in pos),
-        actuators=tuple(_actuator(a) for a in k["actuators"]),
-        concentrator_translation=tuple(float(k.get(f"concentrator_translation_{c}", 0.0)) for c in "enu"),
-        joint_translation_1=tuple(float(k.get(f"joint_translation_{c}_1", 0.0)) for c in "enu"),
-        joint_translation_2=tuple(float(k.get(f"joint_translation_{c}_2", 0.0)) for c in "enu"),
-        initial_orientation=tuple(float(x) for x in d.get("initial_orientation", (0.0, -1.0, 0.0))),
+        actuators=tuple(_actuator(a, f"{path}: kinematics_properties.actuators[{i}]") for i, a in enumerate(acts)),
+        concentrator_translation=tuple(_number(k.get(f"concentrator_translation_{c}", 0.0),
+                                               f"{path}: kinematics_properties.concentrator_translation_{c}", *shift)
+                                       for c in "enu"),
+        joint_translation_1=tuple(_number(k.get(f"joint_translation_{c}_1", 0.0),
+                                          f"{path}: kinematics_properties.joint_translation_{c}_1", *shift) for c in "enu"),
+        joint_translation_2=tuple(_number(k.get(f"joint_translation_{c}_2", 0.0),
+                                          f"{path}: kinematics_properties.joint_translation_{c}_2", *shift) for c in "enu"),
+        initial_orientation=_numbers(d.get("initial_orientation", [0.0, -1.0, 0.0]), f"{path}: initial_orientation", 3,
+                                     [(-1.5, 1.5)] * 3),
     )
-    size = (float(d.get("width", JUELICH_MIRROR_SIZE_M[0])), float(d.get("height", JUELICH_MIRROR_SIZE_M[1])))
+    if np.linalg.norm(kin.initial_orientation) < 0.5:
+        raise BadValue(f"{path}: initial_orientation: expected a unit vector, got {list(kin.initial_orientation)}")
+    size = (_number(d.get("width", JUELICH_MIRROR_SIZE_M[0]), f"{path}: width", 0.01, 50.0),
+            _number(d.get("height", JUELICH_MIRROR_SIZE_M[1]), f"{path}: height", 0.01, 50.0))
     return PaintHeliostat(heliostat_id, kin, size, str(path))
+
+
+def _usable(h: PaintHeliostat) -> PaintHeliostat:
+    """``h`` if helicalib's drive model can hold its kinematics (the drive :func:`paint_drive` makes
+    passes the field config's checks), else :class:`BadValue` naming its source and the problem."""
+    from helicalib.config import Drive
+
+    try:
+        Drive.model_validate(paint_drive(h))
+    except ValueError as exc:  # pydantic's ValidationError: e.g. a triangle no stroke closes (γ0 not finite)
+        raise BadValue(f"{h.source}: kinematics_properties: no drive helicalib can model "
+                       f"(drive {_first_problem(exc)})") from None
+    return h
 
 
 def heliostat_number_to_name(number: int | str) -> str:
@@ -189,8 +339,10 @@ def heliostat_number_to_name(number: int | str) -> str:
     return chr(ord("A") + int(s[0]) - 1) + chr(ord("A") + int(s[1:3]) - 1) + s[3:]
 
 
-def read_helios_tables(axis_csv: str | Path, positions_csv: str | Path, reference_altitude_m: float) -> list[PaintHeliostat]:
-    """HeliOS actuator table (A..E, PulseRatio, AngleK, Reversed) + GK positions → heliostats.
+def read_helios_tables(axis_csv: str | Path, positions_csv: str | Path,
+                       reference_altitude_m: float) -> list[PaintHeliostat | BadValue]:
+    """HeliOS actuator table (A..E, PulseRatio, AngleK, Reversed) + GK positions → heliostats (or, for a
+    heliostat whose rows hold a value no drive has, a :class:`BadValue` naming the file, line and column).
 
     Column mapping (PAINT's): A = offset_shift, B = initial_stroke_length, C = offset,
     D = pivot_radius, E = radius_shift, PulseRatio = increment, AngleK = initial_angle,
@@ -201,23 +353,52 @@ def read_helios_tables(axis_csv: str | Path, positions_csv: str | Path, referenc
         with open(p, newline="", encoding="utf-8-sig") as f:
             return list(csv.DictReader(f))
 
+    def cell(r, key, where):
+        try:
+            return float(r[key])
+        except ValueError:
+            raise BadValue(f"{where}: {key}: expected a number, got {_short(r[key])}") from None
+
     axes: dict[str, dict[int, PaintActuator]] = {}
-    for r in rows(axis_csv):
-        if float(r["A"]) != 0.0 or float(r["E"]) != 0.0:
-            raise ConfigError(f"{axis_csv}: heliostat {r['HeliostatId']}: non-zero offset/radius shift is not supported")
-        axes.setdefault(r["HeliostatId"], {})[int(r["Number"])] = PaintActuator(
-            increment=float(r["PulseRatio"]), initial_stroke_length=float(r["B"]), offset=float(r["C"]),
-            pivot_radius=float(r["D"]), initial_angle=float(r["AngleK"]), clockwise_axis_movement=int(r["Reversed"]),
-            min_increment=float(r["MinCounts"]), max_increment=float(r["MaxCounts"]), type_axis=r["Type"].lower())
+    broken: dict[str, str] = {}
+    for line, r in enumerate(rows(axis_csv), start=2):
+        where = f"{axis_csv}: line {line}"
+        try:
+            if cell(r, "A", where) != 0.0 or cell(r, "E", where) != 0.0:
+                raise ConfigError(f"{axis_csv}: heliostat {r['HeliostatId']}: non-zero offset/radius shift is not supported")
+            values = {"increment": cell(r, "PulseRatio", where), "initial_stroke_length": cell(r, "B", where),
+                      "offset": cell(r, "C", where), "pivot_radius": cell(r, "D", where),
+                      "initial_angle": cell(r, "AngleK", where), "clockwise_axis_movement": cell(r, "Reversed", where),
+                      "min_increment": cell(r, "MinCounts", where), "max_increment": cell(r, "MaxCounts", where),
+                      "type_axis": r["Type"].lower()}
+            if values["clockwise_axis_movement"] in (0.0, 1.0):
+                values["clockwise_axis_movement"] = int(values["clockwise_axis_movement"])
+            axes.setdefault(r["HeliostatId"], {})[int(r["Number"])] = _actuator(values, where, HELIOS_COLUMNS)
+        except BadValue as exc:
+            broken.setdefault(r["HeliostatId"], str(exc))
     out = []
-    for r in rows(positions_csv):
+    for line, r in enumerate(rows(positions_csv), start=2):
         hid = r["HeliostatId"]
+        if hid in broken:
+            out.append(BadValue(f"{broken[hid]}; heliostat {_short(hid)} skipped"))
+            continue
         if hid not in axes or sorted(axes[hid]) != [1, 2]:
             continue
-        pos = gauss_krueger_offset_to_enu(float(r["x"]), float(r["y"]), float(r["z"]), reference_altitude_m)
-        kin = PaintKinematics(tuple(float(x) for x in pos), (axes[hid][1], axes[hid][2]),
-                              concentrator_translation=JUELICH_CONCENTRATOR_TRANSLATION)
-        out.append(PaintHeliostat(heliostat_number_to_name(hid), kin, JUELICH_MIRROR_SIZE_M, f"{axis_csv} + {positions_csv}"))
+        where = f"{positions_csv}: line {line}"
+        try:
+            try:
+                name = heliostat_number_to_name(hid)
+            except (ValueError, IndexError):
+                name = ""
+            if not _HELIOSTAT_NAME.match(name):
+                raise BadValue(f"{where}: HeliostatId: {_short(hid)} names no PAINT heliostat (AA01..ZZ99)")
+            xyz = [_number(cell(r, k, where), f"{where}: {k}", -MAX_COORDINATE_M, MAX_COORDINATE_M) for k in "xyz"]
+            pos = gauss_krueger_offset_to_enu(*xyz, reference_altitude_m)
+            kin = PaintKinematics(tuple(float(x) for x in pos), (axes[hid][1], axes[hid][2]),
+                                  concentrator_translation=JUELICH_CONCENTRATOR_TRANSLATION)
+            out.append(_usable(PaintHeliostat(name, kin, JUELICH_MIRROR_SIZE_M, f"{axis_csv} + {positions_csv}")))
+        except BadValue as exc:
+            out.append(BadValue(f"{exc}; heliostat skipped"))
     return out
 
 
@@ -226,7 +407,7 @@ _HELIOSTAT_NAME = re.compile(r"^[A-Z]{2}\d{2}$")
 
 def read_calibration(path: str | Path, heliostat_id: str | None = None) -> PaintRecord:
     path = Path(path)
-    d = json.loads(path.read_text())
+    d = load_json(path)
     stem = path.name.replace(".json", "")
     record_id = stem.replace("-calibration-properties", "")
     if heliostat_id is None:
@@ -237,26 +418,31 @@ def read_calibration(path: str | Path, heliostat_id: str | None = None) -> Paint
             heliostat_id = path.parent.name
         else:
             heliostat_id = _layout_heliostat(path, "Calibration")
-    fs = d.get("focal_spot", {})
+    fs = _object(d.get("focal_spot", {}), f"{path}: focal_spot")
+    motors = _object(d["motor_position"], f"{path}: motor_position")
+    target = d["target_name"]
+    if not isinstance(target, str):
+        raise BadValue(f"{path}: target_name: expected a text, got {_short(target)}")
     return PaintRecord(
         record_id=record_id,
         heliostat_id=heliostat_id,
-        motor_steps=(_steps(d["motor_position"]["axis_1_motor_position"]),
-                     _steps(d["motor_position"]["axis_2_motor_position"])),
-        target_name=str(d["target_name"]),
-        sun_azimuth_deg=float(d["sun_azimuth"]),
-        sun_elevation_deg=float(d["sun_elevation"]),
-        utis_llh=tuple(float(x) for x in fs["UTIS"]) if fs.get("UTIS") else None,
-        helios_llh=tuple(float(x) for x in fs["HeliOS"]) if fs.get("HeliOS") else None,
+        motor_steps=tuple(_steps(motors[f"axis_{k}_motor_position"], f"{path}: motor_position.axis_{k}_motor_position")
+                          for k in (1, 2)),
+        target_name=target,
+        sun_azimuth_deg=_number(d["sun_azimuth"], f"{path}: sun_azimuth", -360.0, 360.0),
+        sun_elevation_deg=_number(d["sun_elevation"], f"{path}: sun_elevation", *SUN_ELEVATION_DEG),
+        utis_llh=_llh(fs["UTIS"], f"{path}: focal_spot.UTIS") if fs.get("UTIS") else None,
+        helios_llh=_llh(fs["HeliOS"], f"{path}: focal_spot.HeliOS") if fs.get("HeliOS") else None,
         path=str(path),
         utc_time=_item_datetime(path.with_name(f"{record_id}-calibration-item-stac.json")),
     )
 
 
-def _steps(value) -> int | float:
+def _steps(value, where: str = "motor position") -> int | float:
     """A motor position: whole steps as an int, a fractional count (helicalib's export of strokes that are
-    no whole number of steps) kept as it is rather than truncated."""
-    v = float(value)
+    no whole number of steps) kept as it is rather than truncated; :class:`BadValue` if it is no
+    finite number of at most :data:`MAX_STEPS`."""
+    v = _number(value, where, -MAX_STEPS, MAX_STEPS)
     return int(v) if v.is_integer() else v
 
 
@@ -269,8 +455,19 @@ def _item_datetime(item: Path) -> str:
     """``properties.datetime`` of a PAINT STAC item (UTC, ISO 8601), or "" when there is no item."""
     if not item.is_file():
         return ""
-    when = json.loads(item.read_text()).get("properties", {}).get("datetime")
-    return str(when) if when else ""
+    from datetime import datetime
+
+    when = _object(_object(load_json(item), f"{item}: (top level)").get("properties", {}),
+                   f"{item}: properties").get("datetime")
+    if not when:
+        return ""
+    try:
+        if not isinstance(when, str) or datetime.fromisoformat(when).utcoffset() is None:
+            raise ValueError
+    except ValueError:
+        raise BadValue(f"{item}: properties.datetime: expected an ISO 8601 time with its UTC offset, "
+                       f"got {_short(when)}") from None
+    return when
 
 
 def scan(dirs: list[str | Path]) -> PaintImport:
@@ -287,10 +484,12 @@ def scan(dirs: list[str | Path]) -> PaintImport:
     towers = [p for p in files if p.name.endswith("tower-measurements.json")]
     if not towers:
         raise ConfigError("no tower-measurements.json found in " + ", ".join(str(d) for d in dirs))
-    tower = read_tower(towers[0])
+    bad_targets: list[str] = []
+    tower = read_tower(towers[0], bad_targets)
     imp = PaintImport(tower)
+    imp.bad["targets"] += bad_targets
     for other in towers[1:]:
-        if read_tower(other).reference_llh != tower.reference_llh:
+        if read_tower(other, []).reference_llh != tower.reference_llh:
             imp.notes.append(f"{other}: a different plant reference than {towers[0]}; ignored")
 
     id_map: dict[str, str] = {}
@@ -309,7 +508,11 @@ def scan(dirs: list[str | Path]) -> PaintImport:
             if hid is None:
                 imp.notes.append(f"{p}: cannot tell which heliostat this is (name it AA00-heliostat-properties.json)")
                 continue
-            h = read_heliostat_properties(p, hid, tower.reference_llh)
+            try:
+                h = _usable(read_heliostat_properties(p, hid, tower.reference_llh))
+            except BadValue as exc:
+                imp.bad["heliostats"].append(f"{exc}; heliostat {hid} skipped")
+                continue
             if hid in imp.heliostats and imp.heliostats[hid].kinematics != h.kinematics:
                 imp.notes.append(f"{p}: differs from {imp.heliostats[hid].source}; the first is kept")
                 continue
@@ -321,6 +524,9 @@ def scan(dirs: list[str | Path]) -> PaintImport:
     positions = [p for p in files if p.name.endswith("positions.csv")]
     if axis and positions:
         for h in read_helios_tables(axis[0], positions[0], tower.reference_llh[2]):
+            if isinstance(h, BadValue):
+                imp.bad["heliostats"].append(str(h))
+                continue
             if h.id not in imp.heliostats:
                 imp.heliostats[h.id] = h
                 imp.notes.append(f"{h.id}: kinematics from the HeliOS tables {axis[0].name}, {positions[0].name} "
@@ -329,9 +535,13 @@ def scan(dirs: list[str | Path]) -> PaintImport:
     seen = set()
     for p in files:
         if "calibration-properties" in p.name and p.suffix == ".json":
-            rec = read_calibration(p)
-            if rec.heliostat_id is None:
-                rec = read_calibration(p, id_map.get(rec.record_id))
+            try:
+                rec = read_calibration(p)
+                if rec.heliostat_id is None:
+                    rec = read_calibration(p, id_map.get(rec.record_id))
+            except BadValue as exc:
+                imp.bad["records"].append(f"{exc}; record skipped")
+                continue
             if rec.heliostat_id is None:
                 imp.notes.append(f"{p}: no heliostat id (file name, folder or metadata CSV); skipped")
                 continue
@@ -405,7 +615,8 @@ def target_config(t: PaintTarget) -> dict:
 def field_config_dict(imp: PaintImport, site_name: str = "Jülich solar tower (PAINT import)") -> dict:
     """The imported plant as a field-config mapping (our schema, FIELD_CONFIG.md version 1)."""
     if not imp.heliostats:
-        raise ConfigError("no heliostat properties found (heliostat-properties.json or HeliOS tables)")
+        lines = imp.bad["heliostats"] + ["no usable heliostat properties found (heliostat-properties.json or HeliOS tables)"]
+        raise ConfigError("\n".join(lines), problems=lines)
     ref = imp.tower.reference_llh
     aim = imp.tower.receiver_center_enu
     if aim is None:
@@ -446,8 +657,35 @@ def target_uv(t: PaintTarget, enu) -> np.ndarray:
     return np.array([d @ u, d @ v])
 
 
+SPOT_OFF_PLANE_M = 1.0
+"""A record's spot lies on its board: within its edges and this close to its plane [m]."""
+
+
+def _unphysical(h: PaintHeliostat, t: PaintTarget, rec: PaintRecord, spot: np.ndarray, which: str) -> str | None:
+    """Why a record (values each in range) still describes no pose of its heliostat, or None: a motor
+    position outside the actuator's range (the drive written refuses its stroke), strokes whose
+    actuator triangle does not close, a spot off its board."""
+    for k, (m, a) in enumerate(zip(rec.motor_steps, h.kinematics.actuators), start=1):
+        hi = a.max_increment if math.isfinite(a.max_increment) else a.increment  # paint_drive's 1000 mm
+        if not a.min_increment <= m <= hi:
+            return (f"motor_position.axis_{k}_motor_position: {m:g} steps lie outside the actuator's range "
+                    f"{a.min_increment:g}..{hi:g} ({h.source})")
+    with np.errstate(invalid="ignore"):
+        _, direction = h.kinematics.beam(rec.motor_steps, rec.sun_enu)
+    if not np.all(np.isfinite(direction)):
+        return "motor_position: the actuators cannot reach these positions (their triangle does not close)"
+    u, v = target_uv(t, spot)
+    off = float(np.dot(np.asarray(spot) - t.center_enu, t.normal_enu))
+    w, ht = t.size_m
+    if not (abs(u) <= w / 2 and abs(v) <= ht / 2 and abs(off) <= SPOT_OFF_PLANE_M):
+        return (f"focal_spot.{which}: lies off the board of {t.name} (u {u:.2f}, v {v:.2f} m on a {w:.2f} x {ht:.2f} m "
+                f"board, {off:.2f} m from its plane)")
+    return None
+
+
 def observations(imp: PaintImport, which: str = "UTIS") -> tuple[list[Observation], list[str]]:
-    """Observation rows for every record whose heliostat and target are known; plus notes on the rest."""
+    """Observation rows for every record whose heliostat and target are known and whose pose is
+    physical (:func:`_unphysical`; the others are added to ``imp.bad``); plus notes on the rest."""
     rows, notes = [], []
     for rec in imp.records:
         h = imp.heliostats.get(rec.heliostat_id)
@@ -456,6 +694,10 @@ def observations(imp: PaintImport, which: str = "UTIS") -> tuple[list[Observatio
         if h is None or t is None or spot is None:
             notes.append(f"{rec.path}: skipped (heliostat {rec.heliostat_id} known: {h is not None}, "
                          f"target {rec.target_name} known: {t is not None}, {which} spot: {spot is not None})")
+            continue
+        problem = _unphysical(h, t, rec, spot, which)
+        if problem:
+            imp.bad["records"].append(f"{rec.path}: {problem}; record skipped")
             continue
         s = rec.sun_enu
         strokes = [float(steps_to_stroke_mm(m, a)) for m, a in zip(rec.motor_steps, h.kinematics.actuators)]
