@@ -27,6 +27,8 @@ class Raw:
     def __init__(self, behaviour):
         self.behaviour = behaviour
         self.sent = 0
+        self.open = 0  # requests being answered now
+        self.first = threading.Event()  # set by the first request
         self.sock = socket.socket()
         self.sock.bind(("127.0.0.1", 0))
         self.sock.listen(8)
@@ -46,12 +48,15 @@ class Raw:
             threading.Thread(target=self._one, args=(conn,), daemon=True).start()
 
     def _one(self, conn):
-        conn.recv(65536)  # the request
+        self.open += 1
+        self.first.set()
         try:
+            conn.recv(65536)  # the request
             self.behaviour(self, conn)
         except OSError:  # the client gave up: what it should do
             pass
         finally:
+            self.open -= 1
             conn.close()
 
     def send(self, conn, data: bytes) -> None:

@@ -3,7 +3,9 @@
 Three jobs run in a background scheduler (UTC, module-level callables, fixed ids):
 
 * ``helicalib-weather``: weather poll every :data:`~helicalib.campaign.runner.WEATHER_POLL_S`
-  plant seconds (stow within one poll);
+  plant seconds (stow within one poll). It never waits behind a tick held up by a slow device: when
+  the tick keeps the lock beyond :data:`WEATHER_WAIT_S`, it reads the weather and stows the field
+  on its own (the visits' commands are then refused, and the tick ends the visits when it is back);
 * ``helicalib-tick``: the runner's tick (visits stepped when due, planner when a target is free),
   every :data:`TICK_PLANT_S` plant seconds;
 * ``helicalib-daylight``: at the next sunrise/sunset through the low band's lower edge, an event
@@ -11,7 +13,10 @@ Three jobs run in a background scheduler (UTC, module-level callables, fixed ids
 
 Plant seconds become real seconds through the plant clock's rate (``plant.clock: plant`` reads
 the plant's time and rate registers). The main thread waits until ``until_s`` or Ctrl-C, then
-stops the jobs and hands every heliostat still in a visit back to tracking.
+stops the jobs and hands every heliostat still in a visit back to tracking. A run also stops by
+itself, the field made safe the same way, when the plant's clock jumps backwards
+(``reason="clock_jump"``) or the database cannot be written
+(:data:`~helicalib.campaign.runner.STORAGE_RETRIES` writes in a row, ``reason="storage"``).
 """
 
 from __future__ import annotations
@@ -23,13 +28,17 @@ import threading
 import traceback
 from dataclasses import dataclass, field
 
-from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner
+from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner, storage_error
+from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.modbus import quiet_pymodbus
-from helicalib.errors import HelicalibError
+from helicalib.errors import HelicalibError, PlantError
 
 TICK_PLANT_S = 2.0
 """Plant seconds between ticks (the visit loop's status-poll granularity)."""
 MIN_REAL_INTERVAL_S = 0.05
+WEATHER_WAIT_S = 0.5
+"""Real seconds the weather job waits for a tick in progress before it reads the weather and stows
+without it (a tick may wait up to a camera's fetch deadline on a slow device)."""
 
 
 def _rate(clock) -> float:
@@ -48,9 +57,21 @@ def _guarded(runner: CampaignRunner, what: str, fn) -> None:
     """
     try:
         fn()
+    except ClockJumpError as err:  # one line; the run stops (run_live)
+        runner.clock_jumped(err)
     except HelicalibError as err:
+        if storage_error(err):
+            runner.storage_failed(err)
+            return
+        if isinstance(err, PlantError):  # a plant that does not answer: said once per job and loss
+            runner.plant_failed(f"{what}: {err}")
+            if runner.said_once(what):
+                return
         _fault(runner, f"{what}: {err}")
     except Exception as err:  # noqa: BLE001 - a job must never die, nor print a traceback each retry
+        if storage_error(err):  # a full disk, a read-only database: counted, one line (the run stops after a few)
+            runner.storage_failed(err)
+            return
         log = runner.store.path.with_name(runner.store.path.name + ".errors.log")
         try:
             with open(log, "a", encoding="utf-8") as fh:
@@ -78,9 +99,16 @@ def _tick_job(runner: CampaignRunner, lock: threading.Lock) -> None:
 
 
 def _weather_job(runner: CampaignRunner, lock: threading.Lock) -> None:
-    with lock:
-        if not runner.stopping:
-            _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s()))
+    if runner.stopping:
+        return
+    if lock.acquire(timeout=WEATHER_WAIT_S):
+        try:
+            if not runner.stopping:
+                _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s()))
+        finally:
+            lock.release()
+    else:  # a tick waits on a slow device: read the weather and stow without it
+        _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s(), preempt=True))
 
 
 def _daylight_job(runner: CampaignRunner, scheduler, lock: threading.Lock) -> None:
@@ -115,7 +143,8 @@ def schedule_daylight(runner: CampaignRunner, scheduler, lock) -> None:
 
 @dataclass
 class LiveResult:
-    """How a live run ended: ``reason`` ("until", "done", "stopped"); heliostats left off tracking."""
+    """How a live run ended: ``reason`` ("until", "done", "stopped", "clock_jump", "storage");
+    heliostats left off tracking."""
 
     reason: str
     off_tracking: list[str] = field(default_factory=list)
@@ -174,14 +203,16 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
             return None
 
     def show() -> None:
-        if output is None or not lock.acquire(timeout=0.2):
+        if output is None:
             return
+        held = lock.acquire(timeout=0.2)  # not held: a tick waits on a slow device; the view goes on
         try:  # the controller's own clock: a view must not wait on a plant that does not answer
             output.on_snapshot(runner.snapshot(runner.clock.estimate_s()))
-        except Exception:  # noqa: BLE001 - a view must never stop the campaign
+        except Exception:  # noqa: BLE001 - a view must never stop the campaign (nor a read racing a tick)
             pass
         finally:
-            lock.release()
+            if held:
+                lock.release()
 
     try:
         if output is not None:
@@ -189,6 +220,9 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
         while not stop.is_set():
             if done is not None and done():
                 result.reason = "done"
+                break
+            if runner.clock_jump is not None or runner.storage_lost is not None:
+                result.reason = "clock_jump" if runner.clock_jump is not None else "storage"
                 break
             now = plant_now()
             if now is not None and now >= until_s:
@@ -199,9 +233,11 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     finally:
         # the stop runs whatever ended the loop (the end time, Ctrl-C, a view that raised, a closed pipe)
         try:
-            if result.reason == "stopped":
-                _say(output, "stopping: finishing the step in progress, then every beam on a board leaves via its "
-                             "standby point and goes back to tracking (Ctrl-C again to leave at once)")
+            if result.reason in ("stopped", "clock_jump", "storage"):
+                why = {"stopped": "", "clock_jump": " (the plant's clock jumped backwards)",
+                       "storage": " (the database cannot be written)"}[result.reason]
+                _say(output, f"stopping{why}: finishing the step in progress, then every beam on a board leaves via "
+                             "its standby point and goes back to tracking (Ctrl-C again to leave at once)")
                 if hasattr(runner.plant, "hurry"):
                     runner.plant.hurry()
             scheduler.shutdown(wait=False)

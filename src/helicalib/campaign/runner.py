@@ -15,7 +15,10 @@ Every observation goes to the store as soon as it is made.
 
 from __future__ import annotations
 
+import errno
 import math
+import sqlite3
+import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -44,13 +47,19 @@ from helicalib.campaign.controller import (
 from helicalib.campaign.events import STORED, BoardState, RunEvent, Snapshot
 from helicalib.campaign.sensor import SpotSensor, camera_sensors
 from helicalib.devices.registers import FieldCommand, HeliostatState
-from helicalib.errors import HelicalibError, PlantError
+from helicalib.errors import HelicalibError, PlantError, StorageError
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable
 from helicalib.store.records import off_tracking
 
 WEATHER_POLL_S = 60.0
 """Plant seconds between weather polls (a stow follows within one poll)."""
+WEATHER_MAX_AGE_S = 3 * WEATHER_POLL_S
+"""A weather reading older than this [plant s] opens no gate: calibration waits for a fresh one."""
+STORAGE_RETRIES = 5
+"""Failed writes to the database (full disk, read-only file) in a row, with no write succeeding
+between them, after which a live run gives up: every beam leaves its board and goes back to
+tracking, and the process exits with :data:`helicalib.campaign.session.EXIT_STORAGE`."""
 CLEANLINESS_MAX_AGE_S = 1800.0
 """The gaps planner re-reads a heliostat's cleanliness register when its last read is this old
 [plant s]. Soiling changes over days; a washed mirror counts as clean within half an hour. Re-read
@@ -84,6 +93,47 @@ class Returning:
         """When to try again: 30 s after the first attempt, doubling up to 10 min (a heliostat the
         plant reports faulted or offline is not sent a command every 30 s for a night)."""
         return now + min(RETURN_RETRY_S * 2.0 ** max(self.attempts - 1, 0), RETURN_RETRY_MAX_S)
+
+
+def storage_error(err: BaseException) -> bool:
+    """Whether ``err`` says the database or its frames folder cannot be written (full disk,
+    read-only file or folder): :class:`~helicalib.errors.StorageError`, SQLite's "full",
+    "readonly" or I/O errors, or the system's "no space", "read-only file system", "permission"
+    errors. A busy database ("locked") is not."""
+    if isinstance(err, StorageError):
+        return True
+    if isinstance(err, sqlite3.OperationalError):
+        text = str(err).lower()
+        return any(k in text for k in ("full", "readonly", "read-only", "disk i/o", "unable to open"))
+    if isinstance(err, OSError) and not isinstance(err, (ConnectionError, TimeoutError)):
+        return err.errno in (errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT)
+    return False
+
+
+class _StowGuard:
+    """The plant as a visit sees it: no move or track command while the field is stowed for wind.
+
+    The weather job may stow the field while a tick waits on a slow device (:mod:`.live`); the
+    visit that tick steps must not take its heliostat out of the stow when the device answers. A
+    refused command ends the visit as a plant fault; the next tick ends the visits under way."""
+
+    def __init__(self, runner):
+        self._runner, self._plant = runner, runner.plant
+
+    def __getattr__(self, name):
+        return getattr(self._plant, name)
+
+    def _refuse_in_stow(self, index: int, what: str) -> None:
+        if self._runner.stowed:
+            raise PlantError(f"heliostat {index}: {what} not sent: the field is stowed for wind")
+
+    def move_to(self, index, strokes_mm):
+        self._refuse_in_stow(index, "move command")
+        return self._plant.move_to(index, strokes_mm)
+
+    def track(self, index, corrections_mm):
+        self._refuse_in_stow(index, "track command")
+        return self._plant.track(index, corrections_mm)
 
 
 @dataclass
@@ -216,7 +266,21 @@ class CampaignRunner:
         self._boards: dict[str, BoardState] = {}
         self._band_cache: tuple[float, str] = (-math.inf, "")
         self._last_gate = None
-        self._clock_ok = True
+        self.plant_unreachable_since_s: float | None = None
+        """Plant time (the controller's estimate) since which the plant has not answered (its clock or
+        weather could not be read); None while it answers. No visit starts meanwhile."""
+        self.weather_time_s: float | None = None
+        """Plant time of the weather reading behind :attr:`last_weather`."""
+        self._said_lost: set[str] = set()  # jobs that said the plant failed them during this loss
+        self._weather_lock = threading.Lock()  # one weather poll at a time (the tick's or the weather job's)
+        self.clock_jump: str | None = None
+        """Set (one line) when the plant's clock jumped backwards during the run: no visit starts and a
+        live run stops (:mod:`.live`)."""
+        self.storage_errors = 0
+        """Failed writes to the database in a row (reset by a write that succeeds)."""
+        self.storage_lost: str | None = None
+        """Set (one line) after :data:`STORAGE_RETRIES` failed writes in a row: a live run stops."""
+        self._visit_plant = _StowGuard(self)
         self.operator = None  # operator actions: a campaign.operator.OperatorDesk (armed live runs: console.server)
         if operation is not None and operation not in op_rules.OPERATION_MODES:
             raise ValueError(f"operation {operation!r}: choose one of {', '.join(op_rules.OPERATION_MODES)}")
@@ -307,9 +371,15 @@ class CampaignRunner:
         elif kind == "back_to_tracking":
             self._flagged.discard(heliostat_id)
         if kind in STORED:
-            self.store.record_event(campaign_id=self.campaign_id, time_s=ev.time_s, kind=kind, reason=reason,
-                                    heliostat_id=heliostat_id, data=dict(ev.data, clock=source) if source != "plant"
-                                    else ev.data or None)
+            try:
+                self.store.record_event(campaign_id=self.campaign_id, time_s=ev.time_s, kind=kind, reason=reason,
+                                        heliostat_id=heliostat_id, data=dict(ev.data, clock=source)
+                                        if source != "plant" else ev.data or None)
+                self.storage_errors = 0
+            except Exception as err:  # noqa: BLE001 - a full disk must not break the step that records (a stow)
+                if not storage_error(err):
+                    raise
+                self.storage_failed(err)
         for listener in list(self.listeners):
             try:
                 listener(ev)
@@ -331,6 +401,54 @@ class CampaignRunner:
                        data={"iteration": obs.iteration, "valid": obs.valid, "error_mrad": obs.error_mrad,
                              "observation": obs_id})
         return obs_id
+
+    # ------------------------------------------------------------------ faults of the plant and the database
+    def plant_failed(self, err) -> bool:
+        """The plant did not answer (its clock or weather): the first time, ONE ``plant_lost`` event
+        and :attr:`plant_unreachable_since_s` set; returns whether this was news."""
+        if self.plant_unreachable_since_s is not None:
+            return False
+        self.plant_unreachable_since_s = since = self.clock.estimate_s()
+        self.event("plant_lost", f"plant not answering ({err}); no visit starts until it answers",
+                   data={"since_s": since})
+        return True
+
+    def plant_answered(self, now: float) -> None:
+        """The plant answered a read: after a loss, ONE ``plant_back`` event with how long it was lost."""
+        since = self.plant_unreachable_since_s
+        if since is None:
+            return
+        self.plant_unreachable_since_s = None
+        self._said_lost.clear()
+        lost = max(0.0, now - since)
+        self.event("plant_back", f"plant answers again after {_duration(lost)} unreachable", time_s=now,
+                   data={"lost_s": lost})
+
+    def said_once(self, job: str) -> bool:
+        """Whether ``job`` already said, during this loss of the plant, that the plant failed it
+        (its next failures are silent until the plant answers again); marks it as said."""
+        if job in self._said_lost:
+            return True
+        self._said_lost.add(job)
+        return False
+
+    def storage_failed(self, err) -> None:
+        """A write to the database failed (full disk, read-only): the first is one ``fault`` line,
+        :data:`STORAGE_RETRIES` in a row set :attr:`storage_lost` (a live run then stops)."""
+        self.storage_errors += 1
+        where = f"database {self.store.path}: cannot be written ({type(err).__name__}: {err})"
+        if self.storage_errors == 1:
+            self.event("fault", f"{where}; trying again", data={"storage": True})
+        elif self.storage_errors >= STORAGE_RETRIES and self.storage_lost is None:
+            self.storage_lost = f"{where} after {self.storage_errors} attempts"
+
+    def clock_jumped(self, err) -> None:
+        """The plant's clock jumped backwards: ONE fault line; no visit starts (a live run stops)."""
+        if self.clock_jump is not None:
+            return
+        self.clock_jump = (f"{err}: no visit starts; the run stops and every beam goes back to tracking. Check the "
+                           "plant's clock; to go on from the plant's time, restart with --accept-clock-jump")
+        self.event("fault", self.clock_jump, time_s=self.clock.estimate_s())
 
     # ------------------------------------------------------------------ back to tracking
     def _send_back(self, hid: str, corrections, now: float, why: str) -> None:
@@ -408,10 +526,12 @@ class CampaignRunner:
         """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
         if self.operator is not None:  # operator actions (campaign/operator.py): the crew's requests first
             self.operator.apply(self, now)
+        if self.stowed and self.active:  # stowed by the weather job while this tick's thread waited on a device
+            self._abort_visits(now, "field stowed for wind")
         if now - self.last_poll_s >= WEATHER_POLL_S:
             self._poll_weather(now)
-        if now - self.last_refresh_s >= policy.TRACKING_REFRESH_S:
-            self._refresh_tracking(now)
+        if now - self.last_refresh_s >= policy.TRACKING_REFRESH_S and self.plant_unreachable_since_s is None:
+            self._refresh_tracking(now)  # (not into a plant that does not answer: once it answers again)
         if self.retention is not None:
             self._nightly_retention(now)
         if self.returning and self.armed:
@@ -424,7 +544,7 @@ class CampaignRunner:
         gate = None
         if free and not self.stowed:
             gate = self._gate(now)
-            if gate.open and not (self.operator is not None and self.operator.paused):  # operator: paused
+            if gate.open and self.clock_jump is None and not (self.operator is not None and self.operator.paused):
                 for tid in free:
                     while self._start_visit(tid, now):  # a board fills its places (--spots-per-board)
                         pass
@@ -485,18 +605,32 @@ class CampaignRunner:
             else:
                 self.stats.gated_s += dt
 
-    def _poll_weather(self, now: float) -> None:
+    def _poll_weather(self, now: float, preempt: bool = False) -> None:
+        """Read the weather; stow or resume. ``preempt``: from the weather job while a tick waits on a
+        slow device (:mod:`.live`): it reads and stows, but leaves the visits and a resume to the tick."""
+        if not self._weather_lock.acquire(blocking=not preempt):
+            return  # the tick's own poll is under way
+        try:
+            self._weather_now(now, preempt)
+        finally:
+            self._weather_lock.release()
+
+    def _weather_now(self, now: float, preempt: bool) -> None:
         self.last_poll_s = now
         try:
             w = self.plant.weather()
         except PlantError as err:
-            self.event("fault", f"weather: {err}")
+            self.plant_failed(f"weather: {err}")  # one line for the loss, not one per poll
             return
-        self.last_weather = w
+        self.last_weather, self.weather_time_s = w, now
+        self.plant_answered(now)
         g = gating_mod.gate_field(w.wind_ms, w.dni_wm2, self.cfg.gating, stowed=self.stowed)
         if g.stow and not self.stowed:
-            self._stow(now, g.reason)
-        elif self.stowed and not g.stow:
+            if preempt:
+                self._stow_field(now, g.reason)
+            else:
+                self._stow(now, g.reason)
+        elif self.stowed and not g.stow and not preempt:
             try:
                 if self.armed:
                     self.plant.field_command(FieldCommand.RESUME_TRACKING)
@@ -506,31 +640,46 @@ class CampaignRunner:
                 self.event("fault", f"resume: {err}")
 
     def _stow(self, now: float, reason: str) -> None:
+        if self._stow_field(now, reason) and self.armed:
+            self._abort_visits(now, "field stowed for wind")
+
+    def _stow_field(self, now: float, reason: str) -> bool:
+        """Stow the whole field (armed) or say what a dry run would do; returns whether it is stowed."""
         if not self.armed:  # reads and plans only: say what it would do
             self.event("note", f"not armed: would stow the field ({reason})", time_s=now)
             self.stowed = True
-            return
+            return True
         try:
             self.plant.field_command(FieldCommand.STOW_ALL)
         except PlantError as err:
             self.event("fault", f"stow: {err}")
-            return
+            return False
         self.stowed = True
         self.event("stow", reason)
+        return True
+
+    def _abort_visits(self, now: float, why: str) -> None:
+        """End every visit under way as aborted (the field is stowed: no command follows)."""
         for hid in list(self.active):
             v = self.active.pop(hid)
             v.gen.close()
             self.boards[v.target_id].leave(hid)
-            self.store.end_visit(v.ctx.visit_id, ended_s=now, outcome="aborted", reason="field stowed for wind")
-            self.event("visit_end", f"{hid} off {v.target_id}: aborted (field stowed for wind)", hid,
+            self.store.end_visit(v.ctx.visit_id, ended_s=now, outcome="aborted", reason=why)
+            self.event("visit_end", f"{hid} off {v.target_id}: aborted ({why})", hid,
                        v.target_id, data={"outcome": "aborted"})
 
     def _gate(self, now: float):
         _vec, _az, el, _rising = self.sun(now)
         gate = policy.field_gate(self.cfg, self.last_weather, el, now, self.sun, stowed=self.stowed,
                                  elevations=self.sun_table.position_elevations_deg)
+        lost = self.plant_unreachable_since_s is not None
+        if gate.open and lost:  # (plant_lost said it: no gated line of its own)
+            gate = replace(gate, open=False, reason=self._unreachable_reason())
+        elif gate.open and (self.weather_time_s is None or now - self.weather_time_s > WEATHER_MAX_AGE_S):
+            age = "none yet" if self.weather_time_s is None else f"{_duration(now - self.weather_time_s)} old"
+            gate = replace(gate, open=False, reason=f"no fresh weather reading ({age})")
         if self._gate_reason != (gate.open, gate.night):
-            if not gate.night:
+            if not gate.night and not (lost and not gate.open):
                 self.event("ungated" if gate.open else "gated", gate.reason, time_s=now)
             self._gate_reason = (gate.open, gate.night)
         self._last_gate = gate
@@ -596,7 +745,7 @@ class CampaignRunner:
         ctx = VisitContext(
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
             index=index, target=self.cfg.target(target_id), board=board,
-            sensor=self.sensors[target_id], plant=self.plant, now=self.clock.now_s, sun=self.sun,
+            sensor=self.sensors[target_id], plant=self._visit_plant, now=self.clock.now_s, sun=self.sun,
             model=self.models[hid], settings=self.check_settings if check else self.settings,
             time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
@@ -692,6 +841,8 @@ class CampaignRunner:
                 answer = self._serve(hid, ctx, request, stopping)
             except Exception as err:  # noqa: BLE001 - the visit decides; it must still leave the board
                 error = err
+                if storage_error(err):
+                    self.storage_failed(err)
 
     def _serve(self, hid: str, ctx: VisitContext, request, stopping: bool):
         if isinstance(request, Record):
@@ -883,7 +1034,12 @@ class CampaignRunner:
             v = self.active.pop(hid)
             v.gen.close()
             ctx, tid = v.ctx, v.target_id
-            self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
+            try:  # a database that cannot be written (the reason of some stops) must not keep a beam on a board
+                self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
+            except Exception as err:  # noqa: BLE001
+                if not storage_error(err):
+                    raise
+                self.storage_failed(err)
             self.event("visit_end", f"{hid} off {tid}: aborted (campaign stopped), leaving via standby", hid, tid,
                        data={"outcome": "aborted"})
             leaving.append([now, hid, ctx, leave_board(ctx)])
@@ -944,6 +1100,8 @@ class CampaignRunner:
                 boards.append(BoardState(t.id))
         el = self.sun(now)[2]
         gate = self._last_gate
+        if gate is not None and self.plant_unreachable_since_s is not None:
+            gate = replace(gate, open=False, reason=self._unreachable_reason())
         w = self.last_weather
         accepted = sum(1 for hid in self.ids if self.book.accepted(hid))
         return Snapshot(
@@ -954,7 +1112,13 @@ class CampaignRunner:
             sun_elevation_deg=el, heliostats=len(self.ids), accepted=accepted, in_progress=len(self.active),
             waiting=len(self.ids) - accepted - len(self.active), visits=self.stats.visits,
             valid_visits=self.stats.valid_visits, next_band=self._next_band(now),
-            off_tracking=tuple(sorted(h for h, r in self.returning.items() if r.failed or h in self._flagged)))
+            off_tracking=tuple(sorted(h for h, r in self.returning.items() if r.failed or h in self._flagged)),
+            plant_unreachable_since_s=self.plant_unreachable_since_s, weather_time_s=self.weather_time_s)
+
+    def _unreachable_reason(self) -> str:
+        from helicalib.campaign.events import iso_utc
+
+        return f"plant unreachable since {iso_utc(self.plant_unreachable_since_s)}"
 
     def _next_band(self, now: float) -> str:
         """The rising or setting low band (the paper's scarce 5–15°): "rising band now (until 07:10 UTC)"
@@ -988,3 +1152,13 @@ class CampaignRunner:
     def calibrated_model(self) -> HeliostatModel:
         params = np.vstack([self.models[hid].params for hid in self.ids])
         return self.nominal.with_params(params)
+
+
+def _duration(seconds: float) -> str:
+    """``42 s``, ``3.5 min``, ``2.1 h``."""
+    seconds = float(seconds)
+    if seconds < 120.0:
+        return f"{seconds:.0f} s"
+    if seconds < 7200.0:
+        return f"{seconds / 60.0:.1f} min"
+    return f"{seconds / 3600.0:.1f} h"

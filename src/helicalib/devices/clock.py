@@ -14,6 +14,20 @@ from collections.abc import Callable
 
 from helicalib.errors import PlantError
 
+STEP_BACK_TOLERANCE_S = 60.0
+"""A plant time read this many plant seconds (or fewer) behind the controller's is a clock being set
+(a time server's step): the controller's clock holds until the plant's catches up. Further back,
+the plant's clock jumped (a plant restarted at an earlier date): :class:`ClockJumpError`."""
+
+
+class ClockJumpError(PlantError):
+    """The plant's time jumped backwards beyond :data:`STEP_BACK_TOLERANCE_S`; ``before_s`` is the
+    controller's plant time, ``after_s`` what the plant reads now."""
+
+    def __init__(self, message: str, before_s: float, after_s: float):
+        super().__init__(message)
+        self.before_s, self.after_s = float(before_s), float(after_s)
+
 
 class SystemClock:
     """UTC from the computer's clock; ``sleep`` waits real seconds."""
@@ -50,8 +64,9 @@ class PlantClock:
     sleeper : callable
         Real sleep [s] (``time.sleep``).
 
-    A plant time that runs backwards between reads is refused (:class:`PlantError`); ``now_s``
-    never decreases. :attr:`uncertainty_s` is how far the extrapolation may be off: half the
+    A plant time that runs backwards between reads by more than :data:`STEP_BACK_TOLERANCE_S` is
+    refused (:class:`ClockJumpError`, every read until it is consistent again); a smaller step back
+    is taken, and ``now_s`` holds until the plant's time catches up: it never decreases. :attr:`uncertainty_s` is how far the extrapolation may be off: half the
     plant seconds the last read of the plant's time took on the wire (the read answers somewhere
     inside that span).
     """
@@ -75,8 +90,9 @@ class PlantClock:
         t, rate = self._plant.plant_time()
         m_after = float(self._source())
         with self._lock:
-            if self._t0 is not None and t < self._last - 1.0:
-                raise PlantError(f"plant time went backwards: {t:.3f} after {self._last:.3f}")
+            if self._t0 is not None and t < self._last - STEP_BACK_TOLERANCE_S:
+                raise ClockJumpError(f"plant time went backwards: the plant reads {_iso(t)} after {_iso(self._last)} "
+                                     f"({self._last - t:.0f} s back)", self._last, t)
             # the plant read its clock somewhere between the request and the answer: take the middle
             self._t0, self._m0, self.rate = float(t), 0.5 * (m_before + m_after), float(rate)
             self.uncertainty_s = 0.5 * float(rate) * (m_after - m_before)
@@ -110,6 +126,15 @@ class PlantClock:
         if self._t0 is None:
             self.sync()
         self._sleeper(float(seconds) / self.rate)
+
+
+def _iso(t_s: float) -> str:
+    import datetime as dt
+
+    try:
+        return dt.datetime.fromtimestamp(float(t_s), tz=dt.timezone.utc).isoformat(timespec="seconds")
+    except (OverflowError, ValueError, OSError):
+        return f"{t_s!r} s"
 
 
 def make_clock(cfg, plant) -> SystemClock | PlantClock:
