@@ -19,6 +19,7 @@ import yaml
 from scipy import stats
 
 from helicalib.cli import main
+from helicalib.outdir import prepare
 from helicalib.sweep.spec import load_sweep
 from helicalib.sweep.task import days_to_share
 
@@ -41,6 +42,7 @@ def swept(tmp_path_factory):
     out = tmp / "out"
     runs = load_sweep(sweep_file).runs(out)
     blocked = next(r for r in runs if r.planner == "gaps" and r.seed == 7)
+    prepare(out, "sweep")                                     # a sweep's own folder (any other is refused)
     Path(blocked.run_dir).parent.mkdir(parents=True)
     Path(blocked.run_dir).write_text("not a directory")       # the worker cannot make the run's directory
     first = _sweep(sweep_file, out)
@@ -69,7 +71,7 @@ def test_a_failed_run_is_reported_in_one_line_while_the_others_finish(swept):
     assert first["status"] == 1
     assert first["doc"]["runs"] == {"total": 4, "skipped": 0, "submitted": 4, "rerun_stale": 0, "finished": 3,
                                     "failed": 1}
-    reason = f"cell {blocked.cell}, seed 7: FileExistsError: "
+    reason = f"cell {blocked.cell}, seed 7: ConfigError: "
     lines = [ln for ln in first["stderr"].splitlines() if "failed: cell" in ln]
     assert len(lines) == 1 and lines[0].startswith(f"sweep: failed: {reason}"), first["stderr"]
     table = swept["table1"]
@@ -80,7 +82,7 @@ def test_a_failed_run_is_reported_in_one_line_while_the_others_finish(swept):
     ok = table[table.status == "ok"]
     assert len(ok) == 3 and ok.error.isna().all() and (ok.heliostats == 2).all() and (ok.visits > 0).all()
     assert swept["failures"].startswith(reason) and "Traceback" in swept["failures"]
-    assert f"File exists: '{blocked.run_dir}'" in lines[0]
+    assert f"run folder {blocked.run_dir}: is a file, not a folder" in lines[0]
 
 
 def test_a_rerun_submits_only_the_runs_not_finished(swept):
@@ -111,12 +113,21 @@ def test_cell_means_and_t_intervals_recomputed_from_the_runs(swept):
             got = cell["figures"][figure]
             x = np.array(values, dtype=float)
             mean, s = x.mean(), x.std(ddof=1)
-            half = stats.t.ppf(0.975, df=len(x) - 1) * s / np.sqrt(len(x))
+            t = stats.t.ppf(0.975, df=len(x) - 1)
+            if figure == "acceptance_rate":       # a share: the t-interval cut to [0, 1]
+                half = t * s / np.sqrt(len(x))
+                want = [max(mean - half, 0.0), min(mean + half, 1.0)]
+            else:                                 # positive: the log-normal mean's interval on the logs (Cox)
+                y = np.log(x)
+                v = y.var(ddof=1)
+                half = t * np.sqrt(v / len(x) + v * v / (2 * (len(x) - 1)))
+                want = [np.exp(y.mean() + v / 2 - half), np.exp(y.mean() + v / 2 + half)]
+                assert want[0] > 0
             assert got["n"] == 2 and got["mean"] == pytest.approx(mean)
-            assert got["ci95"] == pytest.approx([mean - half, mean + half])
+            assert got["ci95"] == pytest.approx(want)
             checked += s > 0
     assert checked >= 2          # the seeds did give different figures: the intervals have a width
-    assert "t-interval" in swept["second"]["doc"]["interval"]
+    assert "log-scale t-interval" in swept["second"]["doc"]["interval"]
 
 
 def test_seeds_follow_the_documented_formula_and_not_the_order(swept, tmp_path):

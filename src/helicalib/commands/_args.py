@@ -17,6 +17,7 @@ exit with status 2, before the command runs.
 ``iso_time``           an ISO 8601 instant with offset, years 1678..2261 (returned as the text)
 =====================  ====================================================================
 
+:func:`add_database` adds the positional ``DB`` of every command that reads a campaign database.
 :func:`add_console` adds the crew console's ``--console [HOST:]PORT`` and ``--console-public`` to
 a controller command (``run``, ``check``).
 """
@@ -172,3 +173,12 @@ def add_console(p: argparse.ArgumentParser) -> None:
     p.add_argument("--console-public", action="store_true",
                    help="allow --console to listen beyond loopback; every request then needs the token printed at "
                         "start")
+
+
+DATABASE_HELP = "campaign database: a helicalib SQLite file (path or sqlite:/// URL)"
+"""The help of the positional ``DB`` argument, the same in every command."""
+
+
+def add_database(p: argparse.ArgumentParser) -> None:
+    """The positional campaign database: ``DB`` (``args.db``), the same name and help in every command."""
+    p.add_argument("db", metavar="DB", help=DATABASE_HELP)

@@ -12,17 +12,16 @@ import argparse
 
 from helicalib.commands._args import nonnegative_int, positive_float
 import json
-import shutil
-from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="the demo of `make demo`: a simulated campaign and its report",
                        description="Run a simulated calibration campaign on FIELD (hidden heliostat errors, weather, "
                                    "camera) and write its database, frames, summary and HTML report into --out "
-                                   "(replaced if it exists).")
+                                   "(a new or empty folder, or a previous demo's output, which is replaced).")
     p.add_argument("field", help="field config YAML")
-    p.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
+    p.add_argument("--out", default="demo_out", help="output folder (default demo_out): new, empty or a previous demo output (replaced); "
+                        "any other folder is refused")
     p.add_argument("--days", type=positive_float, default=2.0, help="plant days to simulate (default 2)")
     p.add_argument("--seed", type=nonnegative_int, default=1, help="seed of the hidden errors and weather (default 1)")
     p.set_defaults(func=run)
@@ -34,10 +33,12 @@ def run(args) -> int:
     from helicalib.commands import simulate as sim_cmd
     from helicalib.commands._progress import DEFAULT_INTERVAL_S
 
+    from helicalib.config import load_field_config
+    from helicalib.outdir import prepare
+
     console = Console(stderr=True, soft_wrap=True)   # whole lines in a log, not 80-column pieces
-    out = Path(args.out)
-    if out.exists():
-        shutil.rmtree(out)
+    load_field_config(args.field)                     # a bad field is said before the folder is touched
+    out = prepare(args.out, "demo", replace=True)     # only an empty folder or a previous demo's is replaced
     console.print(f"[bold]helicalib demo[/]: a {args.days:g}-day calibration campaign on {args.field}, against the "
                   "simulated plant (hidden errors, weather, camera); every frame and observation goes to "
                   f"{out}/helicalib.db")
@@ -48,6 +49,7 @@ def run(args) -> int:
     sim_cmd.register(parser.add_subparsers())
     sim_args = parser.parse_args(["simulate", str(args.field), "--days", repr(float(args.days)), "--seed",
                                   str(args.seed), "--out", str(out), "--report"])
+    sim_args.output_ready = True                      # the demo's folder, checked and marked above
     sim_cmd.run(sim_args)
     summary = json.loads((out / "summary.json").read_text())
     console.print(f"report: {out / 'report' / 'index.html'}  (open it in a browser)")

@@ -8,7 +8,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from helicalib.commands._args import positive_float
+from helicalib.commands._args import add_database, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,8 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "target, spot centre, sun azimuth/elevation in PAINT's convention) with the "
                                    "record's frames, and a STAC catalogue (catalog.json, relative links). "
                                    "helicalib import-paint reads the export back.")
-    p.add_argument("database", metavar="DB", help="campaign database (SQLite file)")
-    p.add_argument("--out", required=True, help="output directory")
+    add_database(p)
+    p.add_argument("--out", required=True, help="output folder: new, empty or a previous export (replaced); any "
+                   "other folder is refused")
     p.add_argument("--field", help="field config YAML (default: the one the campaign was started with)")
     p.add_argument("--campaign", type=int, help="campaign id (default: the newest in the database)")
     p.add_argument("--increment", type=positive_float, metavar="STEPS_PER_M",
@@ -61,18 +62,19 @@ def run(args) -> int:
     from helicalib.commands._progress import ProgressReporter
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError
+    from helicalib.outdir import prepare
     from helicalib.realdata.paint_export import DEFAULT_INCREMENT_STEPS_PER_M, write_export
     from helicalib.store.sqlite import Store, existing_database
 
-    store = Store.open(existing_database(args.database), args.images, readonly=True)
+    store = Store.open(existing_database(args.db), args.images, readonly=True)
     try:
         campaigns = store.campaigns()
         if not campaigns:
-            raise ConfigError(f"{args.database}: no campaign in this database")
+            raise ConfigError(f"{args.db}: no campaign in this database")
         campaign = store.campaign(args.campaign) if args.campaign is not None else campaigns[-1]
         field = args.field or campaign.config_path
         if not field:
-            raise ConfigError(f"{args.database}: campaign {campaign.id} records no field config; give --field")
+            raise ConfigError(f"{args.db}: campaign {campaign.id} records no field config; give --field")
         if not Path(field).is_file():
             raise ConfigError(f"{field}: field config of campaign {campaign.id} not found; give --field")
         cfg = load_field_config(field)
@@ -80,14 +82,15 @@ def run(args) -> int:
     finally:
         store.close()
     if not rows:
-        raise ConfigError(f"{args.database}: campaign {campaign.id} has no valid observation to export")
+        raise ConfigError(f"{args.db}: campaign {campaign.id} has no valid observation to export")
     increment = args.increment or DEFAULT_INCREMENT_STEPS_PER_M
+    out = prepare(args.out, "export-paint", replace=True)   # only an empty folder or a previous export is replaced
     with ProgressReporter("export-paint", len(rows), transient=args.json) as bar:
-        summary = write_export(cfg, rows, args.out, frames=None if args.no_frames else frames,
+        summary = write_export(cfg, rows, out, frames=None if args.no_frames else frames,
                                increment_steps_per_m=increment,
-                               description=f"helicalib campaign {campaign.id} ({campaign.name}) of {args.database}",
+                               description=f"helicalib campaign {campaign.id} ({campaign.name}) of {args.db}",
                                progress=lambda done, total: bar.update(done, f"{done} of {total} records"))
-    summary.update({"database": str(args.database), "campaign": campaign.id, "field": str(field)})
+    summary.update({"database": str(args.db), "campaign": campaign.id, "field": str(field)})
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

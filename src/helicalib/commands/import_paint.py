@@ -14,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "OUTDIR/field.yaml (our schema, one custom drive per heliostat reproducing the "
                                    "PAINT kinematics) and OUTDIR/observations.csv.")
     p.add_argument("dirs", nargs="+", metavar="DIR", help="directories (searched recursively) or files")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True, help="output folder: new, empty or a previous import (replaced); any "
+                   "other folder is refused")
     p.add_argument("--spot", choices=["UTIS", "HeliOS"], default="UTIS",
                    help="which of the record's spot centres is the observation (default UTIS)")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -68,6 +69,7 @@ def run(args) -> int:
     from helicalib.calibration.observations import write_observations
     from helicalib.config import clear_standby_points, parse_field_config, write_field_config
     from helicalib.errors import ConfigError
+    from helicalib.outdir import prepare
     from helicalib.realdata.paint import field_config_dict, observations, scan
 
     check_files(args.dirs)
@@ -87,7 +89,7 @@ def run(args) -> int:
         sources = ", ".join(str(d) for d in args.dirs)
         problems = [f"{sources}: the imported field would not be valid: {p}" for p in exc.problems]
         raise ConfigError("\n".join(problems), problems=problems) from None
-    out = Path(args.out)
+    out = prepare(args.out, "import-paint", replace=True)  # only an empty folder or a previous import is replaced
     cfg = write_field_config(data, out / "field.yaml")
     comments = [f"helicalib import-paint from {', '.join(str(d) for d in args.dirs)}",
                 f"spot centre: {args.spot}; plant reference WGS84 {list(imp.tower.reference_llh)}",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from helicalib.commands._args import nonnegative_int
+from helicalib.commands._args import add_database, nonnegative_int
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -14,7 +14,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "rejected one; delete the other frame files and clear their paths in the "
                                    "database (every observation row stays). Takes the database's owner lock: "
                                    "refused while a campaign runs on it. See docs/campaign.md (Storage).")
-    p.add_argument("db", help="helicalib SQLite database (file path or sqlite:/// URL)")
+    add_database(p)
     p.add_argument("--keep-last", type=nonnegative_int, required=True, metavar="N",
                    help="observations with frames kept per heliostat, newest first")
     p.add_argument("--drop-rejected", action="store_true",

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import argparse
 
+from helicalib.commands._args import add_database
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="write a campaign's HTML report, plots and report.json",
                        description="A self-contained HTML report of one campaign (the newest by default): field "
                                    "map, progress, pass rates (paper figs. 6-8), T/GRLM figure 3 and clause 8.2, and "
                                    "one sheet per heliostat; report.json holds the same figures. See docs/report.md.")
-    p.add_argument("database", help="campaign database (SQLite file)")
-    p.add_argument("--out", required=True, help="output folder (index.html, report.json, plots, heliostats/)")
+    add_database(p)
+    p.add_argument("--out", required=True, help="output folder (index.html, report.json, plots, heliostats/): new, "
+                   "empty or a previous report (replaced); any other folder is refused")
     p.add_argument("--campaign", type=int, default=None, help="campaign id (default: the newest)")
     p.add_argument("--field", default=None, help="field config to use instead of the one the campaign recorded")
     p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
@@ -27,10 +30,13 @@ def run(args) -> int:
     import json
     import time
 
+    from helicalib.outdir import prepare
     from helicalib.report.build import build_report
 
     t0 = time.perf_counter()
-    index = build_report(args.database, args.out, args.campaign, field_config=args.field, images_dir=args.images,
+    db = _check_inputs(args)                              # before the folder is touched
+    out = prepare(args.out, "report", replace=True)       # only an empty folder or a previous report is replaced
+    index = build_report(db, out, args.campaign, field_config=args.field, images_dir=args.images,
                          frames=not args.no_frames, jobs=args.jobs, timezone=args.timezone)
     rep = json.loads((index.parent / "report.json").read_text())
     if args.json:
@@ -46,3 +52,23 @@ def run(args) -> int:
     for m in st.get("information", []):
         print(f"  - {m}")
     return 0
+
+
+def _check_inputs(args):
+    """The database file, the campaign asked for and the field config given: refused in one line
+    before anything is written. Returns the database's path."""
+    from pathlib import Path
+
+    from helicalib.errors import ConfigError
+    from helicalib.store.sqlite import Store, existing_database
+
+    db = existing_database(args.db)
+    if args.field is not None and not Path(args.field).is_file():
+        raise ConfigError(f"--field {args.field}: file not found")
+    if args.campaign is not None:
+        store = Store.open(db, args.images, readonly=True)
+        try:
+            store.campaign(args.campaign)
+        finally:
+            store.close()
+    return db

@@ -8,6 +8,8 @@ from collections import Counter
 from helicalib.commands._args import int_in, site_text
 
 MAX_HELIOSTATS = 50000
+SIGNATURE = "# written by helicalib sim-field; helicalib sim-field may overwrite this file and its CSV"
+"""The first line of every FIELD.yaml sim-field writes: only such a file (and its CSV) is overwritten."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--layout", default="radial-staggered", choices=["radial-staggered"], help="field layout")
     p.add_argument("--targets", type=int_in(1, 12), default=4, help="calibration boards on the tower (default 4)")
     p.add_argument("--name", default=None, help="site name")
-    p.add_argument("--out", required=True, help="output YAML path (the CSV is written beside it)")
+    p.add_argument("--out", required=True, help="output YAML path (the CSV is written beside it); an existing file is "
+                   "overwritten only if sim-field wrote it")
     p.set_defaults(func=run)
 
 
@@ -43,6 +46,7 @@ def run(args) -> int:
         raise ConfigError(f"--n {args.n}: expected 1..{MAX_HELIOSTATS}")
     if not 1 <= args.targets <= 12:
         raise ConfigError(f"--targets {args.targets}: expected 1..12")
+    out = _check_outputs(args.out)   # before the year's checks: a refusal costs nothing
     with ProgressReporter("sim-field", None) as bar:
         def progress(done: int, total: int, candidates: int) -> None:
             bar.update(done, f"year's stroke checks {100 * done / total:.0f} % ({done} of {total}), "
@@ -50,9 +54,27 @@ def run(args) -> int:
 
         data, rows = generate_field(args.n, parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0,
                                     targets=args.targets, name=args.name, progress=progress)
-    cfg = write_field(data, rows, args.out)
+    cfg = write_field(data, rows, out)
+    out.write_text(f"{SIGNATURE}\n{out.read_text(encoding='utf-8')}", encoding="utf-8")
     per = Counter(h.target for h in cfg.heliostats)
     counts = {t.id: per[t.id] for t in cfg.targets}
     print(f"sim-field: wrote {args.out} and its CSV: {len(cfg.heliostats)} heliostats, tower "
           f"{cfg.tower.receiver_aim_enu_m[2]:.0f} m, targets {counts}")
     return 0
+
+
+def _check_outputs(path: str):
+    """FIELD.yaml and the FIELD.csv beside it: new, or both written by sim-field before; else one line."""
+    from pathlib import Path
+
+    from helicalib.errors import ConfigError
+    from helicalib.outdir import check_file_output
+
+    out = check_file_output(path, SIGNATURE, "sim-field")
+    if out.suffix.lower() == ".csv":
+        raise ConfigError(f"--out {path}: give the YAML file's name (the CSV is written beside it)")
+    csv = out.with_suffix(".csv")
+    if csv.is_dir() or (csv.exists() and not out.exists()):
+        raise ConfigError(f"--out {path}: {csv} exists and was not written by helicalib sim-field; give a new file "
+                          "name")
+    return out

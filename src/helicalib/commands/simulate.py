@@ -16,7 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("field", help="field config YAML")
     p.add_argument("--days", type=float_in(0.0, 3660.0, open_lo=True), default=3.0, help="plant days to simulate (default 3)")
     p.add_argument("--seed", type=nonnegative_int, default=1, help="seed of the hidden errors, weather and noise (default 1)")
-    p.add_argument("--out", required=True, help="output folder (database, images, summary)")
+    p.add_argument("--out", required=True, help="output folder (database, images, summary): new, empty or a previous simulate output "
+                        "(its unfinished campaign resumes); any other folder is refused")
     p.add_argument("--scenario", default=None, help="scenario YAML (weather, errors, faults; see docs/simulator.md)")
     p.add_argument("--start", default=None, type=iso_time, help="plant start time, ISO 8601 with offset (default 2026-06-01, local midnight)")
     p.add_argument("--planner", choices=("gaps", "round-robin"), default="gaps",
@@ -59,6 +60,7 @@ def run(args) -> int:
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError
     from helicalib.geometry.sun import parse_time, to_unix_seconds
+    from helicalib.outdir import prepare
     from helicalib.sim.scenario import load_scenario
 
     cfg = load_field_config(args.field)
@@ -72,7 +74,7 @@ def run(args) -> int:
     if ids:
         for hid in ids:
             cfg.heliostat(hid)
-    out = Path(args.out)
+    out = Path(args.out) if getattr(args, "output_ready", False) else prepare(args.out, "simulate")
     with ProgressReporter("simulate", args.days * 86400.0, transient=args.json) as bar:
         state = {"t0": None}
 
@@ -92,7 +94,7 @@ def run(args) -> int:
         from helicalib.report.build import build_report
 
         with timed_step("simulate", f"building the report in {out / 'report'}"):
-            build_report(result.database, out / "report")
+            build_report(result.database, prepare(out / "report", "report", replace=True))
     if args.json:
         print(json.dumps(result.summary, indent=2))
     else:

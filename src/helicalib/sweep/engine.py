@@ -17,7 +17,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 from helicalib.errors import ConfigError
-from helicalib.sweep.spec import Run, Sweep
+from helicalib.sweep.spec import PROGRESS_EVERY, Run, Sweep
 from helicalib.sweep.task import RunFailed, finished_record, has_result, run_one
 
 
@@ -92,15 +92,19 @@ def _worker_check() -> str:
 
 
 def run_sweep(sweep: Sweep, runs: list[Run], client, on_start: Callable[[int], None] | None = None,
-              on_result: Callable[[Run, dict | None, str | None], None] | None = None) -> Outcome:
-    """Skip finished runs, submit the others, gather them. ``on_start(n_submitted)`` before the
-    first result; ``on_result(run, record, reason)`` per run (``record`` None and a one-line
-    ``reason`` when it failed)."""
+              on_result: Callable[[Run, dict | None, str | None], None] | None = None,
+              on_check: Callable[[int, int], None] | None = None) -> Outcome:
+    """Skip finished runs, submit the others, gather them. ``on_check(done, total)`` every
+    :data:`~helicalib.sweep.spec.PROGRESS_EVERY` runs while looking for finished ones;
+    ``on_start(n_submitted)`` before the first result; ``on_result(run, record, reason)`` per run
+    (``record`` None and a one-line ``reason`` when it failed)."""
     from dask.distributed import as_completed
 
     outcome = Outcome()
     todo = []
-    for run in runs:
+    for k, run in enumerate(runs, 1):
+        if on_check is not None and k % PROGRESS_EVERY == 0:
+            on_check(k, len(runs))
         record = finished_record(run)
         if record is not None:
             outcome.records[run.run_dir] = record

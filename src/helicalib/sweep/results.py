@@ -1,9 +1,19 @@
 """The sweep's table (one row per run, failed runs marked) and the per-cell statistics.
 
-Per cell and figure: the number of runs with a value, their mean, standard deviation and the 95 %
-t-interval for the mean over seeds, ``mean ± t(0.975, n − 1) · s / √n`` (``scipy.stats.t``; no
-interval with fewer than 2 values). ``days_to_95`` only has a value in the runs that reached 95 %
-accepted; ``reached_95`` says how many of the cell's finished runs that is.
+Per cell and figure: the number of runs with a value, their mean, standard deviation and a 95 %
+interval for the mean over seeds that keeps the figure's scale (:data:`SCALES`, docs/sweep.md):
+
+* a positive figure (an RMS, days, a visit rate): the t-interval on the logarithms, for the mean
+  of a log-normal (modified Cox method): ``exp(ȳ + s²/2 ± t(0.975, n − 1) · √(s²/n + s⁴/(2(n − 1))))``
+  with ``ȳ``, ``s`` the mean and standard deviation of ``ln x``: never below 0, wider above the
+  mean than below as the spread of such figures is. A run with the value 0 makes it the t-interval
+  ``mean ± t(0.975, n − 1) · s / √n`` cut at 0;
+* a share (accepted share): the t-interval cut to [0, 1].
+
+``scipy.stats.t``; no interval with fewer than 2 values. ``days_to_95`` only has a value in the
+runs that reached 95 % accepted; ``reached_95`` says how many of the cell's finished runs that is.
+A cell whose finished runs accepted no heliostat at all says so (``note``) instead of a figure of
+the accepted heliostats.
 """
 
 from __future__ import annotations
@@ -20,7 +30,15 @@ FIGURES = ("days_to_95", "acceptance_rate", "true_sky_rms_accepted_mrad", "true_
 """The figures summarised per cell, in the order shown."""
 SUMMARY_COLUMNS = ("heliostats", "accepted", "acceptance_rate", "visits", "valid_visits", "true_sky_rms_accepted_mrad",
                    "true_sky_rms_mrad", "first_shot_rms_mrad", "true_tracking_rms_mrad", "gated_hours", "stowed_hours")
-INTERVAL = "95 % t-interval for the mean over seeds: mean ± t(0.975, n-1)·s/√n (scipy.stats.t), n = runs with a value"
+SCALES = {"days_to_95": "positive", "acceptance_rate": "share", "true_sky_rms_accepted_mrad": "positive",
+          "true_sky_rms_mrad": "positive", "visits_per_board_hour": "positive"}
+"""What values each figure can take: its interval keeps to them (module docstring)."""
+INTERVAL = ("95 % interval for the mean over seeds, n = runs with a value (scipy.stats.t): positive figures "
+            "(RMS, days, visit rates) log-scale t-interval for a log-normal mean, "
+            "exp(ȳ + s²/2 ± t(0.975, n-1)·√(s²/n + s⁴/(2(n-1)))) over y = ln x (with a 0 among the values: "
+            "mean ± t(0.975, n-1)·s/√n cut at 0); shares: mean ± t(0.975, n-1)·s/√n cut to [0, 1]")
+NOTHING_ACCEPTED = "no heliostat accepted in any seed"
+"""A cell's ``note`` when none of its finished runs accepted a heliostat."""
 
 
 def row(run, record: dict | None = None, error: str | None = None) -> dict:
@@ -37,19 +55,35 @@ def row(run, record: dict | None = None, error: str | None = None) -> dict:
     return out
 
 
-def mean_interval(values) -> dict:
-    """``{"n", "mean", "sd", "ci95"}`` of the finite values (see the module docstring)."""
+def mean_interval(values, scale: str | None = None) -> dict:
+    """``{"n", "mean", "sd", "ci95", "interval"}`` of the finite values; ``scale`` ``"positive"``,
+    ``"share"`` or None (the plain t-interval) chooses the interval (module docstring), ``interval``
+    names the one used."""
     from scipy import stats
 
     x = np.array([float(v) for v in values if v is not None and math.isfinite(float(v))])
     if x.size == 0:
-        return {"n": 0, "mean": None, "sd": None, "ci95": None}
+        return {"n": 0, "mean": None, "sd": None, "ci95": None, "interval": None}
     mean = float(np.mean(x))
     if x.size < 2:
-        return {"n": 1, "mean": mean, "sd": None, "ci95": None}
+        return {"n": 1, "mean": mean, "sd": None, "ci95": None, "interval": None}
     sd = float(np.std(x, ddof=1))
-    half = float(stats.t.ppf(0.975, x.size - 1)) * sd / math.sqrt(x.size)
-    return {"n": int(x.size), "mean": mean, "sd": sd, "ci95": [mean - half, mean + half]}
+    t = float(stats.t.ppf(0.975, x.size - 1))
+    if scale == "positive" and np.all(x > 0):
+        y = np.log(x)
+        var = float(np.var(y, ddof=1))
+        centre = float(np.mean(y)) + var / 2.0
+        half = t * math.sqrt(var / x.size + var * var / (2.0 * (x.size - 1)))
+        return {"n": int(x.size), "mean": mean, "sd": sd, "ci95": [math.exp(centre - half), math.exp(centre + half)],
+                "interval": "log-t"}
+    half = t * sd / math.sqrt(x.size)
+    low, high = mean - half, mean + half
+    if scale == "positive":
+        return {"n": int(x.size), "mean": mean, "sd": sd, "ci95": [max(low, 0.0), high], "interval": "t, cut at 0"}
+    if scale == "share":
+        return {"n": int(x.size), "mean": mean, "sd": sd, "ci95": [max(low, 0.0), min(high, 1.0)],
+                "interval": "t, cut to [0, 1]"}
+    return {"n": int(x.size), "mean": mean, "sd": sd, "ci95": [low, high], "interval": "t"}
 
 
 def cell_statistics(rows: list[dict]) -> list[dict]:
@@ -61,10 +95,12 @@ def cell_statistics(rows: list[dict]) -> list[dict]:
     for key, rs in cells.items():
         ok = [r for r in rs if r["status"] == "ok"]
         first = rs[0]
+        none_accepted = bool(ok) and not any(r["accepted"] for r in ok)
         out.append({"cell": key, "scenario": first["scenario"], "planner": first["planner"], "start": first["start"],
                     "runs": len(rs), "finished": len(ok), "failed": len(rs) - len(ok),
                     "reached_95": sum(r["days_to_95"] is not None for r in ok),
-                    "figures": {f: mean_interval(r[f] for r in ok) for f in FIGURES}})
+                    "note": NOTHING_ACCEPTED if none_accepted else None,
+                    "figures": {f: mean_interval((r[f] for r in ok), SCALES[f]) for f in FIGURES}})
     return out
 
 
@@ -101,8 +137,9 @@ def format_cells(cells: list[dict]) -> list[str]:
     for c in cells:
         f = c["figures"]
         days = _fmt(f["days_to_95"]) + f" ({c['reached_95']}/{c['finished']} reached)"
+        accepted = c.get("note") or _fmt(f["true_sky_rms_accepted_mrad"])
         lines.append([c["cell"], f"{c['finished']}/{c['runs']}" + (f", {c['failed']} failed" if c["failed"] else ""),
-                      days, _fmt(f["acceptance_rate"]), _fmt(f["true_sky_rms_accepted_mrad"]),
+                      days, _fmt(f["acceptance_rate"]), accepted,
                       _fmt(f["true_sky_rms_mrad"]), _fmt(f["visits_per_board_hour"])])
     widths = [max(len(line[k]) for line in lines) for k in range(len(head))]
     return ["  ".join(cell.ljust(w) for cell, w in zip(line, widths)).rstrip() for line in lines]

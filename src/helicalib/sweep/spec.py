@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+import os
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -41,8 +42,13 @@ from helicalib.sim.scenario import Scenario, Time, load_scenario
 DEFAULT_LABEL = "default"
 """Cell-key part of the built-in scenario and of the default start."""
 PLANNERS = ("gaps", "round-robin", "round-robin-shared")
+PROGRESS_EVERY = 1000
+"""Runs laid out between two progress calls of :meth:`Sweep.runs`."""
 
 Seed = Annotated[StrictInt, Field(ge=0)]
+MAX_RUNS = 100_000
+"""Runs one sweep may have (cells × seeds): each is a whole campaign with its own folder and database;
+a larger grid is refused in one line (split it into several sweeps)."""
 
 
 class SweepFile(BaseModel):
@@ -72,9 +78,7 @@ class SweepFile(BaseModel):
     @classmethod
     def _unique(cls, value):
         if value is not None:
-            for k, item in enumerate(value):
-                if item in value[:k]:
-                    raise ValueError(f"[{k}] {item!r} is given twice")
+            _once(value)
         return value
 
     @field_validator("planners")
@@ -95,11 +99,21 @@ class SweepFile(BaseModel):
                 raise ValueError(f"expected a number of heliostats >= 1, got {value}")
             return value
         if isinstance(value, list) and value and all(isinstance(v, str) and v.strip() for v in value):
-            for k, item in enumerate(value):
-                if item in value[:k]:
-                    raise ValueError(f"[{k}] {item!r} is given twice")
+            _once(value)
             return value
         raise ValueError("expected a number N (the field's first N heliostats) or a non-empty list of heliostat ids")
+
+    def run_count(self) -> int:
+        """Runs of the grid: seeds × planners × scenarios × starts."""
+        return len(self.seeds) * len(self.planners) * len(self.scenarios or [None]) * len(self.starts or [None])
+
+
+def _once(items: list) -> None:
+    """Refuse an item given twice, naming its place (one pass: a grid of 10^5 seeds is checked at once)."""
+    first: dict = {}
+    for k, item in enumerate(items):
+        if first.setdefault(item, k) != k:
+            raise ValueError(f"[{k}] {item!r} is given twice")
 
 
 @dataclass(frozen=True)
@@ -141,27 +155,33 @@ class Sweep:
         """(cell key, scenario label, planner, start label) in file order."""
         return [(cell_key(s, p, t), s, p, t) for s in self.scenarios for p in self.spec.planners for t in self.starts]
 
-    def runs(self, out_dir: str | Path) -> list[Run]:
-        """Every run of the grid, cell by cell, seeds in file order; ``out_dir`` is made absolute."""
+    def runs(self, out_dir: str | Path, progress=None) -> list[Run]:
+        """Every run of the grid, cell by cell, seeds in file order; ``out_dir`` is made absolute.
+        ``progress(done, total)`` is called every :data:`PROGRESS_EVERY` runs (a large grid takes seconds)."""
         from helicalib.simulation import default_start_s
         from helicalib.geometry.sun import parse_time, to_unix_seconds
 
         out = Path(out_dir).resolve()
         field_digest = _sha(self.cfg.model_dump_json())
+        total = self.spec.run_count()
         runs = []
         for key, scen, planner, start in self.cells():
             scenario = self.scenarios[scen]
             text = self.starts[start] or scenario.start
             start_s = float(to_unix_seconds([parse_time(text)])[0]) if text else default_start_s(self.cfg)
+            scenario_digest = _sha(scenario.model_dump_json())
+            cell_dir = str(run_dir(out, key, 0).parent)      # joined as text: Path arithmetic per run is slow
             for k in self.spec.seeds:
                 sim_seed = simulation_seed(self.spec.root_seed, key, k)
-                what = {"field": field_digest, "scenario": _sha(scenario.model_dump_json()), "days": self.spec.days,
+                what = {"field": field_digest, "scenario": scenario_digest, "days": self.spec.days,
                         "heliostats": list(self.heliostat_ids), "planner": planner, "start_s": start_s,
                         "sim_seed": sim_seed, "fidelity": self.spec.fidelity}
                 runs.append(Run(cell=key, scenario=scen, planner=planner, start=text or "", start_s=start_s, seed=k,
                                 sim_seed=sim_seed, days=self.spec.days, heliostat_ids=self.heliostat_ids,
                                 fidelity=self.spec.fidelity, keep_frames=self.spec.keep_frames,
-                                run_dir=str(run_dir(out, key, k)), digest=_sha(json.dumps(what, sort_keys=True))))
+                                run_dir=os.path.join(cell_dir, f"seed-{k}"), digest=_sha(json.dumps(what, sort_keys=True))))
+                if progress is not None and len(runs) % PROGRESS_EVERY == 0:
+                    progress(len(runs), total)
         return runs
 
 
@@ -202,6 +222,10 @@ def load_sweep(path: str | Path) -> Sweep:
         spec = SweepFile.model_validate(read_yaml(path))
     except ValidationError as exc:
         raise validation_error(exc, path) from None
+    if spec.run_count() > MAX_RUNS:
+        raise ConfigError(f"{path}: seeds: {len(spec.seeds)} seeds x {spec.run_count() // len(spec.seeds)} cells = "
+                          f"{spec.run_count()} runs; a sweep has at most {MAX_RUNS} runs (split it into several "
+                          "sweeps)")
     base = path.parent
     if spec.fidelity != "render" and not fidelity_supported():
         raise ConfigError(f"{path}: fidelity: {spec.fidelity!r} is not available yet (the simulated campaign "

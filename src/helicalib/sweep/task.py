@@ -1,6 +1,7 @@
 """One run of a sweep, as a worker executes it: a whole ``simulate_campaign`` in its own directory.
 
-:func:`run_one` starts the run afresh (an unfinished or stale directory is removed first), keeps
+:func:`run_one` starts the run afresh (an unfinished or stale run folder is emptied first; a folder
+that is not a run's own, :mod:`helicalib.outdir`, is refused and the run fails), keeps
 the worker's stdout and stderr quiet (what the run prints goes to ``run.log`` beside its
 database), adds the figures the sweep compares (:func:`run_figures`) and writes ``result.json``
 atomically as its very last step: a run is finished exactly when that file exists with the
@@ -19,9 +20,12 @@ import time
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
+from helicalib.outdir import prepare
 from helicalib.sweep.spec import Run, fidelity_supported
 
 RESULT = "result.json"
+RUN_OUTPUT = "sweep run"
+"""The marker's word for one run's folder (:mod:`helicalib.outdir`): only such a folder is cleared."""
 ACCEPTED_SHARE = 0.95
 """Share of the campaign's heliostats whose newest verdict must be an acceptance for ``days_to_95``."""
 
@@ -54,10 +58,9 @@ def run_one(run: Run, cfg, scenario) -> dict:
 def _run(run: Run, cfg, scenario) -> dict:
     from helicalib.simulation import simulate_campaign
 
-    out = Path(run.run_dir)
-    if out.is_dir():
-        shutil.rmtree(out)               # an interrupted or stale run starts afresh, never resumes
-    out.mkdir(parents=True)
+    # an interrupted or stale run starts afresh, never resumes; only a run folder is cleared
+    out = prepare(run.run_dir, RUN_OUTPUT, replace=True, option="run folder",
+                  advice="remove it or give the sweep another --out")
     extra = {"fidelity": run.fidelity} if fidelity_supported() else {}
     wall0, cpu0 = time.perf_counter(), time.process_time()
     with open(out / "run.log", "w", encoding="utf-8") as log, redirect_stdout(log), redirect_stderr(log):

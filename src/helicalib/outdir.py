@@ -1,0 +1,156 @@
+"""Output folders: helicalib never deletes or overwrites what it did not create.
+
+Every command that writes a folder of results (``demo``, ``simulate``, ``report``, ``export-paint``,
+``import-paint``, ``sweep``) asks :func:`prepare` for it after its inputs have been read and checked.
+A folder is accepted when it does not exist yet, is empty, or carries the marker file
+:data:`MARKER` that the same command wrote when it created the folder (its first line is the
+command's name). Anything else is refused with one line, before a file is touched::
+
+    --out p: folder exists and is not a helicalib demo output (it holds notes); give an empty or new folder
+
+So are folders no command may ever own: the working directory and any folder that holds it (``.``,
+``..``, ``/``), the home folder, and a path that is a file. With ``replace=True`` the folder's
+contents go (a fresh output: ``demo``, ``report``, ``export-paint``, ``import-paint``); without,
+they stay (``simulate`` resumes its campaign, ``sweep`` skips its finished runs).
+
+:func:`check_file_output` is the same rule for a command that writes files rather than a folder
+(``sim-field --out FIELD.yaml``): a file is overwritten only when the same command wrote it.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from helicalib.errors import ConfigError, StorageError
+
+MARKER = ".helicalib-output"
+"""The file that makes a folder a helicalib output; its first line names the command that wrote it."""
+ADVICE = "give an empty or new folder"
+SHOWN = 3
+"""Entries of a refused folder named in the error."""
+
+
+def prepare(path: str | Path, command: str, *, replace: bool = False, option: str = "--out",
+            advice: str = ADVICE) -> Path:
+    """Make ``path`` the output folder of ``command`` (module docstring) and return it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The folder as the user gave it (named so in errors).
+    command : str
+        The helicalib command writing it (``demo``, ``report``...): the marker's content.
+    replace : bool
+        Remove the folder's contents first (only ever a folder of the same command's output).
+    option : str
+        The option that named the folder, for the error lines.
+    advice : str
+        What the error lines tell the user to do.
+
+    Raises
+    ------
+    ConfigError
+        The folder may not receive this output (one line: which folder, why, what to give).
+    StorageError
+        The folder cannot be created or cleared (permissions, a full disk).
+    """
+    folder = check(path, command, option=option, advice=advice)
+    try:
+        if replace and folder.is_dir():
+            clear(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / MARKER).write_text(f"{command}\nwritten by helicalib {command}; helicalib {command} may replace "
+                                     "everything in this folder\n", encoding="utf-8")
+    except OSError as err:
+        raise StorageError(f"{option} {path}: cannot write the folder ({err.strerror or err})") from None
+    return folder
+
+
+def check(path: str | Path, command: str, *, option: str = "--out", advice: str = ADVICE) -> Path:
+    """Refuse ``path`` as ``command``'s output folder unless it is new, empty or marked as its output;
+    touches nothing. Returns the path."""
+    folder = Path(path).expanduser()
+    _refuse_special(folder, path, option, advice)
+    if folder.is_file() or (folder.exists() and not folder.is_dir()):
+        raise ConfigError(f"{option} {path}: is a file, not a folder; {advice}")
+    if not folder.exists():
+        _check_parent(folder, path, option, advice)
+        return folder
+    try:
+        entries = sorted(os.listdir(folder))
+    except OSError as err:
+        raise StorageError(f"{option} {path}: cannot read the folder ({err.strerror or err})") from None
+    owner = written_by(folder)
+    if not entries or owner == command:
+        return folder
+    if owner is not None:
+        raise ConfigError(f"{option} {path}: folder is a helicalib {owner} output, not a {command} output; "
+                          f"{advice}")
+    shown = ", ".join(entries[:SHOWN]) + (f" and {len(entries) - SHOWN} more" if len(entries) > SHOWN else "")
+    raise ConfigError(f"{option} {path}: folder exists and is not a helicalib {command} output (it holds {shown}); "
+                      f"{advice}")
+
+
+def written_by(folder: str | Path) -> str | None:
+    """The command named by ``folder``'s marker file, or None (no marker, unreadable)."""
+    marker = Path(folder) / MARKER
+    try:
+        if marker.is_symlink() or not marker.is_file():
+            return None
+        first = marker.read_text(encoding="utf-8").split("\n", 1)[0].strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return first or None
+
+
+def clear(folder: Path) -> None:
+    """Remove everything inside ``folder`` (a checked output folder); links are removed, never followed."""
+    for entry in folder.iterdir():
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
+
+
+def _refuse_special(folder: Path, given, option: str, advice: str = ADVICE) -> None:
+    """The working directory, a folder that holds it, the home folder: never an output."""
+    try:
+        real = folder.resolve()
+        cwd = Path.cwd().resolve()
+    except (OSError, RuntimeError) as err:   # a symlink loop, a deleted working directory
+        raise ConfigError(f"{option} {given}: cannot resolve the path ({err})") from None
+    if real == cwd or real in cwd.parents:
+        raise ConfigError(f"{option} {given}: is the working directory or holds it; {advice}")
+    if real == Path.home().resolve():
+        raise ConfigError(f"{option} {given}: is the home folder; {advice}")
+
+
+def _check_parent(folder: Path, given, option: str, advice: str = ADVICE) -> None:
+    """A new folder needs folders (not files) above it."""
+    for parent in folder.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ConfigError(f"{option} {given}: {parent} is a file, not a folder; {advice}")
+            return
+
+
+def check_file_output(path: str | Path, signature: str, command: str, *, option: str = "--out") -> Path:
+    """Refuse to overwrite ``path`` unless it is missing or begins with ``signature`` (the first
+    line the same command writes); a folder is refused too. Touches nothing; returns the path."""
+    file = Path(path).expanduser()
+    if file.is_dir():
+        raise ConfigError(f"{option} {path}: is a folder; give a file name")
+    if file.exists():
+        try:
+            with open(file, encoding="utf-8", errors="replace") as f:
+                first = f.readline().rstrip("\n")
+        except OSError as err:
+            raise StorageError(f"{option} {path}: cannot read the file ({err.strerror or err})") from None
+        if first != signature:
+            raise ConfigError(f"{option} {path}: file exists and was not written by helicalib {command}; give a new "
+                              "file name")
+    else:
+        _check_parent(file, path, option)
+    return file

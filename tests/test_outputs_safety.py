@@ -1,0 +1,250 @@
+"""Output folders: helicalib never deletes or overwrites what it did not create.
+
+Every command that writes a folder (demo, simulate, report, export-paint, import-paint, sweep) or
+files (sim-field) reads its inputs first, then accepts only a new or empty folder or one its own
+earlier run marked; anything else (a folder of the user's, the working directory or a folder
+holding it, the home folder, a file) is refused in one line and left as it was.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from helicalib.cli import main
+from helicalib.outdir import MARKER, prepare, written_by
+
+ROOT = Path(__file__).resolve().parents[1]
+FIELD = ROOT / "field_config" / "demo_north.yaml"
+PAINT = ROOT / "tests" / "data" / "paint"
+SWEEP = {"field": str(FIELD), "days": 0.01, "seeds": [1], "planners": ["gaps"], "heliostats": 1, "fidelity": "fast"}
+
+
+def _one_error_line(capsys, argv, command: str) -> str:
+    assert main([str(a) for a in argv]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = err.strip().split("\n")
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"helicalib {command}: error: "), err
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> Path:
+    """A tiny simulated campaign (fast sensor, one heliostat, 0.05 plant days): its database."""
+    out = tmp_path_factory.mktemp("outputs") / "sim"
+    assert main(["simulate", str(FIELD), "--fidelity", "fast", "--days", "0.05", "--heliostats", "H0001",
+                 "--start", "2026-06-01T02:00:00Z", "--out", str(out), "--json"]) == 0
+    assert written_by(out) == "simulate"
+    return out / "helicalib.db"
+
+
+@pytest.fixture(scope="module")
+def sweep_file(tmp_path_factory) -> Path:
+    import yaml
+
+    path = tmp_path_factory.mktemp("sweepfile") / "sweep.yaml"
+    path.write_text(yaml.safe_dump(SWEEP), encoding="utf-8")
+    return path
+
+
+def _argv(command: str, out, campaign: Path, sweep_file: Path) -> list:
+    """The cheapest call of each command that writes a folder, with ``--out out``."""
+    return {"demo": ["demo", FIELD, "--days", "0.01"],
+            "simulate": ["simulate", FIELD, "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001"],
+            "report": ["report", campaign, "--no-frames", "--jobs", "1"],
+            "export-paint": ["export-paint", campaign, "--no-frames"],
+            "import-paint": ["import-paint", PAINT],
+            "sweep": ["sweep", sweep_file, "--workers", "1"]}[command] + ["--out", out]
+
+
+COMMANDS = ("demo", "simulate", "report", "export-paint", "import-paint", "sweep")
+
+
+# ------------------------------------------------------------------------------ the issue's scenario
+def test_demo_with_a_missing_field_leaves_the_folder_alone(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "notes").write_text("mine")
+    line = _one_error_line(capsys, ["demo", "field_config/no_such.yaml", "--out", "p"], "demo")
+    assert "no_such.yaml" in line and "not found" in line
+    assert (tmp_path / "p" / "notes").read_text() == "mine"
+    assert sorted(p.name for p in (tmp_path / "p").iterdir()) == ["notes"]
+
+
+def test_demo_refuses_a_folder_that_is_not_its_output(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "notes").write_text("mine")
+    line = _one_error_line(capsys, ["demo", FIELD, "--out", "p"], "demo")
+    assert line == ("helicalib demo: error: --out p: folder exists and is not a helicalib demo output (it holds "
+                    "notes); give an empty or new folder")
+    assert sorted(p.name for p in (tmp_path / "p").iterdir()) == ["notes"]
+
+
+# ------------------------------------------------------------------------------ every command
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_folder_of_the_users_is_refused_and_kept(command, tmp_path, capsys, campaign, sweep_file):
+    out = tmp_path / "mine"
+    out.mkdir()
+    for name in ("a.txt", "b.txt", "c.txt", "d.txt"):
+        (out / name).write_text(name)
+    line = _one_error_line(capsys, _argv(command, out, campaign, sweep_file), command)
+    assert line == (f"helicalib {command}: error: --out {out}: folder exists and is not a helicalib {command} output "
+                    "(it holds a.txt, b.txt, c.txt and 1 more); give an empty or new folder")
+    assert sorted(p.name for p in out.iterdir()) == ["a.txt", "b.txt", "c.txt", "d.txt"]
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("given", [".", "..", "/"])
+def test_the_working_directory_and_its_parents_are_refused(command, given, tmp_path, capsys, campaign, sweep_file,
+                                                           monkeypatch):
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / MARKER).write_text(f"{command}\n")      # even a folder marked as the command's own
+    (work / "keep").write_text("mine")
+    monkeypatch.chdir(work)
+    line = _one_error_line(capsys, _argv(command, given, campaign, sweep_file), command)
+    assert line == (f"helicalib {command}: error: --out {given}: is the working directory or holds it; give an empty "
+                    "or new folder")
+    assert (work / "keep").read_text() == "mine"
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_the_home_folder_is_refused(command, tmp_path, capsys, campaign, sweep_file, monkeypatch):
+    home = tmp_path / "home"
+    home.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    line = _one_error_line(capsys, _argv(command, home, campaign, sweep_file), command)
+    assert line.endswith(f"--out {home}: is the home folder; give an empty or new folder")
+    assert list(home.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_file_given_as_out_is_refused_and_kept(command, tmp_path, capsys, campaign, sweep_file):
+    file = tmp_path / "notes.txt"
+    file.write_text("mine")
+    line = _one_error_line(capsys, _argv(command, file, campaign, sweep_file), command)
+    assert line.endswith(f"--out {file}: is a file, not a folder; give an empty or new folder")
+    assert file.read_text() == "mine"
+    below = file / "sub"
+    line = _one_error_line(capsys, _argv(command, below, campaign, sweep_file), command)
+    assert line.endswith(f"--out {below}: {file} is a file, not a folder; give an empty or new folder")
+
+
+def test_report_onto_a_system_file_is_one_line(campaign, capsys):
+    if not Path("/etc/passwd").is_file():
+        pytest.skip("no /etc/passwd here")
+    line = _one_error_line(capsys, ["report", campaign, "--out", "/etc/passwd"], "report")
+    assert line == "helicalib report: error: --out /etc/passwd: is a file, not a folder; give an empty or new folder"
+
+
+def test_another_commands_output_is_refused(tmp_path, capsys, campaign):
+    out = tmp_path / "rep"
+    prepare(out, "report")
+    (out / "index.html").write_text("<html>")
+    line = _one_error_line(capsys, ["export-paint", campaign, "--out", out], "export-paint")
+    assert line.endswith(f"--out {out}: folder is a helicalib report output, not a export-paint output; give an "
+                         "empty or new folder")
+    assert (out / "index.html").is_file()
+
+
+# ------------------------------------------------------------------------------ previous outputs
+def test_a_previous_report_is_replaced(tmp_path, capsys, campaign):
+    out = tmp_path / "rep"
+    prepare(out, "report")
+    (out / "heliostats").mkdir()
+    (out / "heliostats" / "H9999.html").write_text("a heliostat of an older report")
+    assert main(["report", str(campaign), "--out", str(out), "--no-frames", "--jobs", "1"]) == 0
+    assert not (out / "heliostats" / "H9999.html").exists()
+    assert (out / "index.html").is_file() and (out / "heliostats" / "H0001.html").is_file()
+    assert written_by(out) == "report"
+
+
+def test_export_and_import_replace_their_previous_output(tmp_path, capsys, campaign):
+    out = tmp_path / "paint"
+    prepare(out, "export-paint")
+    (out / "stale.json").write_text("{}")
+    assert main(["export-paint", str(campaign), "--out", str(out), "--no-frames", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["records"] > 0
+    assert not (out / "stale.json").exists() and (out / "catalog.json").is_file()
+    back = tmp_path / "back"
+    prepare(back, "import-paint")
+    (back / "stale.csv").write_text("x")
+    assert main(["import-paint", str(out), "--out", str(back)]) == 0
+    assert not (back / "stale.csv").exists() and (back / "field.yaml").is_file()
+    assert written_by(back) == "import-paint"
+
+
+def test_the_demos_report_folder_can_be_rebuilt_by_report(tmp_path, capsys, campaign):
+    """simulate --report marks OUT/report as a report, so the demo's suggested rebuild is accepted."""
+    out = tmp_path / "sim"
+    assert main(["simulate", str(FIELD), "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001",
+                 "--start", "2026-06-01T02:00:00Z", "--out", str(out), "--report", "--json"]) == 0
+    assert written_by(out) == "simulate" and written_by(out / "report") == "report"
+    assert main(["report", str(out / "helicalib.db"), "--out", str(out / "report"), "--no-frames", "--jobs", "1"]) == 0
+    # and simulate accepts its own folder again (the campaign resumes or a new one starts; nothing is cleared)
+    assert main(["simulate", str(FIELD), "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001",
+                 "--start", "2026-06-01T02:00:00Z", "--out", str(out), "--json"]) == 0
+    assert (out / "report" / "index.html").is_file()
+
+
+def test_prepare_replaces_only_its_own_folder_and_never_follows_links(tmp_path):
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "precious").write_text("mine")
+    out = prepare(tmp_path / "demo_out", "demo")
+    (out / "images").mkdir()
+    (out / "images" / "f.png").write_bytes(b"png")
+    (out / "link").symlink_to(outside, target_is_directory=True)
+    prepare(out, "demo", replace=True)
+    assert sorted(p.name for p in out.iterdir()) == [MARKER]
+    assert (outside / "precious").read_text() == "mine"
+    assert prepare(tmp_path / "empty", "demo") == tmp_path / "empty"     # a new folder is made and marked
+    assert written_by(tmp_path / "empty") == "demo"
+
+
+# ------------------------------------------------------------------------------ sweep runs, sim-field
+def test_a_sweep_run_folder_that_is_not_a_runs_is_never_cleared(tmp_path):
+    from helicalib.sweep.spec import load_sweep
+    from helicalib.sweep.task import RunFailed, run_one
+    import yaml
+
+    file = tmp_path / "s.yaml"
+    file.write_text(yaml.safe_dump(SWEEP), encoding="utf-8")
+    sweep = load_sweep(file)
+    run = sweep.runs(tmp_path / "o")[0]
+    folder = Path(run.run_dir)
+    folder.mkdir(parents=True)
+    (folder / "notes").write_text("mine")
+    with pytest.raises(RunFailed) as exc:
+        run_one(run, sweep.cfg, sweep.scenarios[run.scenario])
+    assert f"run folder {folder}: folder exists and is not a helicalib sweep run output (it holds notes)" in str(exc.value)
+    assert (folder / "notes").read_text() == "mine"
+    (folder / "notes").unlink()
+    record = run_one(run, sweep.cfg, sweep.scenarios[run.scenario])     # an empty folder is a run's
+    (folder / "stale").write_text("an interrupted run's file")
+    again = run_one(run, sweep.cfg, sweep.scenarios[run.scenario])      # its own folder starts afresh
+    assert not (folder / "stale").exists()
+    assert again["summary"] == record["summary"]
+
+
+def test_sim_field_overwrites_only_what_it_wrote(tmp_path, capsys):
+    mine = tmp_path / "field.yaml"
+    mine.write_text("site: {}\n")
+    line = _one_error_line(capsys, ["sim-field", "--n", "3", "--site", "35,10", "--out", mine], "sim-field")
+    assert line.endswith(f"--out {mine}: file exists and was not written by helicalib sim-field; give a new file name")
+    assert mine.read_text() == "site: {}\n"
+    csv = tmp_path / "gen.csv"
+    csv.write_text("id,e_m\nmine,1\n")
+    line = _one_error_line(capsys, ["sim-field", "--n", "3", "--site", "35,10", "--out", tmp_path / "gen.yaml"],
+                           "sim-field")
+    assert f"{csv} exists and was not written by helicalib sim-field" in line
+    assert csv.read_text() == "id,e_m\nmine,1\n"
+    out = tmp_path / "sim.yaml"
+    assert main(["sim-field", "--n", "3", "--site", "35,10", "--out", str(out)]) == 0
+    assert main(["sim-field", "--n", "4", "--site", "35,10", "--out", str(out)]) == 0     # its own: overwritten
+    assert len((tmp_path / "sim.csv").read_text().strip().splitlines()) == 5
