@@ -1,4 +1,4 @@
-"""``helicalib check FIELD --heliostat H0007 [--arm]``: re-check drifted mirrors now."""
+"""``helicalib check FIELD --heliostats H0007 [--arm]``: re-check drifted mirrors now."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "beside the acceptance limit, and a verdict. Without --arm nothing is written to "
                                    "the plant. See docs/running.md.")
     p.add_argument("field", help="field config YAML")
-    p.add_argument("--heliostat", required=True, help="heliostat id, or several separated by commas")
+    names = p.add_mutually_exclusive_group(required=True)
+    names.add_argument("--heliostats", help="comma-separated heliostat ids (one or several)")
+    names.add_argument("--heliostat", dest="heliostats", help=argparse.SUPPRESS)  # the old name, kept for scripts
     p.add_argument("--arm", action="store_true", help="allow writes to the plant")
     p.add_argument("--hours", type=positive_float, default=2.0, help="give up after this many plant hours (default 2)")
     p.add_argument("--json", action="store_true",
@@ -31,6 +33,5 @@ def run(args) -> int:
 
     check_console_args(args)  # a wrong --console is refused before the plant or the database is touched
 
-    args.heliostats = args.heliostat
     args.until, args.days, args.planner, args.recheck = None, args.hours / 24.0, "gaps", True
     return live_session(args, mode="check")

@@ -15,7 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "right = target u, image up = target v). Prints the spot centre in target metres "
                                    "about the board centre, and in pixels.")
     p.add_argument("frame", help="image file (grey or colour)")
-    p.add_argument("--board-size-m", nargs=2, type=positive_float, required=True, metavar=("W", "H"))
+    p.add_argument("--board-size-m", nargs=2, type=positive_float, required=True, metavar=("W", "H"),
+                   help="the frame spans exactly W x H metres of board (width, height; both > 0)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
 
