@@ -3,8 +3,9 @@
 One campaign for the module: the simulated plant served on loopback Modbus TCP + HTTP cameras
 (plant time 150x real), the real clients, a real SQLite file, the runner on APScheduler
 (:func:`helicalib.campaign.live.run_live`) in a thread, armed, with ``--console 127.0.0.1:0``
-attached exactly as ``helicalib run`` attaches it. One heliostat's id carries markup and a script
-(``H<script>…</script>``), so escaping is checked on every panel that shows it. Chromium and
+attached exactly as ``helicalib run`` attaches it. The operator's name carries markup and a script
+(``<script>…</script>``; heliostat ids are restricted to a safe alphabet by the field config), so
+escaping is checked on every panel that shows it. Chromium and
 chromedriver are Debian's (``make test`` installs them); a missing browser fails these tests.
 """
 
@@ -33,9 +34,10 @@ from helicalib.console.server import attach_console
 from helicalib.store.sqlite import Store
 
 CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
-EVIL = "H<script>window.pwned=1</script>01"
-"""H0001 renamed: an id with markup and a script in it (shown as text, never run)."""
-IDS = [EVIL, "H0002", "H0003", "H0021", "H0022", "H0023"]
+EVIL = "crew <script>window.pwned=1</script> lead"
+"""An operator's name with markup and a script in it (shown as text, never run)."""
+HEL = "H0001"
+IDS = [HEL, "H0002", "H0003", "H0021", "H0022", "H0023"]
 RATE = 150.0
 
 
@@ -83,7 +85,6 @@ def campaign(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("console")
     data = yaml.safe_load(DEMO_FIELD.read_text())
-    data["heliostats"][0]["id"] = EVIL
     field = tmp / "field.yaml"
     field.write_text(yaml.safe_dump(data, sort_keys=False))
     cfg = load_field_config(field)
@@ -191,13 +192,13 @@ def test_a_queued_recheck_goes_next_and_is_logged_and_escaped(campaign, browser)
     runner, store, cid = campaign["runner"], campaign["store"], campaign["cid"]
     browser.get(campaign["url"])
     _until(lambda: browser.find_elements("id", "action-form"), 10)
-    _type(browser, "action-who", "crew lead")
-    _type(browser, "action-heliostats", EVIL)
+    _type(browser, "action-who", EVIL)
+    _type(browser, "action-heliostats", HEL)
     _fresh(browser, lambda: browser.find_element("css selector", "button[data-kind='recheck']").click())
     _until(lambda: "recorded" in _text(browser, "action-result"), 10)
     actions = store.actions(cid)
-    assert [(a.kind, a.heliostat_ids) for a in actions] == [("recheck", (EVIL,))]
-    assert actions[0].who.startswith("crew lead (127.0.0.1")
+    assert [(a.kind, a.heliostat_ids) for a in actions] == [("recheck", (HEL,))]
+    assert actions[0].who.startswith(EVIL + " (127.0.0.1")
 
     def started():
         """the re-check's visit started"""
@@ -206,29 +207,30 @@ def test_a_queued_recheck_goes_next_and_is_logged_and_escaped(campaign, browser)
     _until(started, 60)
     done = store.actions(cid)[0]
     # done next: the first visit to start on its board after the request is the re-check's
-    board = runner.cfg.heliostat(EVIL).target
+    board = runner.cfg.heliostat(HEL).target
     # (the console stamps the request with its own estimate of plant time, and a tick that read the
     # plant clock a moment before may apply it: its visit then starts at that tick's time, done_s)
     since = min(done.requested_s, done.done_s)
     after = [v for v in store.visits(campaign_id=cid) if v.target_id == board and v.started_s >= since]
-    assert after and after[0].heliostat_id == EVIL, [(v.heliostat_id, v.started_s) for v in after]
+    assert after and after[0].heliostat_id == HEL, [(v.heliostat_id, v.started_s) for v in after]
 
     def logged():
         """the log shows the re-check going onto the board"""
         rows = _texts(browser, "#events tbody tr[data-kind='operator']")
-        return [r for r in rows if f"re-check of {EVIL}" in r and f"onto {board} now" in r]
+        return [r for r in rows if f"re-check of {HEL}" in r and f"onto {board} now" in r]
 
     assert _until(logged, 20)
-    # the id is text everywhere: no script of it ran, no element was made of its markup
+    # the name is text everywhere: no script of it ran, no element was made of its markup
     assert browser.execute_script("return window.pwned") is None
     assert not browser.find_elements("xpath", "//script[contains(., 'pwned')]")
     assert EVIL in _text(browser, "panel-actions")
-    assert any(t.startswith(EVIL + ":") for t in _texts(browser, "svg.field title"))
-    # its sheet opens from the map (the report's own sheet), the id still text
-    _fresh(browser, lambda: browser.find_element("css selector", f"svg.field a[data-id='{EVIL}'] circle").click())
-    _until(lambda: "heliostat" in browser.title and EVIL in browser.title, 30)
+    assert any(EVIL in r for r in _texts(browser, "#events tbody tr[data-kind='operator']"))
+    assert any(t.startswith(HEL + ":") for t in _texts(browser, "svg.field title"))
+    # its sheet opens from the map (the report's own sheet)
+    _fresh(browser, lambda: browser.find_element("css selector", f"svg.field a[data-id='{HEL}'] circle").click())
+    _until(lambda: "heliostat" in browser.title and HEL in browser.title, 30)
     assert browser.execute_script("return window.pwned") is None
-    assert EVIL in browser.find_element("tag name", "h1").text
+    assert HEL in browser.find_element("tag name", "h1").text
 
 
 def test_event_log_filters_by_kind(campaign, browser):
