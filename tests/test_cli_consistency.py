@@ -54,3 +54,20 @@ def test_the_database_argument_is_db_with_one_help(command):
     positional = [a for a in _subparser(command)._actions if not a.option_strings and a.dest != "help"]
     assert [(a.dest, a.metavar, a.help) for a in positional] == [("db", "DB", DATABASE_HELP)]
     assert f"{command} [-h]" in _subparser(command).format_usage() and " DB" in _subparser(command).format_usage()
+
+
+@pytest.mark.parametrize("command", DB_COMMANDS)
+def test_a_campaign_id_beyond_sqlites_integers_is_one_line(command, tmp_path, capsys):
+    from helicalib.cli import main
+
+    db = tmp_path / "c.db"
+    db.write_bytes(b"")
+    argv = [command, str(db), "--campaign", "12345678901234567890123"]
+    argv += ["--keep-last", "1"] if command == "prune-frames" else ["--out", str(tmp_path / "o")]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (f"helicalib {command}: error: argument --campaign: '12345678901234567890123': expected a "
+                       "whole number in [1, 9223372036854775807]")
+    assert "Traceback" not in "\n".join(err) and not (tmp_path / "o").exists()

@@ -13,6 +13,7 @@ exit with status 2, before the command runs.
                        make it strict)
 ``nonnegative_int``    a whole number >= 0 (seeds)
 ``int_in(lo, hi)``     a whole number, lo <= x <= hi (years, counts); ``port`` = int_in(0, 65535)
+``campaign_id``        a whole number in [1, 2^63 - 1] (a database row id)
 ``site_text``          ``LAT,LON[,ALT]`` with each number in range (returned as the text)
 ``iso_time``           an ISO 8601 instant with offset, years 1678..2261 (returned as the text)
 =====================  ====================================================================
@@ -89,6 +90,8 @@ def int_in(lo: int | None = None, hi: int | None = None) -> Callable[[str], int]
 
 nonnegative_int = int_in(0)
 port = int_in(0, 65535)
+campaign_id = int_in(1, 2 ** 63 - 1)
+"""A campaign id as SQLite stores it (``--campaign``): a larger number is refused by argparse in one line."""
 
 
 def site_text(text: str) -> str:

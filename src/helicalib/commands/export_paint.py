@@ -8,7 +8,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from helicalib.commands._args import add_database, positive_float
+from helicalib.commands._args import add_database, campaign_id, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder: new, empty or a previous export (replaced); any "
                    "other folder is refused")
     p.add_argument("--field", help="field config YAML (default: the one the campaign was started with)")
-    p.add_argument("--campaign", type=int, help="campaign id (default: the newest in the database)")
+    p.add_argument("--campaign", type=campaign_id, help="campaign id (default: the newest in the database)")
     p.add_argument("--increment", type=positive_float, metavar="STEPS_PER_M",
                    help="motor steps per metre of actuator length (default 1000: one step = one mm of stroke, "
                         "the field config's unit; docs/realdata.md)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from helicalib.commands._args import add_database, nonnegative_int
+from helicalib.commands._args import add_database, campaign_id, nonnegative_int
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--drop-rejected", action="store_true",
                    help="also delete the frames of rejected (not valid) observations beyond the newest N "
                         "(default: they are all kept)")
-    p.add_argument("--campaign", type=int, default=None, help="only this campaign (default every campaign)")
+    p.add_argument("--campaign", type=campaign_id, default=None, help="only this campaign (default every campaign)")
     p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
     p.add_argument("--dry-run", action="store_true", help="count what would be deleted; change nothing")
     p.add_argument("--json", action="store_true", help="print the result as JSON")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import add_database
+from helicalib.commands._args import add_database, campaign_id
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_database(p)
     p.add_argument("--out", required=True, help="output folder (index.html, report.json, plots, heliostats/): new, "
                    "empty or a previous report (replaced); any other folder is refused")
-    p.add_argument("--campaign", type=int, default=None, help="campaign id (default: the newest)")
+    p.add_argument("--campaign", type=campaign_id, default=None, help="campaign id (default: the newest)")
     p.add_argument("--field", default=None, help="field config to use instead of the one the campaign recorded")
     p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
     p.add_argument("--no-frames", action="store_true", help="do not draw each heliostat's latest frames (faster)")
