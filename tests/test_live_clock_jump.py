@@ -13,6 +13,7 @@ import time
 import pytest
 import yaml
 
+from test_live_faults import served  # noqa: F401 - a fixture
 from helicalib.campaign import live
 from helicalib.cli import main
 from helicalib.config import load_field_config
@@ -24,17 +25,6 @@ from helicalib.store.sqlite import Store
 @pytest.fixture(scope="module")
 def cfg(demo_field_path):
     return load_field_config(demo_field_path)
-
-
-@pytest.fixture()
-def served(cfg):
-    from contextlib import ExitStack
-
-    from helicalib.simulation import _network_plant
-    from helicalib.sim.scenario import Scenario
-
-    with ExitStack() as stack:
-        yield _network_plant(cfg, Scenario(seed=3), default_start_s(cfg) + 9 * 3600, 200.0, stack)
 
 
 def test_a_clock_that_jumps_back_during_a_run_is_one_line_and_the_beams_go_back(cfg, tmp_path, served):
@@ -104,16 +94,15 @@ def test_a_clock_step_back_within_the_tolerance_is_absorbed():
 # ---------------------------------------------------------------------------------------------------------
 # resuming on a plant clock that jumped
 
-@pytest.fixture()
-def field(tmp_path, cfg, demo_data):
-    """A field config served by the simulated plant on loopback (200x), storage in tmp_path; yields
-    (field path, plant time at the start)."""
+def served_field(tmp_path, cfg, demo_data, hours: float = 9.0):
+    """A field config served by the simulated plant on loopback (200x, from ``hours`` after local
+    midnight), storage in tmp_path; yields (field path, plant time at the start, simulated plant)."""
     from helicalib.sim.clock import RateClock
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
     from helicalib.sim.server import PlantServer
 
-    start = default_start_s(cfg) + 9 * 3600
+    start = default_start_s(cfg) + hours * 3600
     sim = SimulatedPlant(cfg, Scenario(seed=3), start_s=start, rate=200.0)
     server = PlantServer(sim, RateClock(start, 200.0, time.monotonic, time.sleep), modbus_port=0, camera_port=0)
     with server:
@@ -123,7 +112,13 @@ def field(tmp_path, cfg, demo_data):
         demo_data["storage"] = {"database": "sqlite:///c.db", "images_dir": "img"}
         path = tmp_path / "field.yaml"
         path.write_text(yaml.safe_dump(demo_data, sort_keys=False))
-        yield path, start
+        yield path, start, sim
+
+
+@pytest.fixture()
+def field(tmp_path, cfg, demo_data):
+    """:func:`served_field` in daylight."""
+    yield from served_field(tmp_path, cfg, demo_data)
 
 
 def _campaign_last_at(db, t_s: float) -> None:
@@ -140,7 +135,7 @@ def _campaign_last_at(db, t_s: float) -> None:
 def test_a_resume_on_a_plant_clock_that_jumped_is_refused_in_one_line(field, capsys, offset_days, words):
     from helicalib.campaign.events import iso_utc
 
-    path, start = field
+    path, start, _sim = field
     db = path.parent / "c.db"
     last = start + offset_days * 86400.0
     _campaign_last_at(db, last)
@@ -164,7 +159,7 @@ def test_a_resume_on_a_plant_clock_that_jumped_is_refused_in_one_line(field, cap
 
 
 def test_a_resume_on_a_consistent_clock_goes_on(field, capsys):
-    path, start = field
+    path, start, _sim = field
     db = path.parent / "c.db"
     _campaign_last_at(db, start - 1800.0)
     assert main(["run", str(path), "--arm", "--heliostats", "H0001", "--days", "0.001"]) == 0

@@ -12,7 +12,7 @@ import pytest
 
 from campaign_helpers import inprocess_campaign
 from test_devices_camera_deadline import Raw, trickle_body
-from test_live_faults import _Outage
+from test_live_faults import _Outage, served  # noqa: F401 - a fixture
 from helicalib.config import load_field_config
 
 
@@ -67,18 +67,6 @@ def test_a_lost_plant_is_one_line_each_way_and_no_visit_starts_meanwhile(cfg, tm
 
 # ---------------------------------------------------------------------------------------------------------
 # a camera that trickles its answer, under the live jobs against the simulated plant served on loopback
-
-@pytest.fixture()
-def served(cfg):
-    """The simulated plant on loopback Modbus TCP + HTTP, with the real clients and the plant clock."""
-    from contextlib import ExitStack
-
-    from helicalib.simulation import _network_plant, default_start_s
-    from helicalib.sim.scenario import Scenario
-
-    with ExitStack() as stack:
-        yield _network_plant(cfg, Scenario(seed=3), default_start_s(cfg) + 9 * 3600, 200.0, stack)
-
 
 def test_a_stalled_camera_does_not_stop_weather_reads_nor_the_stow(cfg, tmp_path, served):
     import threading

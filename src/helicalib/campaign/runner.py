@@ -436,7 +436,8 @@ class CampaignRunner:
         """A write to the database failed (full disk, read-only): the first is one ``fault`` line,
         :data:`STORAGE_RETRIES` in a row set :attr:`storage_lost` (a live run then stops)."""
         self.storage_errors += 1
-        where = f"database {self.store.path}: cannot be written ({type(err).__name__}: {err})"
+        where = str(err) if isinstance(err, StorageError) else \
+            f"database {self.store.path}: cannot be written ({type(err).__name__}: {err})"
         if self.storage_errors == 1:
             self.event("fault", f"{where}; trying again", data={"storage": True})
         elif self.storage_errors >= STORAGE_RETRIES and self.storage_lost is None:

@@ -138,7 +138,7 @@ def open_campaign(store, cfg, args, mode: str, now_s: float, ids: list[str] | No
     if resumed is not None:
         held = [h.heliostat_id for h in store.campaign_heliostats(resumed.id)]
         if ids and sorted(ids) != sorted(held):
-            raise ConfigError(f"--heliostats: campaign {resumed.id} calibrates {len(held)} heliostat(s), not the "
+            raise ConfigError(f"--heliostats: campaign {resumed.id} calibrates {plural(len(held), 'heliostat')}, not the "
                               f"{len(ids)} named; resume it without --heliostats, or add --new-campaign")
         jump = check_plant_clock(store, resumed.id, now_s, rate, written_wall_s,
                                  bool(getattr(args, "accept_clock_jump", False)))
@@ -155,7 +155,7 @@ def open_campaign(store, cfg, args, mode: str, now_s: float, ids: list[str] | No
         config_path=str(cfg.source), settings={"armed": armed, "planner": args.planner,
                                                "refine": getattr(args, "refine", False)})
     what = "re-check" if mode == "check" else _label(kind)
-    return Opened(cid, ids, f"campaign {cid} ({what}, new): {len(ids)} heliostats{skipped}; database {store.path}")
+    return Opened(cid, ids, f"campaign {cid} ({what}, new): {plural(len(ids), 'heliostat')}{skipped}; database {store.path}")
 
 
 def _label(kind: str) -> str:
@@ -169,7 +169,8 @@ def holdings(store, campaign_id: int, ids: list[str]) -> str:
     n_obs = store.count_observations(campaign_id)
     n_valid = store.count_observations(campaign_id, valid=True)
     visits = len(store.visits(campaign_id=campaign_id))
-    return (f"{len(ids)} heliostats, {accepted} accepted, {n_obs} observations ({n_valid} valid) in {visits} visits")
+    return (f"{plural(len(ids), 'heliostat')}, {accepted} accepted, {plural(n_obs, 'observation')} ({n_valid} valid) "
+            f"in {plural(visits, 'visit')}")
 
 
 def check_plant(cfg, plant) -> None:
@@ -309,7 +310,8 @@ def storage_errors(path):
 
 def _summary(store, cfg, runner, opened: Opened, result, mode: str) -> dict:
     campaign = store.campaign(opened.campaign_id)
-    out = {"event": "summary", "campaign": opened.campaign_id, "mode": campaign.mode, "status": campaign.status,
+    status = "stopped (not recorded: the database cannot be written)" if result.reason == "storage" else campaign.status
+    out = {"event": "summary", "campaign": opened.campaign_id, "mode": campaign.mode, "status": status,
            "ended_because": {"until": "its end time came", "done": "every heliostat re-checked",
                              "stopped": "Ctrl-C or SIGTERM", "clock_jump": "the plant's clock jumped backwards",
                              "storage": "the database cannot be written"}[result.reason],
