@@ -13,6 +13,7 @@ from helicalib.campaign import policy
 from helicalib.campaign.runner import CampaignRunner
 from helicalib.simulation import default_start_s, simulate_campaign
 from helicalib.config import load_field_config
+from helicalib.errors import ConfigError
 from helicalib.devices.registers import HeliostatState
 from helicalib.geometry import errors as em
 from helicalib.geometry.heliostat import HeliostatModel
@@ -301,11 +302,14 @@ def test_shared_targets_lend_boards_that_face_the_heliostat_and_have_a_camera(cf
     lent = policy.shared_targets(cfg, t2, ["T1", "T2"])
     assert set(lent["T1"]) == set(t2) and set(lent["T1"].values()) == {1} and lent["T2"] == {}
     assert policy.shared_targets(cfg, t2, ["T2"])["T1"] == {}  # no camera on T1: not lent
-    # T1 turned to face away from the field: none of the field may borrow it
+    # T1 turned to face away from the field: none of the field may borrow it. validate refuses such a
+    # file (T1's own heliostats stand behind it), so the turned board is made in memory: the policy
+    # must hold on its own, whatever config it is handed.
     demo_data["targets"][0]["normal_enu"] = [0.0, -0.81915, -0.57358]
-    # turned round, the board's u axis points the other way: its standby point stays east, off board T2
-    demo_data["targets"][0]["standby_offset_m"] = [15.0, 0.0]
-    away = load_field_config(write_field(demo_data))
+    with pytest.raises(ConfigError, match="behind the board of its target 'T1'"):
+        load_field_config(write_field(demo_data))
+    turned = cfg.targets[0].model_copy(update={"normal_enu": (0.0, -0.81915, -0.57358)})
+    away = cfg.model_copy(update={"targets": type(cfg.targets)([turned, *cfg.targets[1:]])})
     assert policy.shared_targets(away, t2, ["T1", "T2"])["T1"] == {}
 
 

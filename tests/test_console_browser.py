@@ -37,7 +37,10 @@ CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver"
 EVIL = "crew <script>window.pwned=1</script> lead"
 """An operator's name with markup and a script in it (shown as text, never run)."""
 HEL = "H0001"
-IDS = [HEL, "H0002", "H0003", "H0021", "H0022", "H0023"]
+EVIL_ID = "H<script>window.pwned=2</script>02"
+"""H0002 renamed in memory: an id with markup and a script, as a database written before ids were
+restricted to a safe alphabet may hold (validate refuses it in a field config today)."""
+IDS = [HEL, EVIL_ID, "H0003", "H0021", "H0022", "H0023"]
 RATE = 150.0
 
 
@@ -88,6 +91,9 @@ def campaign(tmp_path_factory):
     field = tmp / "field.yaml"
     field.write_text(yaml.safe_dump(data, sort_keys=False))
     cfg = load_field_config(field)
+    cfg = cfg.model_copy(update={"heliostats": type(cfg.heliostats)(
+        h.model_copy(update={"id": EVIL_ID}) if h.id == "H0002" else h for h in cfg.heliostats)})
+    cfg.__dict__.pop("_index_cache", None)  # the copy must look its ids up afresh
     log = io.StringIO()
     stop = threading.Event()
     with ExitStack() as stack:
@@ -226,6 +232,9 @@ def test_a_queued_recheck_goes_next_and_is_logged_and_escaped(campaign, browser)
     assert EVIL in _text(browser, "panel-actions")
     assert any(EVIL in r for r in _texts(browser, "#events tbody tr[data-kind='operator']"))
     assert any(t.startswith(HEL + ":") for t in _texts(browser, "svg.field title"))
+    # the hostile id is text on the map too, and its sheet opens with the id as text
+    assert any(t.startswith(EVIL_ID + ":") for t in _texts(browser, "svg.field title"))
+    assert not browser.find_elements("xpath", "//script[contains(., 'pwned')]")
     # its sheet opens from the map (the report's own sheet)
     _fresh(browser, lambda: browser.find_element("css selector", f"svg.field a[data-id='{HEL}'] circle").click())
     _until(lambda: "heliostat" in browser.title and HEL in browser.title, 30)

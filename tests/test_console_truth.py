@@ -254,7 +254,7 @@ def test_console_db_opens_the_campaign_the_controller_runs(tmp_path):
         proc, line = _console_db(db)
         try:
             assert line["campaign"] == run_id and line["campaign_name"] == "run of the field"
-            assert "the controller holding the database runs" in line["campaign_chosen"]
+            assert "the process holding the database runs" in line["campaign_chosen"]
             page = _page(line["url"])
             assert f"campaign {run_id}: run of the field" in page and "the database is held by pid" in page
         finally:
@@ -264,7 +264,7 @@ def test_console_db_opens_the_campaign_the_controller_runs(tmp_path):
         owner.close()
     proc, line = _console_db(db)
     try:
-        assert line["campaign"] == run_id and line["campaign_chosen"] == "the newest running campaign"
+        assert line["campaign"] == run_id and line["campaign_chosen"] == "the newest campaign marked running"
         assert "recorded as running, but no process runs it now" in _page(line["url"])
     finally:
         proc.terminate()

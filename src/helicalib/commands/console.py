@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from helicalib.commands._args import add_database
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("console", help="serve a read-only live web page of a campaign database",
@@ -12,7 +14,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "opens the database read-only, never writes and never takes the owner lock, and "
                                    "the page updates by itself as the campaign records. Operator actions need the "
                                    "controller itself (run/check --arm --console). See docs/console.md.")
-    p.add_argument("db", help="helicalib SQLite database (file path or sqlite:/// URL)")
+    add_database(p)
     p.add_argument("--campaign", type=int, default=None,
                    help="campaign id (default: the one the process holding the database runs, else the newest "
                         "running one, else the newest)")
@@ -33,6 +35,7 @@ def run(args) -> int:
     import secrets
     import sys
 
+    from helicalib.commands.status import shown_campaign
     from helicalib.console.app import Console, create_app
     from helicalib.console.server import ConsoleServer, parse_address, url
     from helicalib.console.view import Sources, reading
@@ -53,10 +56,7 @@ def run(args) -> int:
             campaigns = store.campaigns()
             if not campaigns:
                 raise ConfigError(f"{args.db}: no campaign in this database yet")
-            if args.campaign is not None:
-                campaign, why = store.campaign(args.campaign), "asked for"
-            else:
-                campaign, why = live_campaign(store, campaigns)
+            campaign, why = shown_campaign(store, campaigns, store.owner(), args.campaign)
             cfg, note = find_config(campaign, path, args.field)
     except BaseException:
         store.close()
@@ -87,20 +87,3 @@ def run(args) -> int:
         sources.store.close()
         console.remove_cache()
     return 0
-
-
-def live_campaign(store, campaigns) -> tuple:
-    """The campaign a console shows by default, and why: the one the process holding the database
-    runs (the running campaign whose process recorded its start last), else the newest running one,
-    else the newest."""
-    running = {c.id: c for c in campaigns if c.status == "running"}
-    owner = store.owner()
-    if owner is not None and running:
-        starts = [e for e in store.events(kind="campaign") if e.campaign_id in running]
-        if starts:
-            newest = max(starts, key=lambda e: e.id or 0)
-            return running[newest.campaign_id], f"the campaign the controller holding the database runs ({owner})"
-    if running:
-        return running[max(running)], ("the newest running campaign" if owner is None else
-                                        f"the newest running campaign; the database is held by {owner}")
-    return campaigns[-1], "the newest campaign; none is running"

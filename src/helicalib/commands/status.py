@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 
+from helicalib.commands._args import add_database
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("status", help="print a campaign's progress as a table",
                        description="Progress of a campaign in a helicalib database: per heliostat visits, valid "
                                    "points, last error and the acceptance verdict with its first missing item.")
-    p.add_argument("db", help="helicalib SQLite database (file path or sqlite:/// URL)")
+    add_database(p)
     p.add_argument("--campaign", type=int, default=None,
                    help="campaign id (default: the one the process holding the database runs, else the newest "
                         "marked running, else the newest)")
