@@ -43,6 +43,7 @@ def run(args) -> int:
     if not args.rate > 0:
         raise ConfigError(f"--rate {args.rate}: must be > 0")
     cfg = load_field_config(args.field)
+    cfg.require_cameras()  # a PAINT import describes a plant; it cannot be measured
     scenario = load_scenario(args.scenario)
     if args.seed is not None:
         scenario = scenario.model_copy(update={"seed": args.seed})

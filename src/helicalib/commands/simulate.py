@@ -64,6 +64,7 @@ def run(args) -> int:
     from helicalib.sim.scenario import load_scenario
 
     cfg = load_field_config(args.field)
+    cfg.require_cameras()  # a PAINT import describes a plant; it cannot be measured
     if args.days <= 0:
         raise ConfigError(f"--days {args.days}: must be > 0")
     scenario = load_scenario(args.scenario)
