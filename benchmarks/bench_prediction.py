@@ -25,11 +25,18 @@ and ablations, one cause at a time (the same fits; only the prediction or the tr
   the truth), ``truth_no_backlash`` (backlash out of truth and model), ``truth_params_only`` (neither),
   ``truth_linear_params``: ``J · (fitted − true parameters)``, the error the covariance describes.
 
+``--synthetic N`` instead checks the machinery on an exactly modelled case: N demo heliostats with
+errors drawn from the priors (no backlash, no sag, no drift), 12 observations each with Gaussian
+beam noise of 0.3 mrad (the fit's σ), either clustered as a June campaign takes them (6 visits of
+2 placements over 2 days: ``june``) or spread over the year (``year``); the true year-round RMS is
+the true heliostat's beam for the fitted model's strokes.
+
 Usage::
 
     .venv/bin/python benchmarks/bench_prediction.py                       # demo field, seed 1, 2 days
     .venv/bin/python benchmarks/bench_prediction.py --field simulations/fields/bench500.yaml --every 5
     .venv/bin/python benchmarks/bench_prediction.py --seeds 1,2 --days 2
+    .venv/bin/python benchmarks/bench_prediction.py --synthetic 200      # ≈ 10 CPU s
 
 ``--every k`` calibrates every k-th heliostat of the field (the plant keeps the whole field). Prints
 a table and writes ``benchmarks/out/bench_prediction.json`` (or ``--out``). Cost (fast fidelity):
@@ -60,10 +67,21 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=1, help="calibrate every k-th heliostat (default all)")
     ap.add_argument("--fidelity", default="fast", choices=("fast", "render"))
     ap.add_argument("--out", default=str(OUT / "bench_prediction.json"))
+    ap.add_argument("--synthetic", type=int, default=0, help="check the machinery on N synthetic heliostats")
     args = ap.parse_args()
     from helicalib.config import load_field_config
 
     cfg = load_field_config(args.field)
+    if args.synthetic:
+        out = {"synthetic": {mode: synthetic(cfg, args.synthetic, mode) for mode in ("june", "year")}}
+        for mode, v in out["synthetic"].items():
+            print(f"synthetic {mode}: {v}", flush=True)
+        path = Path(args.out).with_name("bench_prediction_synthetic.json") if args.out == str(
+            OUT / "bench_prediction.json") else Path(args.out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(out, indent=1))
+        print(f"wrote {path}")
+        return
     ids = [h.id for h in cfg.heliostats][:: max(1, args.every)]
     runs = []
     for seed in [int(s) for s in args.seeds.split(",") if s.strip()]:
@@ -157,6 +175,65 @@ def evaluate(cfg, runner, truth, end_s: float) -> dict:
                 if tname != "truth":
                     out[tname] = _score(pred, err, limit)
     return out
+
+
+SYNTH_NOISE_MRAD = 0.3
+"""Beam noise of one component in the synthetic check [mrad] (the fit's ``SIGMA_MRAD``)."""
+
+
+def synthetic(cfg, n: int, mode: str, seed: int = 7) -> dict:
+    """Coverage of the predicted interval on ``n`` exactly modelled synthetic heliostats (module docstring)."""
+    import pandas as pd
+
+    from helicalib.calibration.fit import SIGMA_MRAD, fit_error_model
+    from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
+    from helicalib.geometry import errors as em
+    from helicalib.geometry import optics
+    from helicalib.geometry.heliostat import HeliostatModel
+    from helicalib.geometry.sun import sun_at_site
+    from helicalib.sim.evaluate import year_sun_times
+
+    rng = np.random.default_rng(seed)
+    _t, year_sun = year_sun_times(cfg.site, 2026, step_days=14.0, step_min=60.0)
+    t0 = pd.Timestamp("2026-06-01T00:00:00Z").timestamp() - cfg.site.longitude_deg / 15.0 * 3600.0
+    geometric = [em.index(name) for name in em.GEOMETRIC]
+    true_rms, preds = [], []
+    for i in range(n):
+        h = cfg.heliostats[i % len(cfg.heliostats)]
+        model = HeliostatModel.from_config(cfg, [h.id])
+        aim = np.asarray(cfg.target(h.target).center_enu_m, dtype=float)
+        p = np.zeros(em.P)
+        p[geometric] = rng.normal(size=len(geometric)) * em.PRIOR_SIGMA[geometric]
+        plant = model.with_params(p[None, :])
+        if mode == "june":  # 6 visits over 2 days, 2 placements each, 90 s apart
+            visits = t0 + np.sort(rng.integers(0, 2, 6)) * 86400.0 + rng.uniform(6.0, 19.0, 6) * 3600.0
+            times = np.repeat(visits, 2) + np.tile([60.0, 150.0], 6)
+        else:
+            times = t0 + rng.uniform(0.0, 365.0, 12) * 86400.0 + rng.uniform(7.0, 18.0, 12) * 3600.0
+        pos = sun_at_site(cfg.site, times)
+        sun = np.asarray(pos.vector_enu)[pos.elevation_deg > 8.0]
+        held = model.repeat(len(sun)).strokes_for_aim(sun, aim).strokes_mm
+        origin, beam = plant.repeat(len(sun)).beam(held, sun)
+        across = optics.unit(np.cross(beam, [0.0, 0.0, 1.0]))
+        z = rng.normal(size=(len(sun), 2)) * SYNTH_NOISE_MRAD * 1e-3
+        beam = optics.unit(beam + z[:, :1] * across + z[:, 1:] * np.cross(across, beam))
+        _uv, spot, _on = optics.intersect_target(origin, beam, cfg.target(h.target))
+        fit = fit_error_model(model, held, sun, spot)
+        preds.append(year_prediction(fit.model, fit.covariance[None], year_sun, aim,
+                                     unexplained_mrad(fit.rms_mrad, SIGMA_MRAD), draws=400, seed=i))
+        sol = fit.model.repeat(len(year_sun)).strokes_for_aim(year_sun, aim)
+        o, d = plant.repeat(len(year_sun)).beam(sol.strokes_mm, year_sun)
+        err = 1000.0 * optics.angle_between_rad(d, aim - o)
+        true_rms.append(err[sol.in_range])
+    lo = np.array([q.interval_mrad[0, 0] for q in preds])
+    hi = np.array([q.interval_mrad[0, 1] for q in preds])
+    rms = np.array([np.sqrt(np.mean(e**2)) for e in true_rms])
+    return {"n": n, "coverage": round(float(np.mean((lo <= rms) & (rms <= hi))), 3),
+            "below": round(float(np.mean(rms < lo)), 3), "above": round(float(np.mean(rms > hi)), 3),
+            "predicted_median_mrad": round(float(np.median([q.expected_rms_mrad[0] for q in preds])), 3),
+            "true_median_mrad": round(float(np.median(rms)), 3),
+            "predicted_exceed": round(float(np.mean([q.p_exceed[0] for q in preds])), 3),
+            "true_exceed": round(float(np.mean([e.max() > 1.2 for e in true_rms])), 3)}
 
 
 def _score(pred, err: np.ndarray, limit: float) -> dict:
