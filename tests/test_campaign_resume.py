@@ -273,7 +273,7 @@ def test_run_resumes_the_fields_campaign_and_says_what_it_holds(plant):
     # a new one only when asked
     new = _cli(field, "run", "--arm", "--days", "0.005", "--new-campaign", "--heliostats", "H0002")
     assert new.returncode == 0, new.stderr
-    assert new.stderr.startswith("campaign 2 (armed, new): 1 heliostats")
+    assert new.stderr.startswith("campaign 2 (armed, new): 1 heliostat;")
     assert [c[0] for c in _campaigns(db)] == [1, 2]
 
 

@@ -11,7 +11,8 @@ from helicalib.cli import main
 @pytest.mark.parametrize("argv", [["simulate", "{field}", "--days", "0.01", "--fidelity", "fast", "--out", "{out}"],
                                   ["sim-plant", "{field}", "--port", "0", "--camera-port", "0"],
                                   ["run", "{field}", "--json"],
-                                  ["check", "{field}", "--heliostats", "H0001", "--json"]])
+                                  ["check", "{field}", "--heliostats", "H0001", "--json"],
+                                  ["operate", "{field}", "--json"]])
 def test_a_field_without_cameras_is_refused_by_commands_that_measure(argv, demo_data, write_field, tmp_path, capsys):
     demo_data["cameras"] = []
     field = write_field(demo_data)

@@ -178,3 +178,17 @@ def test_while_the_plant_answers_the_gate_is_shown_with_the_age_of_its_reading()
     assert "unreachable" not in text.lower() and "unknown" not in text
     gate = next(line for line in text.splitlines() if " gate " in line)
     assert "open: calibration allowed" in gate and "weather read 30 s ago" in gate
+
+
+def test_a_gate_not_judged_yet_says_so_once():
+    """Before the first weather reading (at night too) the line says what is known, not the same words twice."""
+    lines = []
+    for snap in (snapshot(gate_open=None, gate_reason="", wind_ms=None, dni_wm2=None, weather_time_s=None),
+                 snapshot(gate_open=None, gate_reason="sun at -12.0°, below the low band", night=True,
+                          wind_ms=None, dni_wm2=None, weather_time_s=None, time_s=T0 + 3600)):
+        out = io.StringIO()  # a log of its own each: status lines come at most once a minute
+        LineLog(UTC, out).on_snapshot(snap)
+        lines += out.getvalue().splitlines()
+    assert lines and all(line.count("no weather reading yet") <= 1 for line in lines), lines
+    assert any("not judged yet (no weather reading yet)" in line for line in lines), lines
+    assert any("night: sun at -12.0°, below the low band (no weather reading yet)" in line for line in lines), lines

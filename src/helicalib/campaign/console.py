@@ -97,7 +97,7 @@ def gate_text(s: Snapshot) -> str:
     if s.stowed:
         text = f"STOWED for wind ({s.gate_reason or 'wind above the stow limit'})"
     elif s.gate_open is None:
-        text = "no weather reading yet"
+        text = f"night: {s.gate_reason}" if s.night and s.gate_reason else "not judged yet"
     elif s.night:
         text = f"night: {s.gate_reason}"
     else:

@@ -199,6 +199,7 @@ def live_session(args, mode: str) -> int:
     from helicalib.store.sqlite import Store
 
     cfg = load_field_config(args.field)
+    cfg.require_cameras()  # a PAINT import describes a plant; it cannot be measured
     ids = [s.strip() for s in args.heliostats.split(",") if s.strip()] if args.heliostats else None
     for hid in ids or ():
         cfg.heliostat(hid)
