@@ -670,6 +670,18 @@ class CampaignRunner:
                        v.target_id, data={"outcome": "aborted"})
 
     def _gate(self, now: float):
+        """Judge the gate now (:meth:`_judge_gate`); log ``gated``/``ungated`` when it changes."""
+        gate = self._judge_gate(now)
+        lost = self.plant_unreachable_since_s is not None
+        if self._gate_reason != (gate.open, gate.night):
+            if not gate.night and not (lost and not gate.open):
+                self.event("ungated" if gate.open else "gated", gate.reason, time_s=now)
+            self._gate_reason = (gate.open, gate.night)
+        self._last_gate = gate
+        return gate
+
+    def _judge_gate(self, now: float):
+        """The field's gate from the newest weather reading, the sun and the plant's state (no event)."""
         _vec, _az, el, _rising = self.sun(now)
         gate = policy.field_gate(self.cfg, self.last_weather, el, now, self.sun, stowed=self.stowed,
                                  elevations=self.sun_table.position_elevations_deg)
@@ -679,11 +691,6 @@ class CampaignRunner:
         elif gate.open and (self.weather_time_s is None or now - self.weather_time_s > WEATHER_MAX_AGE_S):
             age = "none yet" if self.weather_time_s is None else f"{_duration(now - self.weather_time_s)} old"
             gate = replace(gate, open=False, reason=f"no fresh weather reading ({age})")
-        if self._gate_reason != (gate.open, gate.night):
-            if not gate.night and not (lost and not gate.open):
-                self.event("ungated" if gate.open else "gated", gate.reason, time_s=now)
-            self._gate_reason = (gate.open, gate.night)
-        self._last_gate = gate
         return gate
 
     # ------------------------------------------------------------------ visits
@@ -1100,9 +1107,9 @@ class CampaignRunner:
             else:
                 boards.append(BoardState(t.id))
         el = self.sun(now)[2]
-        gate = self._last_gate
-        if gate is not None and self.plant_unreachable_since_s is not None:
-            gate = replace(gate, open=False, reason=self._unreachable_reason())
+        # judged afresh from the reading shown (the tick judges it only when a board is free, so its
+        # reason could quote an older reading than the wind and DNI beside it)
+        gate = None if self._last_gate is None else self._judge_gate(now)
         w = self.last_weather
         accepted = sum(1 for hid in self.ids if self.book.accepted(hid))
         return Snapshot(
