@@ -10,6 +10,7 @@ from __future__ import annotations
 import threading
 import time
 
+import numpy as np
 import pytest
 import yaml
 
@@ -39,12 +40,15 @@ def test_a_clock_that_jumps_back_during_a_run_is_one_line_and_the_beams_go_back(
     lines, state = [], {}
     runner.listeners.append(lines.append)
     real_time = plant.plant_time
+    sent = _record_commands(plant, clock)
 
     def watch():
         while not runner.active:
             time.sleep(0.05)
         time.sleep(0.3)
         # the plant restarted at an earlier date: its time now reads a day back
+        state["on_board"] = {hid: v.target_id for hid, v in list(runner.active.items())}
+        state["n"] = len(sent)
         plant.plant_time = lambda: (real_time()[0] - 86400.0, real_time()[1])
         clock.resync_s = 0.0
         state["t"] = time.monotonic()
@@ -70,6 +74,44 @@ def test_a_clock_that_jumps_back_during_a_run_is_one_line_and_the_beams_go_back(
     assert visits and all(v.outcome != "running" for v in visits)
     for hid in ids:  # every beam left its board and the plant tracks again
         assert sim.state[cfg.heliostat_index(hid)] in (HeliostatState.TRACKING, HeliostatState.MOVING), hid
+    # ... via its standby point: the last move before its track command aims at the standby point
+    assert state["on_board"]
+    for hid, tid in state["on_board"].items():
+        _assert_left_via_standby(runner, cfg, hid, tid, sent[state["n"]:])
+
+
+def _record_commands(plant, clock):
+    """Every move and track command sent to ``plant``: (kind, index, strokes, controller's plant time)."""
+    sent = []
+    move_to, track = plant.move_to, plant.track
+
+    def recording_move(index, strokes_mm):
+        sent.append(("move", index, np.asarray(strokes_mm, dtype=float), clock.estimate_s()))
+        return move_to(index, strokes_mm)
+
+    def recording_track(index, corrections_mm):
+        sent.append(("track", index, None, clock.estimate_s()))
+        return track(index, corrections_mm)
+
+    plant.move_to, plant.track = recording_move, recording_track
+    return sent
+
+
+def _assert_left_via_standby(runner, cfg, hid, target_id, sent):
+    """``hid``'s first track command in ``sent`` follows a move to its standby point on ``target_id``
+    (never a track command from the board)."""
+    index = cfg.heliostat_index(hid)
+    mine = [c for c in sent if c[1] == index]
+    k = next(i for i, c in enumerate(mine) if c[0] == "track")
+    assert k > 0 and mine[k - 1][0] == "move", (hid, [c[0] for c in mine])
+    _kind, _i, strokes, t = mine[k - 1]
+    target = cfg.target(target_id)
+    standby = target.uvw_to_enu(np.asarray(target.standby_uvw_m))
+    sun = runner.sun(t)[0]
+    at_standby = runner.models[hid].strokes_for_aim(sun, standby).strokes_mm[0]
+    at_centre = runner.models[hid].strokes_for_aim(sun, np.asarray(target.center_enu_m)).strokes_mm[0]
+    off = float(np.max(np.abs(strokes - at_standby)))
+    assert off < 0.2 * float(np.max(np.abs(at_centre - at_standby))), (hid, strokes, at_standby, at_centre)
 
 
 def test_a_clock_step_back_within_the_tolerance_is_absorbed():

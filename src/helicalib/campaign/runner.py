@@ -46,6 +46,7 @@ from helicalib.campaign.controller import (
 )
 from helicalib.campaign.events import STORED, BoardState, RunEvent, Snapshot
 from helicalib.campaign.sensor import SpotSensor, camera_sensors
+from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.registers import FieldCommand, HeliostatState
 from helicalib.errors import HelicalibError, PlantError, StorageError
 from helicalib.geometry.heliostat import HeliostatModel
@@ -349,6 +350,17 @@ class CampaignRunner:
                     self._send_back(hid, None, now, why="left off tracking by the previous run")
 
     # ------------------------------------------------------------------ events
+    def now(self) -> float:
+        """Plant time for the visits and a stop's legs: the plant clock's, or, once that clock jumped
+        (:attr:`clock_jump`; the plant clock refuses every read after a jump), the controller's own
+        extrapolation of it, so a beam on a board still leaves via its standby point."""
+        if self.clock_jump is None:
+            try:
+                return self.clock.now_s()
+            except ClockJumpError as err:
+                self.clock_jumped(err)
+        return self.clock.estimate_s()
+
     def safe_now(self) -> tuple[float, str]:
         """(plant time, ``"plant"``), or the controller's own extrapolation of it and ``"controller"``
         when the plant's clock cannot be read (records made during an outage still get a time)."""
@@ -753,7 +765,7 @@ class CampaignRunner:
         ctx = VisitContext(
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
             index=index, target=self.cfg.target(target_id), board=board,
-            sensor=self.sensors[target_id], plant=self._visit_plant, now=self.clock.now_s, sun=self.sun,
+            sensor=self.sensors[target_id], plant=self._visit_plant, now=self.now, sun=self.sun,
             model=self.models[hid], settings=self.check_settings if check else self.settings,
             time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
@@ -948,7 +960,7 @@ class CampaignRunner:
 
     def _corrections(self, hid: str, model: HeliostatModel) -> np.ndarray | None:
         """Tracking corrections to write as the visit ends; None keeps what the plant has."""
-        now = self.clock.now_s()
+        now = self.now()
         if self.recheck or not self.book.points(hid):
             return self.corrections[hid]  # a re-check, or no fitted model yet: the plant keeps what it has
         sun_ahead = self.sun(now + policy.TRACKING_REFRESH_S / 2)[0]
@@ -1054,11 +1066,11 @@ class CampaignRunner:
         while leaving:
             leaving.sort(key=lambda item: item[0])
             wake, hid, ctx, leg = leaving.pop(0)
-            try:
-                t = self.clock.now_s()
+            try:  # (after a clock jump, the controller's own clock: the beams still leave via standby)
+                t = self.now()
                 if wake > t:
                     self.clock.sleep(wake - t)
-                    t = self.clock.now_s()
+                    t = self.now()
                 leaving.append([t + self._advance(hid, ctx, leg, stopping=True), hid, ctx, leg])
             except StopIteration as done:
                 if ctx.board is not None:
