@@ -288,7 +288,7 @@ class Store:
         reader opened without the writer's ``images_dir`` finds the frames (:meth:`campaign_images_dir`).
         """
         settings = dict(settings or {})
-        settings.setdefault("images_dir", str(Path(self.images_dir).resolve()))
+        settings.setdefault("images_dir", _recorded_folder(self.images_dir, self.path))
         rows = [h if isinstance(h, CampaignHeliostat) else CampaignHeliostat(str(h[0]), int(h[1]), str(h[2]))
                 for h in heliostats]
         with self._writing(), self._conn:
@@ -305,9 +305,22 @@ class Store:
         return cid
 
     def campaign_images_dir(self, campaign_id: int) -> Path:
-        """The folder the campaign's frames were written to: as recorded at its start, else this store's."""
+        """The folder that holds the campaign's frames (its ``c<id>/`` sub-folder).
+
+        This store's own frames folder when it holds them (a database moved or copied with its
+        frames); else the folder recorded at the campaign's start (relative to the database when it
+        lay beside it, else absolute: a run with ``--images`` elsewhere); else this store's.
+        """
+        sub = f"c{int(campaign_id)}"
+        if (self.images_dir / sub).is_dir():
+            return self.images_dir
         recorded = (self.campaign(campaign_id).settings or {}).get("images_dir")
-        return Path(recorded) if isinstance(recorded, str) and recorded else self.images_dir
+        if isinstance(recorded, str) and recorded:
+            folder = Path(recorded)
+            folder = folder if folder.is_absolute() else self.path.parent / folder
+            if (folder / sub).is_dir():
+                return folder
+        return self.images_dir
 
     def finish_campaign(self, campaign_id: int, ended_s: float, status: str = "finished") -> None:
         """Mark a campaign ended: ``finished`` (its end time came) or ``stopped`` (Ctrl-C, SIGTERM)."""
@@ -606,6 +619,16 @@ class Store:
 
 
 # ---------------------------------------------------------------------- helpers
+def _recorded_folder(images_dir: Path, db: Path) -> str:
+    """How a campaign records its frames folder: relative to the database's folder when inside it
+    (it moves with the database), else absolute."""
+    folder, base = Path(images_dir).resolve(), Path(db).resolve().parent
+    try:
+        return folder.relative_to(base).as_posix() or "."
+    except ValueError:
+        return str(folder)
+
+
 def database_path(path: str | Path) -> Path:
     """The database file of a path or a ``sqlite:///`` URL."""
     text = str(path)
