@@ -298,9 +298,10 @@ def log_rows(events, visits, limit: int = EVENTS_SHOWN) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------------------------- damage
-RAW_ERRORS = (sqlite3.DatabaseError, ValueError, TypeError, KeyError, AttributeError, OverflowError)
-"""What a damaged row raises when a reader parses it unchecked (bad JSON is a ValueError, text in
-a REAL column a TypeError or ValueError further on, a damaged page a ``sqlite3.DatabaseError``)."""
+RAW_ERRORS = (sqlite3.DatabaseError, json.JSONDecodeError)
+"""What damaged data raises past the store's own checks (which raise :class:`DataError` naming the
+table and row): a damaged page (``sqlite3.DatabaseError``) or JSON parsed outside the store. Any
+other exception is a bug of the console, not damage, and is not dressed up as one."""
 
 
 @contextmanager
