@@ -106,8 +106,12 @@ def written_by(folder: str | Path) -> str | None:
 
 
 def clear(folder: Path) -> None:
-    """Remove everything inside ``folder`` (a checked output folder); links are removed, never followed."""
+    """Remove everything inside ``folder`` (a checked output folder) but its marker, so that a clear cut
+    short (a kill, a full disk) leaves a folder the same command still accepts; links are removed,
+    never followed."""
     for entry in folder.iterdir():
+        if entry.name == MARKER:
+            continue
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry)
         else:
