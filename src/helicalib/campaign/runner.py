@@ -47,6 +47,7 @@ from helicalib.campaign.controller import (
 from helicalib.campaign.events import STORED, BoardState, RunEvent, Snapshot
 from helicalib.campaign.sensor import SpotSensor, camera_sensors
 from helicalib.devices.clock import ClockJumpError
+from helicalib.devices.protocols import FieldStowedError
 from helicalib.devices.registers import FieldCommand, HeliostatState
 from helicalib.errors import HelicalibError, PlantError, StorageError
 from helicalib.geometry.heliostat import HeliostatModel
@@ -109,32 +110,6 @@ def storage_error(err: BaseException) -> bool:
     if isinstance(err, OSError) and not isinstance(err, (ConnectionError, TimeoutError)):
         return err.errno in (errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT)
     return False
-
-
-class _StowGuard:
-    """The plant as a visit sees it: no move or track command while the field is stowed for wind.
-
-    The weather job may stow the field while a tick waits on a slow device (:mod:`.live`); the
-    visit that tick steps must not take its heliostat out of the stow when the device answers. A
-    refused command ends the visit as a plant fault; the next tick ends the visits under way."""
-
-    def __init__(self, runner):
-        self._runner, self._plant = runner, runner.plant
-
-    def __getattr__(self, name):
-        return getattr(self._plant, name)
-
-    def _refuse_in_stow(self, index: int, what: str) -> None:
-        if self._runner.stowed:
-            raise PlantError(f"heliostat {index}: {what} not sent: the field is stowed for wind")
-
-    def move_to(self, index, strokes_mm):
-        self._refuse_in_stow(index, "move command")
-        return self._plant.move_to(index, strokes_mm)
-
-    def track(self, index, corrections_mm):
-        self._refuse_in_stow(index, "track command")
-        return self._plant.track(index, corrections_mm)
 
 
 @dataclass
@@ -281,7 +256,6 @@ class CampaignRunner:
         """Failed writes to the database in a row (reset by a write that succeeds)."""
         self.storage_lost: str | None = None
         """Set (one line) after :data:`STORAGE_RETRIES` failed writes in a row: a live run stops."""
-        self._visit_plant = _StowGuard(self)
         self.operator = None  # operator actions: a campaign.operator.OperatorDesk (armed live runs: console.server)
         if operation is not None and operation not in op_rules.OPERATION_MODES:
             raise ValueError(f"operation {operation!r}: choose one of {', '.join(op_rules.OPERATION_MODES)}")
@@ -765,7 +739,7 @@ class CampaignRunner:
         ctx = VisitContext(
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
             index=index, target=self.cfg.target(target_id), board=board,
-            sensor=self.sensors[target_id], plant=self._visit_plant, now=self.now, sun=self.sun,
+            sensor=self.sensors[target_id], plant=self.plant, now=self.now, sun=self.sun,
             model=self.models[hid], settings=self.check_settings if check else self.settings,
             time_slack_s=lambda: float(self.clock.uncertainty_s),
         )
@@ -998,11 +972,15 @@ class CampaignRunner:
                 self.corrections[ids[k]] = corr[k]
             ids, corr = [], corr[:0]
         for hid, c in zip(ids, corr):
+            if self.stowed:  # the weather job stowed the field meanwhile (the plant client refuses the rest)
+                break
             if not np.all(np.isfinite(c)):
                 continue
             try:
                 self.plant.track(self.cfg.heliostat_index(hid), c)
                 self.corrections[hid] = c
+            except FieldStowedError:
+                break
             except PlantError as err:
                 failed.append((hid, err))
         if failed:  # one line for a dead plant, not one per heliostat

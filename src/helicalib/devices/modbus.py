@@ -9,6 +9,12 @@ an unarmed client reads and plans but never writes to the plant.
 
 A heliostat command is written as the contract asks: the command fields first, then a sequence
 number different from the one in the register, which the plant acts on.
+
+The client is the field's stow gate: once it has sent STOW ALL, it refuses every move and track
+command (:class:`~helicalib.devices.protocols.FieldStowedError`) until it sends RESUME TRACKING.
+Field commands and heliostat commands take one lock, so a stow sent from another thread (the
+weather job) never lands between a command's fields and its sequence number, and no command
+already waiting is sent after it.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from helicalib.devices import registers as R
-from helicalib.devices.protocols import HeliostatStatus, Weather
+from helicalib.devices.protocols import FieldStowedError, HeliostatStatus, Weather
 from helicalib.errors import PlantError
 
 log = logging.getLogger(__name__)
@@ -210,7 +216,8 @@ class ModbusPlant:
         self._ids = list(heliostat_ids) if heliostat_ids is not None else None
         self._limits = None if stroke_limits_mm is None else np.asarray(stroke_limits_mm, dtype=float)
         self._last_sent: dict[int, int] = {}
-        self._seq_lock = threading.Lock()
+        self._seq_lock = threading.Lock()  # a heliostat command's writes, or a field command, at a time
+        self._stowed = False
 
     @classmethod
     def from_config(cls, cfg, *, armed: bool = False, **kw) -> "ModbusPlant":
@@ -304,11 +311,22 @@ class ModbusPlant:
                                fault=regs[R.OFF_FAULT], strokes_mm=(s1, s2), cleanliness=clean)
 
     # ------------------------------------------------------------------ writes
+    @property
+    def stowed(self) -> bool:
+        """Whether this client sent STOW ALL and no RESUME TRACKING since (moves and tracks are refused)."""
+        return self._stowed
+
     def field_command(self, command: int) -> None:
-        """Field command: 1 stow all, 2 resume tracking all."""
+        """Field command: 1 stow all (from then on every move and track command is refused), 2 resume
+        tracking all (the gate opens again)."""
         cmd = R.FieldCommand(int(command))
         self._refuse_unarmed(f"field command {cmd.name}")
-        self.scs.write(R.REG_FIELD_COMMAND, [int(cmd)], f"field command {cmd.name}")
+        with self._seq_lock:  # after the heliostat command in flight, before any waiting one
+            self.scs.write(R.REG_FIELD_COMMAND, [int(cmd)], f"field command {cmd.name}")
+            if cmd == R.FieldCommand.STOW_ALL:
+                self._stowed = True
+            elif cmd == R.FieldCommand.RESUME_TRACKING:
+                self._stowed = False
 
     def _next_sequence(self, index: int, regs: list[int]) -> int:
         """A sequence number the plant sees as new: one past the register's value (and past ours)."""
@@ -323,6 +341,8 @@ class ModbusPlant:
         what = f"{command.name} command to {self._label(index)}"
         self._refuse_unarmed(what)
         with self._seq_lock:
+            if self._stowed and command in (R.HeliostatCommand.MOVE, R.HeliostatCommand.TRACK):
+                raise FieldStowedError(f"{what} not sent: the field is stowed for wind")
             regs = self._block(index)
             seq = self._next_sequence(index, regs)
             base = R.heliostat_address(index)

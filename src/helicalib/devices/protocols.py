@@ -12,6 +12,12 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from helicalib.devices.registers import FieldState, HeliostatState
+from helicalib.errors import PlantError
+
+
+class FieldStowedError(PlantError):
+    """A move or track command the plant client refused because this controller stowed the field
+    for wind (the plant answered nothing: nothing was sent)."""
 
 
 @dataclass(frozen=True)
