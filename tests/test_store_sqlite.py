@@ -310,3 +310,22 @@ def test_a_batched_store_commits_at_flush_and_close_and_reads_its_own_writes(tmp
     s.begin_visit(cid, "H0001", "T1", 2.0)
     s.close()  # the last batch is committed on close
     assert visits_seen_by_another_reader() == 2
+
+
+def test_progress_of_more_heliostats_than_sqlite_takes_parameters(store, monkeypatch):
+    """A SQLite built with a small parameter limit (the default is 32 766): the progress of a field with
+    more heliostats than that reads in chunks instead of failing with 'too many SQL variables'."""
+    import sqlite3
+
+    import helicalib.store.sqlite as sq
+
+    n = 120
+    cid = store.start_campaign(name="big", mode="simulate", started_s=0.0,
+                               heliostats=[(f"H{i:04d}", i, "T1") for i in range(n)])
+    for i in range(n):
+        vid = store.begin_visit(cid, f"H{i:04d}", "T1", 1.0)
+        store.record_observation(_obs(cid, vid, hid=f"H{i:04d}", error=0.01 * i))
+    store._conn.setlimit(sqlite3.SQLITE_LIMIT_VARIABLE_NUMBER, 100)  # as a small build would have it
+    monkeypatch.setattr(sq, "PARAMS_PER_QUERY", 50)
+    rows = store.progress(cid)
+    assert [r["last_error_mrad"] for r in rows] == pytest.approx([0.01 * i for i in range(n)])

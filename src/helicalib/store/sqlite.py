@@ -603,9 +603,12 @@ class Store:
             FROM heliostats h WHERE h.campaign_id = ? ORDER BY h.block_index
             """, (int(campaign_id),), table="heliostats")
         last = [r["last_valid_id"] for r in rows if r["last_valid_id"] is not None]
-        errors = {r["id"]: r["error_mrad"] for r in self._read(
-            f"SELECT id, error_mrad FROM observations WHERE id IN ({', '.join('?' * len(last))})", last,
-            table="observations")} if last else {}
+        errors = {}
+        for i in range(0, len(last), PARAMS_PER_QUERY):  # SQLite builds may allow as few as 32 766 ?-parameters
+            chunk = last[i:i + PARAMS_PER_QUERY]
+            errors.update({r["id"]: r["error_mrad"] for r in self._read(
+                f"SELECT id, error_mrad FROM observations WHERE id IN ({', '.join('?' * len(chunk))})", chunk,
+                table="observations")})
         verdicts = self.latest_verdicts(campaign_id)
         out = []
         for r in rows:
@@ -619,6 +622,10 @@ class Store:
 
 
 # ---------------------------------------------------------------------- helpers
+PARAMS_PER_QUERY = 10_000
+"""Bound parameters in one ``IN (...)`` list (SQLite's default limit is 32 766)."""
+
+
 def _recorded_folder(images_dir: Path, db: Path) -> str:
     """How a campaign records its frames folder: relative to the database's folder when inside it
     (it moves with the database), else absolute."""
