@@ -28,17 +28,28 @@ def _write(path: Path, data: dict) -> Path:
 
 # ------------------------------------------------------------------------------ intervals
 def test_an_rms_interval_is_never_negative():
-    rms = [0.2, 3.0]                                    # two seeds far apart, as in a sweep of few runs
+    rms = [0.2, 3.0, 0.4]                               # three seeds far apart, as in a sweep of few runs
     x = np.array(rms)
-    half = stats.t.ppf(0.975, 1) * x.std(ddof=1) / math.sqrt(2)
+    n = len(rms)
+    half = stats.t.ppf(0.975, n - 1) * x.std(ddof=1) / math.sqrt(n)
     assert x.mean() - half < 0                          # what the plain t-interval said
     got = mean_interval(rms, "positive")
     y = np.log(x)
     v = y.var(ddof=1)
-    h = stats.t.ppf(0.975, 1) * math.sqrt(v / 2 + v * v / 2)
+    h = stats.t.ppf(0.975, n - 1) * math.sqrt(v / n + v * v / (2 * (n - 1)))
     assert got["ci95"] == pytest.approx([math.exp(y.mean() + v / 2 - h), math.exp(y.mean() + v / 2 + h)])
     assert 0 < got["ci95"][0] < got["mean"] < got["ci95"][1]
-    assert got["interval"] == "log-t" and got["mean"] == pytest.approx(1.6)
+    assert got["interval"] == "log-t" and got["mean"] == pytest.approx(1.2)
+
+
+def test_two_seeds_get_the_t_interval_cut_at_0_and_nothing_overflows():
+    """With two values the logarithms' variance has one degree of freedom: the log interval spans
+    dozens of orders of magnitude ([0.05, 3.0] gave [6e-34, 1e36]), or overflows a float."""
+    got = mean_interval([0.05, 3.0], "positive")
+    half = stats.t.ppf(0.975, 1) * np.std([0.05, 3.0], ddof=1) / math.sqrt(2)
+    assert got["interval"] == "t, cut at 0" and got["ci95"] == pytest.approx([0.0, 1.525 + half])
+    wide = mean_interval([1e-300, 1.0, 1e-300], "positive")  # three seeds, but exp() would overflow
+    assert wide["interval"] == "t, cut at 0" and all(math.isfinite(v) for v in wide["ci95"])
 
 
 def test_a_share_interval_stays_between_0_and_1():

@@ -37,6 +37,11 @@ INTERVAL = ("95 % interval for the mean over seeds, n = runs with a value (scipy
             "(RMS, days, visit rates) log-scale t-interval for a log-normal mean, "
             "exp(ȳ + s²/2 ± t(0.975, n-1)·√(s²/n + s⁴/(2(n-1)))) over y = ln x (with a 0 among the values: "
             "mean ± t(0.975, n-1)·s/√n cut at 0); shares: mean ± t(0.975, n-1)·s/√n cut to [0, 1]")
+MIN_LOG_T = 3
+"""Fewest values for the log-scale interval of a positive figure: with two, the variance of the logs
+has one degree of freedom and the interval spans orders of magnitude (e.g. 0.05 and 3.0 gave
+[6e-34, 1e36]); two values get the t-interval cut at 0."""
+
 NOTHING_ACCEPTED = "no heliostat accepted in any seed"
 """A cell's ``note`` when none of its finished runs accepted a heliostat."""
 
@@ -69,13 +74,16 @@ def mean_interval(values, scale: str | None = None) -> dict:
         return {"n": 1, "mean": mean, "sd": None, "ci95": None, "interval": None}
     sd = float(np.std(x, ddof=1))
     t = float(stats.t.ppf(0.975, x.size - 1))
-    if scale == "positive" and np.all(x > 0):
+    if scale == "positive" and x.size >= MIN_LOG_T and np.all(x > 0):
         y = np.log(x)
         var = float(np.var(y, ddof=1))
         centre = float(np.mean(y)) + var / 2.0
         half = t * math.sqrt(var / x.size + var * var / (2.0 * (x.size - 1)))
-        return {"n": int(x.size), "mean": mean, "sd": sd, "ci95": [math.exp(centre - half), math.exp(centre + half)],
-                "interval": "log-t"}
+        try:
+            return {"n": int(x.size), "mean": mean, "sd": sd,
+                    "ci95": [math.exp(centre - half), math.exp(centre + half)], "interval": "log-t"}
+        except OverflowError:  # seeds orders of magnitude apart: the plain interval below, cut at 0
+            pass
     half = t * sd / math.sqrt(x.size)
     low, high = mean - half, mean + half
     if scale == "positive":
