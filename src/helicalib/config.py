@@ -900,9 +900,8 @@ def _cross_check(cfg: FieldConfig, heliostat_loc: str) -> list[str]:
     problems += _in_front_of_their_boards(cfg, heliostat_loc)
     problems += _apart_from_each_other(cfg, heliostat_loc)
     if cfg.cameras:  # a field without any camera describes a plant (an import) and is not run
-        aimed = {h.target for h in cfg.heliostats}  # a spare board no heliostat aims at may wait for its camera
         for i, t in enumerate(cfg.targets):
-            if t.id in aimed and not cfg.cameras_for(t.id):
+            if not cfg.cameras_for(t.id):
                 problems.append(f"targets[{i}]: no camera looks at target {_short(t.id)} (give it one in cameras[], "
                                 "with target: " + t.id + "); every board is measured by its camera")
     problems += _beams_off_other_boards(cfg)
