@@ -248,3 +248,50 @@ def test_sim_field_overwrites_only_what_it_wrote(tmp_path, capsys):
     assert main(["sim-field", "--n", "3", "--site", "35,10", "--out", str(out)]) == 0
     assert main(["sim-field", "--n", "4", "--site", "35,10", "--out", str(out)]) == 0     # its own: overwritten
     assert len((tmp_path / "sim.csv").read_text().strip().splitlines()) == 5
+
+
+# ------------------------------------------------------------------------------ inputs inside the folder
+INSIDE = ("report-db", "report-field", "report-images", "export-paint-db", "export-paint-field", "import-paint",
+          "demo", "sweep")
+
+
+@pytest.mark.parametrize("case", INSIDE)
+def test_a_folder_holding_the_commands_input_is_refused_before_it_is_cleared(case, tmp_path, capsys, campaign):
+    """A folder the command would replace (or, for sweep, whose run folders it would clear) may not hold
+    what the command reads: it would be deleted first and the command would fail on a missing input."""
+    import shutil
+
+    import yaml
+
+    command = case.split("-db")[0].split("-field")[0].split("-images")[0]
+    out = prepare(tmp_path / "rv", command)
+    if case.endswith("-db"):
+        given = out / "my.db"
+        shutil.copy(campaign, given)
+        argv = [command, given, "--no-frames", "--out", out]
+    elif case.endswith("-field"):
+        given = out / "field.yaml"
+        shutil.copy(FIELD, given)
+        argv = [command, campaign, "--field", given, "--no-frames", "--out", out]
+    elif case == "report-images":
+        given = out / "images"
+        given.mkdir()
+        argv = ["report", campaign, "--images", given, "--no-frames", "--out", out]
+    elif case == "import-paint":
+        given = out / "paint"
+        shutil.copytree(PAINT, given)
+        argv = ["import-paint", given, "--out", out]
+    elif case == "demo":
+        given = out / "field.yaml"
+        shutil.copy(FIELD, given)
+        argv = ["demo", given, "--days", "0.01", "--out", out]
+    else:
+        given = out / "cells" / "s.yaml"
+        given.parent.mkdir()
+        given.write_text(yaml.safe_dump(SWEEP), encoding="utf-8")
+        argv = ["sweep", given, "--workers", "1", "--out", out]
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    line = _one_error_line(capsys, argv, command)
+    assert line == (f"helicalib {command}: error: --out {out}: holds {given}, an input of this command, which clearing "
+                    "the folder would delete; give a folder that holds none of the inputs")
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before

@@ -11,7 +11,8 @@ command's name). Anything else is refused with one line, before a file is touche
 So are folders no command may ever own: the working directory and any folder that holds it (``.``,
 ``..``, ``/``), the home folder, and a path that is a file. With ``replace=True`` the folder's
 contents go (a fresh output: ``demo``, ``report``, ``export-paint``, ``import-paint``); without,
-they stay (``simulate`` resumes its campaign, ``sweep`` skips its finished runs).
+they stay (``simulate`` resumes its campaign, ``sweep`` skips its finished runs). A folder that holds
+one of the command's own inputs (``report --out d d/my.db``) is refused too, before it is cleared.
 
 :func:`check_file_output` is the same rule for a command that writes files rather than a folder
 (``sim-field --out FIELD.yaml``): a file is overwritten only when the same command wrote it.
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Iterable
 from pathlib import Path
 
 from helicalib.errors import ConfigError, StorageError
@@ -33,7 +35,7 @@ SHOWN = 3
 
 
 def prepare(path: str | Path, command: str, *, replace: bool = False, option: str = "--out",
-            advice: str = ADVICE) -> Path:
+            advice: str = ADVICE, inputs: Iterable = ()) -> Path:
     """Make ``path`` the output folder of ``command`` (module docstring) and return it.
 
     Parameters
@@ -48,6 +50,9 @@ def prepare(path: str | Path, command: str, *, replace: bool = False, option: st
         The option that named the folder, for the error lines.
     advice : str
         What the error lines tell the user to do.
+    inputs : iterable of str or Path
+        The files and folders the command reads (None skipped): refused when one is inside the
+        folder (:func:`refuse_inputs`), where ``replace`` would delete it before it is read.
 
     Raises
     ------
@@ -56,7 +61,7 @@ def prepare(path: str | Path, command: str, *, replace: bool = False, option: st
     StorageError
         The folder cannot be created or cleared (permissions, a full disk).
     """
-    folder = check(path, command, option=option, advice=advice)
+    folder = check(path, command, option=option, advice=advice, inputs=inputs)
     try:
         if replace and folder.is_dir():
             clear(folder)
@@ -68,9 +73,10 @@ def prepare(path: str | Path, command: str, *, replace: bool = False, option: st
     return folder
 
 
-def check(path: str | Path, command: str, *, option: str = "--out", advice: str = ADVICE) -> Path:
-    """Refuse ``path`` as ``command``'s output folder unless it is new, empty or marked as its output;
-    touches nothing. Returns the path."""
+def check(path: str | Path, command: str, *, option: str = "--out", advice: str = ADVICE,
+          inputs: Iterable = ()) -> Path:
+    """Refuse ``path`` as ``command``'s output folder unless it is new, empty or marked as its output,
+    and when it holds one of ``inputs`` (:func:`refuse_inputs`); touches nothing. Returns the path."""
     folder = Path(path).expanduser()
     _refuse_special(folder, path, option, advice)
     if folder.is_file() or (folder.exists() and not folder.is_dir()):
@@ -82,6 +88,7 @@ def check(path: str | Path, command: str, *, option: str = "--out", advice: str 
         entries = sorted(os.listdir(folder))
     except OSError as err:
         raise StorageError(f"{option} {path}: cannot read the folder ({err.strerror or err})") from None
+    refuse_inputs(folder, inputs, path, option)
     owner = written_by(folder)
     if not entries or owner == command:
         return folder
@@ -91,6 +98,25 @@ def check(path: str | Path, command: str, *, option: str = "--out", advice: str 
     shown = ", ".join(entries[:SHOWN]) + (f" and {len(entries) - SHOWN} more" if len(entries) > SHOWN else "")
     raise ConfigError(f"{option} {path}: folder exists and is not a helicalib {command} output (it holds {shown}); "
                       f"{advice}")
+
+
+def refuse_inputs(folder: str | Path, inputs: Iterable, given, option: str = "--out") -> None:
+    """Refuse ``folder`` in one line when one of ``inputs`` (paths a command reads; None skipped) is the
+    folder or inside it, links resolved: clearing the folder would delete the input before it is read."""
+    try:
+        real = Path(folder).expanduser().resolve()
+    except (OSError, RuntimeError):
+        return                                    # check() says what is wrong with the folder itself
+    for item in inputs:
+        if item is None:
+            continue
+        try:
+            where = Path(item).expanduser().resolve()
+        except (OSError, RuntimeError):
+            continue                              # the command's own checks name an unreadable input
+        if where.is_relative_to(real):
+            raise ConfigError(f"{option} {given}: holds {item}, an input of this command, which clearing the "
+                              "folder would delete; give a folder that holds none of the inputs")
 
 
 def written_by(folder: str | Path) -> str | None:

@@ -38,7 +38,8 @@ def run(args) -> int:
 
     console = Console(stderr=True, soft_wrap=True)   # whole lines in a log, not 80-column pieces
     load_field_config(args.field)                     # a bad field is said before the folder is touched
-    out = prepare(args.out, "demo", replace=True)     # only an empty folder or a previous demo's is replaced
+    out = prepare(args.out, "demo", replace=True,     # only an empty folder or a previous demo's is replaced
+                  inputs=(args.field,))
     console.print(f"[bold]helicalib demo[/]: a {args.days:g}-day calibration campaign on {args.field}, against the "
                   "simulated plant (hidden errors, weather, camera); every frame and observation goes to "
                   f"{out}/helicalib.db")

@@ -66,7 +66,8 @@ def run(args) -> int:
     from helicalib.realdata.paint_export import DEFAULT_INCREMENT_STEPS_PER_M, write_export
     from helicalib.store.sqlite import Store, existing_database
 
-    store = Store.open(existing_database(args.db), args.images, readonly=True)
+    db = existing_database(args.db)
+    store = Store.open(db, args.images, readonly=True)
     try:
         campaigns = store.campaigns()
         if not campaigns:
@@ -84,7 +85,8 @@ def run(args) -> int:
     if not rows:
         raise ConfigError(f"{args.db}: campaign {campaign.id} has no valid observation to export")
     increment = args.increment or DEFAULT_INCREMENT_STEPS_PER_M
-    out = prepare(args.out, "export-paint", replace=True)   # only an empty folder or a previous export is replaced
+    out = prepare(args.out, "export-paint", replace=True,   # only an empty folder or a previous export is replaced
+                  inputs=(db, field, args.images))
     with ProgressReporter("export-paint", len(rows), transient=args.json) as bar:
         summary = write_export(cfg, rows, out, frames=None if args.no_frames else frames,
                                increment_steps_per_m=increment,

@@ -89,7 +89,8 @@ def run(args) -> int:
         sources = ", ".join(str(d) for d in args.dirs)
         problems = [f"{sources}: the imported field would not be valid: {p}" for p in exc.problems]
         raise ConfigError("\n".join(problems), problems=problems) from None
-    out = prepare(args.out, "import-paint", replace=True)  # only an empty folder or a previous import is replaced
+    out = prepare(args.out, "import-paint", replace=True,  # only an empty folder or a previous import is replaced
+                  inputs=args.dirs)
     cfg = write_field_config(data, out / "field.yaml")
     comments = [f"helicalib import-paint from {', '.join(str(d) for d in args.dirs)}",
                 f"spot centre: {args.spot}; plant reference WGS84 {list(imp.tower.reference_llh)}",

@@ -35,7 +35,8 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     db = _check_inputs(args)                              # before the folder is touched
-    out = prepare(args.out, "report", replace=True)       # only an empty folder or a previous report is replaced
+    out = prepare(args.out, "report", replace=True,       # only an empty folder or a previous report is replaced
+                  inputs=(db, args.field, args.images))
     index = build_report(db, out, args.campaign, field_config=args.field, images_dir=args.images,
                          frames=not args.no_frames, jobs=args.jobs, timezone=args.timezone)
     rep = json.loads((index.parent / "report.json").read_text())

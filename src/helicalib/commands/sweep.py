@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import sys
+from pathlib import Path
 
 from helicalib.commands._args import int_in
 
@@ -32,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args) -> int:
     from helicalib.commands._progress import ProgressReporter
     from helicalib.errors import ConfigError
-    from helicalib.outdir import check, prepare
+    from helicalib.outdir import check, prepare, refuse_inputs
     from helicalib.sweep import engine, results
     from helicalib.sweep.spec import load_sweep
 
@@ -41,6 +42,8 @@ def run(args) -> int:
     _say_reading(args.sweep)
     sweep = load_sweep(args.sweep)
     check(args.out, "sweep")
+    # each unfinished run's folder under OUT/cells is cleared before it runs
+    refuse_inputs(Path(args.out) / "cells", _inputs(sweep), args.out)
     runs = _lay_out(sweep, args.out, quiet=args.json)
     out = prepare(args.out, "sweep")     # never cleared: a rerun skips the finished runs
     (out / "sweep.yaml").write_text(sweep.source.read_text(encoding="utf-8-sig"), encoding="utf-8")
@@ -93,6 +96,11 @@ def run(args) -> int:
               "run the sweep again to retry them", file=sys.stderr)
         return 1
     return 0
+
+
+def _inputs(sweep) -> list:
+    """The files a sweep reads: the sweep file, its field config and its scenarios."""
+    return [sweep.source, sweep.cfg.source, *(sweep.source.parent / rel for rel in sweep.spec.scenarios or [])]
 
 
 def _write_failures(path, failures: dict) -> None:
