@@ -145,3 +145,52 @@ def test_a_full_disk_stops_the_run_safely_with_one_line_and_status_4(field, smal
         assert sim.state[int(hid[1:]) - 1] in (HeliostatState.TRACKING, HeliostatState.MOVING), hid
     assert f"exit status {EXIT_STORAGE}" in last
     assert "Traceback" not in out.err
+
+
+def test_a_frames_folder_that_cannot_be_written_stops_the_run_with_status_4(field, capsys):
+    """The database takes every record but no frame can be written (the images folder read-only or
+    on a full disk): each visit's fault is recorded, yet the run gives up after a few and exits 4
+    (a written fault line must not count as a write that succeeded)."""
+    path, _start, sim = field
+    img = path.parent / "img"
+    img.mkdir()
+    state = {}
+
+    def watch():  # a run that never gives up: stop it (the test then fails)
+        if not state.get("done"):
+            time.sleep(90.0)
+        if not state.get("done"):
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with _immutable(img):
+        threading.Thread(target=watch, daemon=True).start()
+        code = main(["run", str(path), "--arm", "--heliostats", "H0001,H0021", "--days", "1"])
+        state["done"] = True
+    out = capsys.readouterr()
+    assert code == EXIT_STORAGE, (code, out.err[-2000:])
+    last = out.err.strip().splitlines()[-1]
+    assert last.startswith("helicalib run: error: ") and "img" in last and "went back to tracking" in last, last
+    from helicalib.devices.registers import HeliostatState
+
+    for hid in ("H0001", "H0021"):  # the field is safe: no beam left on a board
+        assert sim.state[int(hid[1:]) - 1] in (HeliostatState.TRACKING, HeliostatState.MOVING), hid
+    assert "Traceback" not in out.err
+
+
+def test_a_storage_failure_whose_fault_line_cannot_be_written_counts_once(cfg, tmp_path):
+    from campaign_helpers import inprocess_campaign
+    from helicalib.errors import StorageError
+
+    runner, _sim, store, _cid, _cams = inprocess_campaign(cfg, tmp_path, 9, 3, ["H0001"])
+    full = StorageError(f"database {store.path}: cannot be written (database or disk is full)")
+
+    def refuse(**_kw):
+        raise full
+
+    store.record_event = refuse  # the disk is full: the fault line's own write fails too
+    lines = []
+    runner.listeners.append(lines.append)
+    runner.storage_failed(full)
+    store.close()
+    assert runner.storage_errors == 1
+    assert [e.kind for e in lines] == ["fault"]  # still said once, to the listeners

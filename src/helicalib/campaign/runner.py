@@ -59,8 +59,8 @@ WEATHER_POLL_S = 60.0
 WEATHER_MAX_AGE_S = 3 * WEATHER_POLL_S
 """A weather reading older than this [plant s] opens no gate: calibration waits for a fresh one."""
 STORAGE_RETRIES = 5
-"""Failed writes to the database (full disk, read-only file) in a row, with no write succeeding
-between them, after which a live run gives up: every beam leaves its board and goes back to
+"""Failed writes to the database or its frames folder (full disk, read-only file or folder), with
+no observation stored with its frames between them, after which a live run gives up: every beam leaves its board and goes back to
 tracking, and the process exits with :data:`helicalib.campaign.session.EXIT_STORAGE`."""
 CLEANLINESS_MAX_AGE_S = 1800.0
 """The gaps planner re-reads a heliostat's cleanliness register when its last read is this old
@@ -253,7 +253,9 @@ class CampaignRunner:
         """Set (one line) when the plant's clock jumped backwards during the run: no visit starts and a
         live run stops (:mod:`.live`)."""
         self.storage_errors = 0
-        """Failed writes to the database in a row (reset by a write that succeeds)."""
+        """Failed writes to the database or its frames folder with no observation stored with its
+        frames since (a fault line the database takes is no proof that frames can be written)."""
+        self._storage_fault = False  # the storage's fault line is being written (its own failure is the same one)
         self.storage_lost: str | None = None
         """Set (one line) after :data:`STORAGE_RETRIES` failed writes in a row: a live run stops."""
         self.operator = None  # operator actions: a campaign.operator.OperatorDesk (armed live runs: console.server)
@@ -361,7 +363,6 @@ class CampaignRunner:
                 self.store.record_event(campaign_id=self.campaign_id, time_s=ev.time_s, kind=kind, reason=reason,
                                         heliostat_id=heliostat_id, data=dict(ev.data, clock=source)
                                         if source != "plant" else ev.data or None)
-                self.storage_errors = 0
             except Exception as err:  # noqa: BLE001 - a full disk must not break the step that records (a stow)
                 if not storage_error(err):
                     raise
@@ -374,8 +375,11 @@ class CampaignRunner:
         return ev
 
     def _record(self, obs, **frames) -> int:
-        """Store an observation (frames first), then tell the listeners."""
+        """Store an observation (frames first), then tell the listeners. An observation stored with its
+        after frames is the write that proves the storage works again (:attr:`storage_errors`)."""
         obs_id = self.store.record_observation(obs, **frames)
+        if frames.get("after_frames"):
+            self.storage_errors = 0
         if obs.iteration >= 0:
             self._boards[obs.target_id] = BoardState(
                 obs.target_id, obs.heliostat_id, obs.iteration, obs.error_mrad if obs.valid else None,
@@ -421,11 +425,17 @@ class CampaignRunner:
     def storage_failed(self, err) -> None:
         """A write to the database failed (full disk, read-only): the first is one ``fault`` line,
         :data:`STORAGE_RETRIES` in a row set :attr:`storage_lost` (a live run then stops)."""
+        if self._storage_fault:  # the fault line's own write failed: the same failure, counted once
+            return
         self.storage_errors += 1
         where = str(err) if isinstance(err, StorageError) else \
             f"database {self.store.path}: cannot be written ({type(err).__name__}: {err})"
         if self.storage_errors == 1:
-            self.event("fault", f"{where}; trying again", data={"storage": True})
+            self._storage_fault = True
+            try:
+                self.event("fault", f"{where}; trying again", data={"storage": True})
+            finally:
+                self._storage_fault = False
         elif self.storage_errors >= STORAGE_RETRIES and self.storage_lost is None:
             self.storage_lost = f"{where} after {self.storage_errors} attempts"
 
