@@ -295,3 +295,18 @@ def test_a_folder_holding_the_commands_input_is_refused_before_it_is_cleared(cas
     assert line == (f"helicalib {command}: error: --out {out}: holds {given}, an input of this command, which clearing "
                     "the folder would delete; give a folder that holds none of the inputs")
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
+
+
+# ------------------------------------------------------------------------------ demo checks before it replaces
+def test_demo_checks_what_simulate_checks_before_replacing_its_folder(tmp_path, capsys):
+    """A field without cameras (a PAINT import) passes the field config's own checks but not simulate's:
+    the previous demo's output stays as it was."""
+    imported = tmp_path / "imported"
+    assert main(["import-paint", str(PAINT), "--out", str(imported), "--json"]) == 0
+    capsys.readouterr()
+    out = prepare(tmp_path / "rv_demo", "demo")
+    (out / "summary.json").write_text('{"visits": 3}')
+    line = _one_error_line(capsys, ["demo", imported / "field.yaml", "--out", out], "demo")
+    assert "cameras: none given" in line
+    assert (out / "summary.json").read_text() == '{"visits": 3}'
+    assert written_by(out) == "demo"

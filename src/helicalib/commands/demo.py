@@ -33,11 +33,15 @@ def run(args) -> int:
     from helicalib.commands import simulate as sim_cmd
     from helicalib.commands._progress import DEFAULT_INTERVAL_S
 
-    from helicalib.config import load_field_config
     from helicalib.outdir import prepare
 
     console = Console(stderr=True, soft_wrap=True)   # whole lines in a log, not 80-column pieces
-    load_field_config(args.field)                     # a bad field is said before the folder is touched
+    # through simulate's own parser, so every simulate option keeps its default
+    parser = argparse.ArgumentParser(prog="helicalib")
+    sim_cmd.register(parser.add_subparsers())
+    sim_args = parser.parse_args(["simulate", str(args.field), "--days", repr(float(args.days)), "--seed",
+                                  str(args.seed), "--out", str(args.out), "--report"])
+    inputs = sim_cmd.read_inputs(sim_args)            # every input simulate checks, before the folder is touched
     out = prepare(args.out, "demo", replace=True,     # only an empty folder or a previous demo's is replaced
                   inputs=(args.field,))
     console.print(f"[bold]helicalib demo[/]: a {args.days:g}-day calibration campaign on {args.field}, against the "
@@ -45,13 +49,7 @@ def run(args) -> int:
                   f"{out}/helicalib.db")
     console.print(f"this takes {_duration_hint(args.days)}, then the report is built; progress follows "
                   f"(a line every {DEFAULT_INTERVAL_S:g} s when the output is not a terminal)")
-    # through simulate's own parser, so every simulate option keeps its default
-    parser = argparse.ArgumentParser(prog="helicalib")
-    sim_cmd.register(parser.add_subparsers())
-    sim_args = parser.parse_args(["simulate", str(args.field), "--days", repr(float(args.days)), "--seed",
-                                  str(args.seed), "--out", str(out), "--report"])
-    sim_args.output_ready = True                      # the demo's folder, checked and marked above
-    sim_cmd.run(sim_args)
+    sim_cmd.run_campaign(sim_args, inputs, out)
     summary = json.loads((out / "summary.json").read_text())
     console.print(f"report: {out / 'report' / 'index.html'}  (open it in a browser)")
     console.print(f"next: helicalib status {out / 'helicalib.db'}   ·   helicalib report {out / 'helicalib.db'} "

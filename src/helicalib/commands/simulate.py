@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 from helicalib.commands._args import add_spots, float_in, iso_time, nonnegative_int, positive_float
 
@@ -52,15 +55,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    from pathlib import Path
+@dataclass(frozen=True)
+class Inputs:
+    """What a simulated campaign reads, checked (:func:`read_inputs`)."""
 
-    from helicalib.simulation import simulate_campaign
-    from helicalib.commands._progress import ProgressReporter, timed_step
+    cfg: Any
+    scenario: Any
+    start_s: float | None
+    heliostat_ids: list[str] | None
+
+
+def read_inputs(args) -> Inputs:
+    """The field config (with cameras), ``--days``, the scenario (and ``--drift-share``), ``--start`` and
+    ``--heliostats``, checked: a ConfigError here comes before any folder is touched (``demo`` calls
+    this before it replaces its folder too)."""
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError
     from helicalib.geometry.sun import parse_time, to_unix_seconds
-    from helicalib.outdir import prepare
     from helicalib.sim.scenario import load_scenario
 
     cfg = load_field_config(args.field)
@@ -75,7 +86,24 @@ def run(args) -> int:
     if ids:
         for hid in ids:
             cfg.heliostat(hid)
-    out = Path(args.out) if getattr(args, "output_ready", False) else prepare(args.out, "simulate")
+    return Inputs(cfg, scenario, start_s, ids)
+
+
+def run(args) -> int:
+    from helicalib.outdir import prepare
+
+    inputs = read_inputs(args)
+    return run_campaign(args, inputs, prepare(args.out, "simulate"))
+
+
+def run_campaign(args, inputs: Inputs, out: Path) -> int:
+    """The campaign of ``args`` into ``out`` (checked and marked by the caller), then its summary and
+    report."""
+    from helicalib.simulation import simulate_campaign
+    from helicalib.commands._progress import ProgressReporter, timed_step
+    from helicalib.outdir import prepare
+
+    cfg, scenario, start_s, ids = inputs.cfg, inputs.scenario, inputs.start_s, inputs.heliostat_ids
     with ProgressReporter("simulate", args.days * 86400.0, transient=args.json) as bar:
         state = {"t0": None}
 
