@@ -310,3 +310,23 @@ def test_demo_checks_what_simulate_checks_before_replacing_its_folder(tmp_path, 
     assert "cameras: none given" in line
     assert (out / "summary.json").read_text() == '{"visits": 3}'
     assert written_by(out) == "demo"
+
+
+def test_simulate_refuses_a_report_folder_of_the_users_before_the_campaign(tmp_path, capsys):
+    out = prepare(tmp_path / "sim", "simulate")
+    (out / "report").mkdir()
+    (out / "report" / "notes").write_text("mine")
+    line = _one_error_line(capsys, ["simulate", FIELD, "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001",
+                                    "--out", out, "--report"], "simulate")
+    assert line == (f"helicalib simulate: error: --out {out / 'report'}: folder exists and is not a helicalib report "
+                    "output (it holds notes); give an empty or new folder")
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "report"]  # nothing run, nothing written
+    assert (out / "report" / "notes").read_text() == "mine"
+    field = out / "report" / "field.yaml"                               # nor one holding simulate's input
+    (out / "report" / "notes").unlink()
+    field.write_text(FIELD.read_text())
+    line = _one_error_line(capsys, ["simulate", field, "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001",
+                                    "--out", out, "--report"], "simulate")
+    assert line.endswith(f"--out {out / 'report'}: holds {field}, an input of this command, which clearing the folder "
+                         "would delete; give a folder that holds none of the inputs")
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "report"]

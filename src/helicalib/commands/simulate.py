@@ -90,9 +90,12 @@ def read_inputs(args) -> Inputs:
 
 
 def run(args) -> int:
-    from helicalib.outdir import prepare
+    from helicalib.outdir import check, prepare
 
     inputs = read_inputs(args)
+    check(args.out, "simulate")
+    if args.report:   # OUT/report is replaced after the campaign: a folder that may not be is refused now
+        check(Path(args.out) / "report", "report", inputs=(args.field, args.scenario))
     return run_campaign(args, inputs, prepare(args.out, "simulate"))
 
 
