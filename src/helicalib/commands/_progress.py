@@ -91,7 +91,7 @@ class ProgressReporter:
         if self.terminal:
             from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-            self._bar = Progress(TextColumn(f"[bold]{self.label}[/]"), BarColumn(), TextColumn("{task.description}"),
+            self._bar = Progress(TextColumn(f"[bold]{self.label}[/]"), BarColumn(), TextColumn("{task.description}", markup=False),
                                  TimeElapsedColumn(), TimeRemainingColumn(), console=self.console,
                                  transient=self.transient)
             self._bar.start()

@@ -29,6 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args) -> int:
     from rich.console import Console
+    from rich.markup import escape
 
     from helicalib.commands import simulate as sim_cmd
     from helicalib.commands._progress import DEFAULT_INTERVAL_S
@@ -44,16 +45,17 @@ def run(args) -> int:
     inputs = sim_cmd.read_inputs(sim_args)            # every input simulate checks, before the folder is touched
     out = prepare(args.out, "demo", replace=True,     # only an empty folder or a previous demo's is replaced
                   inputs=(args.field,))
-    console.print(f"[bold]helicalib demo[/]: a {args.days:g}-day calibration campaign on {args.field}, against the "
-                  "simulated plant (hidden errors, weather, camera); every frame and observation goes to "
-                  f"{out}/helicalib.db")
+    # paths are the user's text, never rich markup (a folder named 'o[/]' is a folder, not a closing tag)
+    console.print(f"[bold]helicalib demo[/]: a {args.days:g}-day calibration campaign on {escape(str(args.field))}, "
+                  "against the simulated plant (hidden errors, weather, camera); every frame and observation goes "
+                  f"to {escape(str(out / 'helicalib.db'))}")
     console.print(f"this takes {_duration_hint(args.days)}, then the report is built; progress follows "
                   f"(a line every {DEFAULT_INTERVAL_S:g} s when the output is not a terminal)")
     sim_cmd.run_campaign(sim_args, inputs, out)
     summary = json.loads((out / "summary.json").read_text())
-    console.print(f"report: {out / 'report' / 'index.html'}  (open it in a browser)")
+    console.print(f"report: {out / 'report' / 'index.html'}  (open it in a browser)", markup=False)
     console.print(f"next: helicalib status {out / 'helicalib.db'}   ·   helicalib report {out / 'helicalib.db'} "
-                  f"--out {out / 'report'}")
+                  f"--out {out / 'report'}", markup=False)
     return 0 if summary["visits"] > 0 else 1
 
 
