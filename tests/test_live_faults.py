@@ -24,6 +24,7 @@ from helicalib.campaign import live
 from helicalib.campaign.runner import Returning
 from helicalib.cli import main
 from helicalib.config import load_field_config
+from helicalib.devices.protocols import PlantUnreachableError
 from helicalib.devices.registers import HeliostatState
 from helicalib.errors import PlantError
 from helicalib.store.sqlite import Store
@@ -188,8 +189,9 @@ def test_a_failed_visits_record_points_to_its_before_frame(cfg, tmp_path):
 
 
 class _Outage:
-    """The in-process plant, but every call fails while plant time is in [t0, t1) (a blackout), and
-    ``track`` fails for the first ``refuse_track`` calls (a plant that does not take the return)."""
+    """The in-process plant, but every call fails while plant time is in [t0, t1) (a blackout: no
+    answer, as the Modbus client says it), and ``track`` is refused for the first ``refuse_track``
+    calls (a plant that answers but does not take the return)."""
 
     def __init__(self, sim, refuse_track: int = 0):
         self.sim, self.t0, self.t1, self.refuse_track = sim, float("inf"), float("inf"), refuse_track
@@ -201,7 +203,7 @@ class _Outage:
 
         def call(*args, **kw):
             if self.t0 <= self.sim.t_s < self.t1:
-                raise PlantError("plant 127.0.0.1:5020 unit 1: no answer (blackout)")
+                raise PlantUnreachableError("plant 127.0.0.1:5020 unit 1: no answer (blackout)")
             if name == "track" and self.refuse_track > 0:
                 self.refuse_track -= 1
                 raise PlantError("plant 127.0.0.1:5020 unit 1: write of tracking corrections refused")

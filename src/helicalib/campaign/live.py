@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner, storage_error
 from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.modbus import quiet_pymodbus
-from helicalib.errors import HelicalibError, PlantError
+from helicalib.devices.protocols import PlantUnreachableError
+from helicalib.errors import HelicalibError
 
 TICK_PLANT_S = 2.0
 """Plant seconds between ticks (the visit loop's status-poll granularity)."""
@@ -63,11 +64,14 @@ def _guarded(runner: CampaignRunner, what: str, fn) -> None:
         if storage_error(err):
             runner.storage_failed(err)
             return
-        if isinstance(err, PlantError):  # a plant that does not answer: said once per job and loss
+        if isinstance(err, PlantUnreachableError):  # a plant that does not answer: said once per job and loss
             runner.plant_failed(f"{what}: {err}")
             if runner.said_once(what):
                 return
-        _fault(runner, f"{what}: {err}")
+            _fault(runner, f"{what}: {err}")
+            return
+        # the plant (or a device) answered with a refusal: reachable; one line while the reason stays
+        _recorded(lambda: runner.job_failed(what, f"{what}: {err}"), f"{what}: {err}")
     except Exception as err:  # noqa: BLE001 - a job must never die, nor print a traceback each retry
         if storage_error(err):  # a full disk, a read-only database: counted, one line (the run stops after a few)
             runner.storage_failed(err)
@@ -79,11 +83,19 @@ def _guarded(runner: CampaignRunner, what: str, fn) -> None:
         except OSError:
             pass
         _fault(runner, f"{what}: internal error {type(err).__name__}: {err} (traceback in {log})")
+    else:  # the job's next refusal is news again
+        if runner.job_fault:
+            runner.job_fault.pop(what, None)
 
 
 def _fault(runner: CampaignRunner, reason: str) -> None:
+    _recorded(lambda: runner.event("fault", reason), reason)
+
+
+def _recorded(record, reason: str) -> None:
+    """``record()`` the fault line ``reason``, or print it on stderr if even that fails."""
     try:
-        runner.event("fault", reason)
+        record()
     except Exception:  # noqa: BLE001 - even the store may be gone (full disk): say it on stderr, once a line
         _quietly(lambda: print(f"helicalib: fault (not recorded): {reason}", file=sys.stderr, flush=True))
 

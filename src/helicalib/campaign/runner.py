@@ -47,7 +47,7 @@ from helicalib.campaign.controller import (
 from helicalib.campaign.events import STORED, BoardState, RunEvent, Snapshot
 from helicalib.campaign.sensor import SpotSensor, camera_sensors
 from helicalib.devices.clock import ClockJumpError
-from helicalib.devices.protocols import FieldStowedError
+from helicalib.devices.protocols import FieldStowedError, PlantUnreachableError
 from helicalib.devices.registers import FieldCommand, HeliostatState
 from helicalib.errors import HelicalibError, PlantError, StorageError
 from helicalib.geometry.heliostat import HeliostatModel
@@ -245,9 +245,17 @@ class CampaignRunner:
         self.plant_unreachable_since_s: float | None = None
         """Plant time (the controller's estimate) since which the plant has not answered (its clock or
         weather could not be read); None while it answers. No visit starts meanwhile."""
+        self._lost_links: dict[str, float] = {}
+        """Each link that does not answer (``"scs"``: the plant's clock and commands, ``"weather"``) and
+        since when; a link is back only when a read over that same link succeeds."""
+        self.state_lock = threading.RLock()
+        """Held while the tick's thread or the weather job changes state both read (stowed, the last
+        poll, the plant's reachability, the storage and clock faults); never across a device's reply."""
         self.weather_time_s: float | None = None
         """Plant time of the weather reading behind :attr:`last_weather`."""
         self._said_lost: set[str] = set()  # jobs that said the plant failed them during this loss
+        self.job_fault: dict[str, str] = {}
+        """Each job's last fault line (:meth:`job_failed`), until the job succeeds."""
         self._weather_lock = threading.Lock()  # one weather poll at a time (the tick's or the weather job's)
         self.clock_jump: str | None = None
         """Set (one line) when the plant's clock jumped backwards during the run: no visit starts and a
@@ -393,38 +401,70 @@ class CampaignRunner:
         return obs_id
 
     # ------------------------------------------------------------------ faults of the plant and the database
-    def plant_failed(self, err) -> bool:
-        """The plant did not answer (its clock or weather): the first time, ONE ``plant_lost`` event
-        and :attr:`plant_unreachable_since_s` set; returns whether this was news."""
-        if self.plant_unreachable_since_s is not None:
-            return False
-        self.plant_unreachable_since_s = since = self.clock.estimate_s()
-        self.event("plant_lost", f"plant not answering ({err}); no visit starts until it answers",
-                   data={"since_s": since})
-        return True
+    def plant_failed(self, err, link: str = "scs") -> bool:
+        """The plant did not answer over ``link`` (``"scs"``: its clock, ``"weather"``): the first lost
+        link gives ONE ``plant_lost`` event and sets :attr:`plant_unreachable_since_s`; returns
+        whether this was news. (A plant that answered with a refusal is reachable: not this.)"""
+        with self.state_lock:
+            if link in self._lost_links:
+                return False
+            since = self._lost_links[link] = self.clock.estimate_s()
+            if self.plant_unreachable_since_s is not None:  # another link is lost already: said
+                return False
+            self.plant_unreachable_since_s = since
+            self.event("plant_lost", f"plant not answering ({err}); no visit starts until it answers",
+                       data={"since_s": since})
+            return True
 
-    def plant_answered(self, now: float) -> None:
-        """The plant answered a read: after a loss, ONE ``plant_back`` event with how long it was lost."""
-        since = self.plant_unreachable_since_s
-        if since is None:
+    def plant_answered(self, now: float, link: str = "scs") -> None:
+        """A read over ``link`` succeeded: once no link is lost any more, ONE ``plant_back`` event with
+        how long the plant was unreachable."""
+        with self.state_lock:
+            if self._lost_links.pop(link, None) is None or self._lost_links:
+                return
+            since = self.plant_unreachable_since_s
+            self.plant_unreachable_since_s = None
+            self._said_lost.clear()
+            lost = max(0.0, now - since)
+            self.event("plant_back", f"plant answers again after {_duration(lost)} unreachable", time_s=now,
+                       data={"lost_s": lost})
+
+    def job_failed(self, job: str, reason: str, time_s: float | None = None) -> None:
+        """``job`` failed with ``reason`` (the plant refused, a device said no): a ``fault`` line,
+        but only when the reason differs from the job's last one (:attr:`job_fault`; a job that
+        succeeds clears it), not one a tick."""
+        with self.state_lock:
+            if self.job_fault.get(job) == reason:
+                return
+            self.job_fault[job] = reason
+        self.event("fault", reason, time_s=time_s)
+
+    def probe_scs(self, now: float) -> None:
+        """While the plant's SCS link is lost: one read of its field state; an answer ends the loss."""
+        try:
+            self.plant.field_state()
+        except PlantUnreachableError:
             return
-        self.plant_unreachable_since_s = None
-        self._said_lost.clear()
-        lost = max(0.0, now - since)
-        self.event("plant_back", f"plant answers again after {_duration(lost)} unreachable", time_s=now,
-                   data={"lost_s": lost})
+        except PlantError:  # a refusal is an answer
+            pass
+        self.plant_answered(now, link="scs")
 
     def said_once(self, job: str) -> bool:
         """Whether ``job`` already said, during this loss of the plant, that the plant failed it
         (its next failures are silent until the plant answers again); marks it as said."""
-        if job in self._said_lost:
-            return True
-        self._said_lost.add(job)
-        return False
+        with self.state_lock:
+            if job in self._said_lost:
+                return True
+            self._said_lost.add(job)
+            return False
 
     def storage_failed(self, err) -> None:
         """A write to the database failed (full disk, read-only): the first is one ``fault`` line,
         :data:`STORAGE_RETRIES` in a row set :attr:`storage_lost` (a live run then stops)."""
+        with self.state_lock:
+            self._storage_failed(err)
+
+    def _storage_failed(self, err) -> None:
         if self._storage_fault:  # the fault line's own write failed: the same failure, counted once
             return
         self.storage_errors += 1
@@ -441,6 +481,10 @@ class CampaignRunner:
 
     def clock_jumped(self, err) -> None:
         """The plant's clock jumped backwards: ONE fault line; no visit starts (a live run stops)."""
+        with self.state_lock:
+            self._clock_jumped(err)
+
+    def _clock_jumped(self, err) -> None:
         if self.clock_jump is not None:
             return
         self.clock_jump = (f"{err}: no visit starts; the run stops and every beam goes back to tracking. Check the "
@@ -521,6 +565,8 @@ class CampaignRunner:
 
     def tick(self, now: float) -> float:
         """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
+        if self._lost_links and "scs" in self._lost_links:  # does the plant's SCS answer again?
+            self.probe_scs(now)
         if self.operator is not None:  # operator actions (campaign/operator.py): the crew's requests first
             self.operator.apply(self, now)
         if self.stowed and self.active:  # stowed by the weather job while this tick's thread waited on a device
@@ -613,14 +659,21 @@ class CampaignRunner:
             self._weather_lock.release()
 
     def _weather_now(self, now: float, preempt: bool) -> None:
-        self.last_poll_s = now
+        with self.state_lock:
+            self.last_poll_s = now
         try:
             w = self.plant.weather()
-        except PlantError as err:
-            self.plant_failed(f"weather: {err}")  # one line for the loss, not one per poll
+        except PlantUnreachableError as err:
+            self.plant_failed(f"weather: {err}", link="weather")  # one line for the loss, not one per poll
             return
-        self.last_weather, self.weather_time_s = w, now
-        self.plant_answered(now)
+        except PlantError as err:  # the weather station answered with a refusal: reachable, one line a change
+            self.plant_answered(now, link="weather")
+            self.job_failed("weather station", f"weather: {err}", now)
+            return
+        self.job_fault.pop("weather station", None)
+        with self.state_lock:
+            self.last_weather, self.weather_time_s = w, now
+        self.plant_answered(now, link="weather")
         g = gating_mod.gate_field(w.wind_ms, w.dni_wm2, self.cfg.gating, stowed=self.stowed)
         if g.stow and not self.stowed:
             if preempt:
@@ -631,8 +684,9 @@ class CampaignRunner:
             try:
                 if self.armed:
                     self.plant.field_command(FieldCommand.RESUME_TRACKING)
-                self.stowed = False
-                self.event("resume", g.reason)
+                with self.state_lock:
+                    self.stowed = False
+                    self.event("resume", g.reason)
             except PlantError as err:
                 self.event("fault", f"resume: {err}")
 
@@ -643,16 +697,18 @@ class CampaignRunner:
     def _stow_field(self, now: float, reason: str) -> bool:
         """Stow the whole field (armed) or say what a dry run would do; returns whether it is stowed."""
         if not self.armed:  # reads and plans only: say what it would do
-            self.event("note", f"not armed: would stow the field ({reason})", time_s=now)
-            self.stowed = True
+            with self.state_lock:
+                self.stowed = True
+                self.event("note", f"not armed: would stow the field ({reason})", time_s=now)
             return True
         try:
             self.plant.field_command(FieldCommand.STOW_ALL)
         except PlantError as err:
             self.event("fault", f"stow: {err}")
             return False
-        self.stowed = True
-        self.event("stow", reason)
+        with self.state_lock:
+            self.stowed = True
+            self.event("stow", reason)
         return True
 
     def _abort_visits(self, now: float, why: str) -> None:

@@ -4,7 +4,8 @@
 endpoint's timeout; a lost connection, a timeout or a garbled answer is retried with exponential
 back-off after closing and reopening the connection; a Modbus exception answer (a refused read or
 write) is not retried. Failures raise :class:`~helicalib.errors.PlantError` naming the endpoint,
-the register (address and meaning) and the heliostat. Writes are refused unless ``armed=True``:
+the register (address and meaning) and the heliostat; a plant that did not answer at all raises
+its subclass :class:`~helicalib.devices.protocols.PlantUnreachableError`. Writes are refused unless ``armed=True``:
 an unarmed client reads and plans but never writes to the plant.
 
 A heliostat command is written as the contract asks: the command fields first, then a sequence
@@ -30,7 +31,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from helicalib.devices import registers as R
-from helicalib.devices.protocols import FieldStowedError, HeliostatStatus, Weather
+from helicalib.devices.protocols import FieldStowedError, HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.errors import PlantError
 
 log = logging.getLogger(__name__)
@@ -122,7 +123,7 @@ class ModbusLink:
 
     def _call(self, what: str, fn: Callable[[ModbusTcpClient], object]):
         if self._monotonic() < self._down_until:
-            raise PlantError(f"plant {self.name}: {what} not sent: the plant did not answer a moment ago "
+            raise PlantUnreachableError(f"plant {self.name}: {what} not sent: the plant did not answer a moment ago "
                              f"({self._down_reason})")
         delay = self.backoff_s
         last = "no attempt"
@@ -151,7 +152,7 @@ class ModbusLink:
             return rr
         self._down_until = self._monotonic() + self.down_s
         self._down_reason = last
-        raise PlantError(f"plant {self.name}: {what} failed after {attempts} attempt{'s' * (attempts > 1)} ({last})")
+        raise PlantUnreachableError(f"plant {self.name}: {what} failed after {attempts} attempt{'s' * (attempts > 1)} ({last})")
 
     def read(self, address: int, count: int, what: str) -> list[int]:
         """``count`` holding registers from ``address``; ``what`` names them in errors."""

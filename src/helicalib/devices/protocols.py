@@ -15,6 +15,12 @@ from helicalib.devices.registers import FieldState, HeliostatState
 from helicalib.errors import PlantError
 
 
+class PlantUnreachableError(PlantError):
+    """The plant did not answer (connection refused or lost, timeouts, every attempt failed). A
+    plant that answered with a refusal (a Modbus exception reply) raises a plain
+    :class:`~helicalib.errors.PlantError`: it is reachable."""
+
+
 class FieldStowedError(PlantError):
     """A move or track command the plant client refused because this controller stowed the field
     for wind (the plant answered nothing: nothing was sent)."""
