@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from helicalib.cli import main
+from helicalib.errors import ConfigError
 from helicalib.outdir import MARKER, prepare, written_by
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,7 +82,7 @@ def test_demo_refuses_a_folder_that_is_not_its_output(tmp_path, capsys, monkeypa
     (tmp_path / "p" / "notes").write_text("mine")
     line = _one_error_line(capsys, ["demo", FIELD, "--out", "p"], "demo")
     assert line == ("helicalib demo: error: --out p: folder exists and is not a helicalib demo output (it holds "
-                    "notes); give an empty or new folder")
+                    "notes); give an empty or new folder (or move this one aside: mv p p.old)")
     assert sorted(p.name for p in (tmp_path / "p").iterdir()) == ["notes"]
 
 
@@ -94,7 +95,8 @@ def test_a_folder_of_the_users_is_refused_and_kept(command, tmp_path, capsys, ca
         (out / name).write_text(name)
     line = _one_error_line(capsys, _argv(command, out, campaign, sweep_file), command)
     assert line == (f"helicalib {command}: error: --out {out}: folder exists and is not a helicalib {command} output "
-                    "(it holds a.txt, b.txt, c.txt and 1 more); give an empty or new folder")
+                    f"(it holds a.txt, b.txt, c.txt and 1 more); give an empty or new folder (or move this one aside: "
+                    f"mv {out} {out}.old)")
     assert sorted(p.name for p in out.iterdir()) == ["a.txt", "b.txt", "c.txt", "d.txt"]
 
 
@@ -319,7 +321,8 @@ def test_simulate_refuses_a_report_folder_of_the_users_before_the_campaign(tmp_p
     line = _one_error_line(capsys, ["simulate", FIELD, "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001",
                                     "--out", out, "--report"], "simulate")
     assert line == (f"helicalib simulate: error: --out {out / 'report'}: folder exists and is not a helicalib report "
-                    "output (it holds notes); give an empty or new folder")
+                    f"output (it holds notes); give an empty or new folder (or move this one aside: mv {out / 'report'} "
+                    f"{out / 'report'}.old)")
     assert sorted(p.name for p in out.iterdir()) == [MARKER, "report"]  # nothing run, nothing written
     assert (out / "report" / "notes").read_text() == "mine"
     field = out / "report" / "field.yaml"                               # nor one holding simulate's input
@@ -330,3 +333,113 @@ def test_simulate_refuses_a_report_folder_of_the_users_before_the_campaign(tmp_p
     assert line.endswith(f"--out {out / 'report'}: holds {field}, an input of this command, which clearing the folder "
                          "would delete; give a folder that holds none of the inputs")
     assert sorted(p.name for p in out.iterdir()) == [MARKER, "report"]
+
+
+# ------------------------------------------------------------------------------ folders written before the marker
+def _legacy_campaign(tmp_path, campaign: Path, name: str) -> Path:
+    """A demo output as helicalib wrote it before the marker: the campaign's files and a report folder."""
+    import shutil
+
+    out = tmp_path / name
+    shutil.copytree(campaign.parent, out)
+    (out / MARKER).unlink()
+    report = out / "report"
+    (report / "plots").mkdir(parents=True)
+    (report / "heliostats").mkdir()
+    (report / "index.html").write_text("<!DOCTYPE html>\n<html></html>\n")
+    (report / "report.json").write_text(json.dumps({"status": {}, "summary": {"visits": 1}}))
+    return out
+
+
+def test_a_demo_output_written_before_the_marker_is_replaced(tmp_path, campaign):
+    import shutil
+
+    from helicalib.outdir import check
+
+    out = _legacy_campaign(tmp_path, campaign, "demo_out")
+    assert check(out / "report", "report") == out / "report"
+    prepare(out, "demo", replace=True)
+    assert sorted(p.name for p in out.iterdir()) == [MARKER] and written_by(out) == "demo"
+
+
+def test_a_simulate_output_written_before_the_marker_is_resumed(tmp_path, capsys, campaign):
+    import shutil
+
+    sim = _legacy_campaign(tmp_path, campaign, "sim")
+    shutil.rmtree(sim / "report")
+    before = sorted(p.relative_to(sim) for p in sim.rglob("*"))
+    # not a demo's (an old demo always wrote its report): refused, untouched
+    line = _one_error_line(capsys, ["demo", FIELD, "--days", "0.01", "--out", sim], "demo")
+    assert "is not a helicalib demo output" in line
+    assert prepare(sim, "simulate") == sim and written_by(sim) == "simulate"   # resumed: nothing cleared
+    assert sorted(p.relative_to(sim) for p in sim.rglob("*")) == sorted(before + [Path(MARKER)])
+
+
+def test_an_old_sweep_and_its_run_folders_are_taken_up(tmp_path):
+    import yaml
+
+    from helicalib.outdir import check
+    from helicalib.sweep.spec import load_sweep
+    from helicalib.sweep.task import RUN_OUTPUT
+
+    out = tmp_path / "sweep_out"
+    file = tmp_path / "s.yaml"
+    file.write_text(yaml.safe_dump(SWEEP), encoding="utf-8")
+    run = load_sweep(file).runs(out)[0]
+    folder = Path(run.run_dir)
+    folder.mkdir(parents=True)
+    (out / "sweep.yaml").write_text(file.read_text())
+    (out / "results.csv").write_text("cell,seed\n")
+    (out / "summary.json").write_text(json.dumps({"cells": {}, "runs": {}}))
+    assert check(out, "sweep") == out
+    assert prepare(out, "sweep") == out and written_by(out) == "sweep"
+    assert (out / "results.csv").read_text() == "cell,seed\n"
+    # an interrupted run of then: its log and database, no result; taken up only with a real database
+    (folder / "run.log").write_text("")
+    (folder / "helicalib.db").write_bytes(b"not a database")
+    with pytest.raises(ConfigError, match="not a helicalib sweep run output"):
+        prepare(folder, RUN_OUTPUT, replace=True, option="run folder")
+    (folder / "helicalib.db").unlink()
+    _real_database(folder / "helicalib.db")
+    prepare(folder, RUN_OUTPUT, replace=True, option="run folder")
+    assert sorted(p.name for p in folder.iterdir()) == [MARKER]
+
+
+def _real_database(path: Path) -> None:
+    from helicalib.store.sqlite import Store
+
+    Store.open(path, path.parent / "images").close()
+
+
+@pytest.mark.parametrize("extra", ["notes.txt", "no summary", "not a database", "no report", "a link"])
+def test_only_the_old_layout_itself_is_taken_up(extra, tmp_path, capsys, campaign):
+    out = _legacy_campaign(tmp_path, campaign, "demo_out")
+    if extra == "notes.txt":
+        (out / "notes.txt").write_text("mine")
+    elif extra == "no summary":                     # a plant's database and frames: never a demo's
+        (out / "summary.json").unlink()
+    elif extra == "not a database":
+        (out / "helicalib.db").write_text("SQLite format 3 is what this file says, not what it is")
+    elif extra == "no report":
+        __import__("shutil").rmtree(out / "report")
+    else:
+        (out / "images").mkdir(exist_ok=True)
+        (out / "images" / "c1").symlink_to(tmp_path, target_is_directory=True)
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    line = _one_error_line(capsys, ["demo", FIELD, "--days", "0.01", "--out", out], "demo")
+    assert line.startswith(f"helicalib demo: error: --out {out}: folder exists and is not a helicalib demo output (it "
+                           "holds ")
+    assert line.endswith(f"; give an empty or new folder (or move this one aside: mv {out} {out}.old)")
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
+
+
+def test_an_import_written_before_the_marker_is_replaced(tmp_path, capsys):
+    from helicalib.outdir import check
+
+    out = tmp_path / "imported"
+    assert main(["import-paint", str(PAINT), "--out", str(out), "--json"]) == 0
+    (out / MARKER).unlink()
+    assert check(out, "import-paint") == out
+    (out / "notes").write_text("mine")
+    with pytest.raises(ConfigError, match="not a helicalib import-paint output"):
+        check(out, "import-paint")
