@@ -15,7 +15,7 @@ import pytest
 
 from helicalib.cli import main
 from helicalib.errors import ConfigError
-from helicalib.outdir import MARKER, prepare, written_by
+from helicalib.outdir import MARKER, check, prepare, written_by
 
 ROOT = Path(__file__).resolve().parents[1]
 FIELD = ROOT / "field_config" / "demo_north.yaml"
@@ -35,10 +35,11 @@ def _one_error_line(capsys, argv, command: str) -> str:
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> Path:
-    """A tiny simulated campaign (fast sensor, one heliostat, 0.05 plant days): its database."""
+    """A tiny simulated campaign (fast sensor, one heliostat, 0.05 plant days) with its report
+    (``--report``): its database."""
     out = tmp_path_factory.mktemp("outputs") / "sim"
     assert main(["simulate", str(FIELD), "--fidelity", "fast", "--days", "0.05", "--heliostats", "H0001",
-                 "--start", "2026-06-01T02:00:00Z", "--out", str(out), "--json"]) == 0
+                 "--start", "2026-06-01T02:00:00Z", "--out", str(out), "--report", "--json"]) == 0
     assert written_by(out) == "simulate"
     return out / "helicalib.db"
 
@@ -183,15 +184,18 @@ def test_export_and_import_replace_their_previous_output(tmp_path, capsys, campa
 
 def test_the_demos_report_folder_can_be_rebuilt_by_report(tmp_path, capsys, campaign):
     """simulate --report marks OUT/report as a report, so the demo's suggested rebuild is accepted."""
+    import shutil
+
     out = tmp_path / "sim"
-    assert main(["simulate", str(FIELD), "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001",
-                 "--start", "2026-06-01T02:00:00Z", "--out", str(out), "--report", "--json"]) == 0
+    shutil.copytree(campaign.parent, out)                      # the fixture's simulate --report output
     assert written_by(out) == "simulate" and written_by(out / "report") == "report"
+    (out / "report" / "heliostats" / "H9999.html").write_text("a heliostat of an older report")
     assert main(["report", str(out / "helicalib.db"), "--out", str(out / "report"), "--no-frames", "--jobs", "1"]) == 0
+    assert not (out / "report" / "heliostats" / "H9999.html").exists()
     # and simulate accepts its own folder again (the campaign resumes or a new one starts; nothing is cleared)
-    assert main(["simulate", str(FIELD), "--fidelity", "fast", "--days", "0.01", "--heliostats", "H0001",
-                 "--start", "2026-06-01T02:00:00Z", "--out", str(out), "--json"]) == 0
-    assert (out / "report" / "index.html").is_file()
+    assert check(out, "simulate") == out
+    assert prepare(out, "simulate") == out
+    assert (out / "report" / "index.html").is_file() and (out / "helicalib.db").is_file()
 
 
 def test_prepare_replaces_only_its_own_folder_and_never_follows_links(tmp_path):
@@ -212,7 +216,7 @@ def test_prepare_replaces_only_its_own_folder_and_never_follows_links(tmp_path):
 # ------------------------------------------------------------------------------ sweep runs, sim-field
 def test_a_sweep_run_folder_that_is_not_a_runs_is_never_cleared(tmp_path):
     from helicalib.sweep.spec import load_sweep
-    from helicalib.sweep.task import RunFailed, run_one
+    from helicalib.sweep.task import RUN_OUTPUT, RunFailed, finished_record, run_one
     import yaml
 
     file = tmp_path / "s.yaml"
@@ -227,11 +231,12 @@ def test_a_sweep_run_folder_that_is_not_a_runs_is_never_cleared(tmp_path):
     assert f"run folder {folder}: folder exists and is not a helicalib sweep run output (it holds notes)" in str(exc.value)
     assert (folder / "notes").read_text() == "mine"
     (folder / "notes").unlink()
-    record = run_one(run, sweep.cfg, sweep.scenarios[run.scenario])     # an empty folder is a run's
+    assert prepare(folder, RUN_OUTPUT, option="run folder") == folder   # an empty folder is a run's (marked)
     (folder / "stale").write_text("an interrupted run's file")
-    again = run_one(run, sweep.cfg, sweep.scenarios[run.scenario])      # its own folder starts afresh
+    record = run_one(run, sweep.cfg, sweep.scenarios[run.scenario])     # its own folder starts afresh
     assert not (folder / "stale").exists()
-    assert again["summary"] == record["summary"]
+    assert written_by(folder) == RUN_OUTPUT
+    assert finished_record(run) == record and record["summary"]["heliostats"] == 1
 
 
 def test_sim_field_overwrites_only_what_it_wrote(tmp_path, capsys):
@@ -341,7 +346,7 @@ def _legacy_campaign(tmp_path, campaign: Path, name: str) -> Path:
     import shutil
 
     out = tmp_path / name
-    shutil.copytree(campaign.parent, out)
+    shutil.copytree(campaign.parent, out, ignore=shutil.ignore_patterns("report"))
     (out / MARKER).unlink()
     report = out / "report"
     (report / "plots").mkdir(parents=True)
@@ -352,10 +357,6 @@ def _legacy_campaign(tmp_path, campaign: Path, name: str) -> Path:
 
 
 def test_a_demo_output_written_before_the_marker_is_replaced(tmp_path, campaign):
-    import shutil
-
-    from helicalib.outdir import check
-
     out = _legacy_campaign(tmp_path, campaign, "demo_out")
     assert check(out / "report", "report") == out / "report"
     prepare(out, "demo", replace=True)
@@ -378,7 +379,6 @@ def test_a_simulate_output_written_before_the_marker_is_resumed(tmp_path, capsys
 def test_an_old_sweep_and_its_run_folders_are_taken_up(tmp_path):
     import yaml
 
-    from helicalib.outdir import check
     from helicalib.sweep.spec import load_sweep
     from helicalib.sweep.task import RUN_OUTPUT
 
@@ -434,8 +434,6 @@ def test_only_the_old_layout_itself_is_taken_up(extra, tmp_path, capsys, campaig
 
 
 def test_an_import_written_before_the_marker_is_replaced(tmp_path, capsys):
-    from helicalib.outdir import check
-
     out = tmp_path / "imported"
     assert main(["import-paint", str(PAINT), "--out", str(out), "--json"]) == 0
     (out / MARKER).unlink()
