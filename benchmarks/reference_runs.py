@@ -322,6 +322,7 @@ class RunResult:
     differences: list[Difference] = field(default_factory=list)
     compared: dict[str, int] = field(default_factory=dict)
     note: str = ""
+    counts: dict[str, Any] = field(default_factory=dict)
 
     def add(self, diff: Difference, keep: int) -> None:
         self.count += 1
@@ -478,38 +479,82 @@ def compare_files(a: Side, b: Side, result: RunResult, keep: int) -> None:
             result.add(Difference(f"file:{rel}", None, "(bytes)", f"{len(ba)} bytes", f"{len(bb)} bytes"), keep)
 
 
-def live_facts(run_dir: Path) -> dict[str, Any]:
-    """What the live run is judged by: the observation counts (database and printed summary) and
-    every heliostat's verdicts (accepted or not, in order)."""
-    facts: dict[str, Any] = {}
+LIVE_SUMMARY_KEYS = ("status", "ended_because", "armed", "heliostats", "accepted")
+"""Keys of ``run --json``'s final summary line compared for the live run (none depends on timing)."""
+
+
+def _live_rows(run_dir: Path) -> tuple[list[tuple], list[tuple], dict[str, list]]:
+    """The live run's visits (heliostat, target, outcome, iterations, reason), observations (valid,
+    reason) and final verdicts per heliostat (accepted, points), in id order; empty without a database."""
     db = run_dir / "campaign.db"
-    if db.exists():
-        conn = _connect(db)
-        try:
-            facts["observations"] = conn.execute("SELECT COUNT(*) FROM observations").fetchone()[0]
-            facts["valid_observations"] = conn.execute("SELECT COUNT(*) FROM observations WHERE valid").fetchone()[0]
-            verdicts: dict[str, list[int]] = {}
-            for hid, accepted in conn.execute("SELECT heliostat_id, accepted FROM verdicts ORDER BY id"):
-                verdicts.setdefault(hid, []).append(accepted)
-            facts["final_verdicts"] = {h: bool(v[-1]) for h, v in sorted(verdicts.items())}
-        finally:
-            conn.close()
+    if not db.exists():
+        return [], [], {}
+    conn = _connect(db)
+    try:
+        visits = conn.execute("SELECT heliostat_id, target_id, outcome, iterations, reason FROM visits ORDER BY id").fetchall()
+        obs = conn.execute("SELECT valid, reason FROM observations ORDER BY id").fetchall()
+        verdicts = {h: [bool(a), n] for h, a, n in conn.execute(
+            "SELECT heliostat_id, accepted, n_points FROM verdicts ORDER BY id")}  # the newest wins
+    finally:
+        conn.close()
+    return visits, obs, verdicts
+
+
+def _live_summary(run_dir: Path) -> dict:
     out = run_dir / "run.stdout"
-    if out.exists():
-        lines = [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
-        summary = next((x for x in reversed(lines) if x.get("event") == "summary"), {})
-        for key in ("status", "ended_because", "armed", "heliostats", "accepted", "observations",
-                    "valid_observations"):
-            facts[f"summary.{key}"] = summary.get(key)
+    if not out.exists():
+        return {}
+    lines = [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
+    return next((x for x in reversed(lines) if x.get("event") == "summary"), {})
+
+
+def live_facts(run_dir: Path) -> dict[str, Any]:
+    """What the live run is judged by, none of it hanging on how fast the machine was: the summary's
+    status, reason to end, arming, heliostats and accepted count; that every observation is valid;
+    how the visits that the end of the run did not cut ended; each heliostat's final verdict."""
+    visits, obs, verdicts = _live_rows(run_dir)
+    summary = _live_summary(run_dir)
+    facts: dict[str, Any] = {f"summary.{k}": summary.get(k) for k in LIVE_SUMMARY_KEYS}
+    facts["invalid_observations"] = sum(1 for valid, _ in obs if not valid)
+    facts["invalid_reasons"] = sorted({reason for valid, reason in obs if not valid})
+    facts["outcomes_before_the_end"] = sorted({v[2] for v in visits if "campaign stopped" not in v[4]})
+    facts["final_verdict_accepted"] = {h: v[0] for h, v in sorted(verdicts.items())}
     return facts
 
 
+def live_counts(run_dir: Path) -> dict[str, Any]:
+    """The live run's counts, reported beside the facts but not compared (they follow real time)."""
+    visits, obs, verdicts = _live_rows(run_dir)
+    summary = _live_summary(run_dir)
+    return {"visits": len(visits), "observations": len(obs), "summary_observations": summary.get("observations"),
+            "heliostats_with_a_verdict": len(verdicts),
+            "visit_sequence": [f"{h}/{t}:{o}:{i}" for h, t, o, i, _ in visits]}
+
+
+def _common_prefix(a: list, b: list) -> int:
+    n = 0
+    for x, y in zip(a, b):
+        if x != y:
+            break
+        n += 1
+    return n
+
+
 def compare_live(a: Side, b: Side, result: RunResult, keep: int) -> None:
-    """The live run: only :func:`live_facts` (its timing follows real time; see the docs)."""
+    """The live run: :func:`live_facts` compared (heliostats with a verdict in one run only are left
+    out: which heliostats a 0.1-day run reaches depends on its speed); :func:`live_counts` reported."""
     fa, fb = live_facts(a.run_dir), live_facts(b.run_dir)
+    both = set(fa["final_verdict_accepted"]) & set(fb["final_verdict_accepted"])
+    for f in (fa, fb):
+        f["final_verdict_accepted"] = {h: v for h, v in f["final_verdict_accepted"].items() if h in both}
     result.compared["live facts"] = len(fa)
-    result.note = "live run: verdicts and observation counts only"
     compare_json("live", fa, fb, a, b, result, keep)
+    ca, cb = live_counts(a.run_dir), live_counts(b.run_dir)
+    same = _common_prefix(ca["visit_sequence"], cb["visit_sequence"])
+    result.note = (f"live run: timing-free facts only; not compared (real time): observations A {ca['observations']}"
+                   f" | B {cb['observations']}, visits A {ca['visits']} | B {cb['visits']}, the first {same} visits "
+                   f"alike (heliostat, board, outcome, iterations), {len(both)} heliostats with a verdict in both")
+    result.counts = {"a": ca, "b": cb, "common_visit_prefix": same, "heliostats_with_a_verdict_in_both": len(both)}
 
 
 def _manifest(root: Path) -> dict:
@@ -555,7 +600,7 @@ def compare(a_dir: Path, b_dir: Path, keep: int = 10) -> dict:
             compare_files(a, b, result, keep)
         report["runs"][name] = {"identical": result.count == 0, "count": result.count,
                                 "differences": [asdict(d) for d in result.differences],
-                                "compared": result.compared, "note": result.note,
+                                "compared": result.compared, "note": result.note, "counts": result.counts,
                                 "lines": [d.line() for d in result.differences]}
     report["identical"] = bool(report["runs"]) and all(r["identical"] for r in report["runs"].values())
     return report
@@ -566,7 +611,10 @@ def print_report(report: dict) -> None:
         tables = sum(1 for k in r["compared"] if not k.startswith("file:"))
         rows = sum(v for k, v in r["compared"].items() if not k.startswith("file:"))
         files = sum(1 for k in r["compared"] if k.startswith("file:"))
-        what = f"{tables} tables/facts, {rows} rows, {files} other files" + (f"; {r['note']}" if r["note"] else "")
+        if "live facts" in r["compared"]:
+            what = f"{r['compared']['live facts']} facts; {r['note']}"
+        else:
+            what = f"{tables} tables, {rows} rows, {files} other files"
         if r["identical"]:
             print(f"{name}: identical ({what})")
         else:
