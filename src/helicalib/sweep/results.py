@@ -35,8 +35,8 @@ SCALES = {"days_to_95": "positive", "acceptance_rate": "share", "true_sky_rms_ac
 """What values each figure can take: its interval keeps to them (module docstring)."""
 INTERVAL = ("95 % interval for the mean over seeds, n = runs with a value (scipy.stats.t): positive figures "
             "(RMS, days, visit rates) log-scale t-interval for a log-normal mean, "
-            "exp(ȳ + s²/2 ± t(0.975, n-1)·√(s²/n + s⁴/(2(n-1)))) over y = ln x (with a 0 among the values: "
-            "mean ± t(0.975, n-1)·s/√n cut at 0); shares: mean ± t(0.975, n-1)·s/√n cut to [0, 1]")
+            "exp(ȳ + s²/2 ± t(0.975, n-1)·√(s²/n + s⁴/(2(n-1)))) over y = ln x (with fewer than 3 values, a 0 among them or an "
+            "overflow: mean ± t(0.975, n-1)·s/√n cut at 0); shares: mean ± t(0.975, n-1)·s/√n cut to [0, 1]")
 MIN_LOG_T = 3
 """Fewest values for the log-scale interval of a positive figure: with two, the variance of the logs
 has one degree of freedom and the interval spans orders of magnitude (e.g. 0.05 and 3.0 gave
