@@ -562,14 +562,14 @@ def _manifest(root: Path) -> dict:
     return json.loads(path.read_text()) if path.exists() else {"runs": {}}
 
 
-def _argv_text(steps: list[dict], root: Path) -> list[str]:
+def _argv_text(steps: list[dict], repo: str) -> list[str]:
     """A run's commands as text, the interpreter and checkout left out (they may differ)."""
     out = []
     for s in steps:
         argv = list(s["argv"])
-        if argv[:3] == [argv[0], "-m", "helicalib"]:
+        if argv[1:3] == ["-m", "helicalib"]:
             argv = ["helicalib", *argv[3:]]
-        out.append(" ".join(a.replace(str(root), "<repo>") for a in argv))
+        out.append(" ".join(a.replace(repo, "<repo>") if repo else a for a in argv))
     return out
 
 
@@ -591,7 +591,7 @@ def compare(a_dir: Path, b_dir: Path, keep: int = 10) -> dict:
         result = RunResult(name)
         sa, sb = ma["runs"].get(name), mb["runs"].get(name)
         if sa and sb:
-            ca, cb = _argv_text(sa["steps"], Path(side_repo[0])), _argv_text(sb["steps"], Path(side_repo[1]))
+            ca, cb = _argv_text(sa["steps"], side_repo[0]), _argv_text(sb["steps"], side_repo[1])
             if ca != cb:  # a quick recording against a full one, say: not the same runs
                 result.add(Difference("manifest", None, "(commands)", ca, cb), keep)
         if name in live_names:

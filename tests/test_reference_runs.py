@@ -142,3 +142,15 @@ def test_the_live_run_is_judged_by_its_verdicts_not_by_its_real_time_counts(rr, 
     assert "live-arm: identical" in capsys.readouterr().out
     assert rr.main(["compare", str(a), str(live(tmp_path / "c", True, 5))]) == 1
     assert "live, final_verdict_accepted.H0001: A False | B True" in capsys.readouterr().out
+
+
+def test_recordings_of_different_commands_are_not_identical(rr, tmp_path, capsys):
+    # a --quick recording against a full one: the same tables, other runs; the manifests tell
+    a, b = _recording(tmp_path / "a"), _recording(tmp_path / "b")
+    for root, days in ((a, "0.28"), (b, "1")):
+        argv = ["/x/.venv/bin/python", "-m", "helicalib", "simulate", f"{root}/demo.yaml", "--days", days]
+        (root / "manifest.json").write_text(json.dumps({"repo": str(root), "runs": {"tiny": {"steps": [{"argv": argv}]}}}))
+    assert rr.main(["compare", str(a), str(b)]) == 1
+    out = capsys.readouterr().out
+    assert "manifest, (commands): A ['helicalib simulate <repo>/demo.yaml --days 0.28'] | B" in out
+    assert "tiny: 1 difference(s)" in out
