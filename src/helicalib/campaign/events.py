@@ -13,6 +13,8 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from helicalib.devices.clock import iso_utc  # noqa: F401 - the one UTC formatter, re-exported for the views
+
 STORED = frozenset({"stow", "resume", "gated", "ungated", "fault", "note", "tracking_written", "off_tracking",
                     "back_to_tracking", "campaign", "operator", "drift", "check", "plant_lost", "plant_back"})
 """Event kinds written to the store's events table (the others live in their own tables)."""
@@ -126,10 +128,6 @@ class Snapshot:
         body["off_tracking"] = list(self.off_tracking)
         out.update({k: _jsonable(v) for k, v in body.items()})
         return out
-
-
-def iso_utc(t_s: float) -> str:
-    return dt.datetime.fromtimestamp(float(t_s), tz=dt.timezone.utc).isoformat(timespec="seconds")
 
 
 def iso_local(t_s: float, tz: dt.tzinfo) -> str:

@@ -14,7 +14,8 @@ Three jobs run in a background scheduler (UTC, module-level callables, fixed ids
 Plant seconds become real seconds through the plant clock's rate (``plant.clock: plant`` reads
 the plant's time and rate registers). The main thread waits until ``until_s`` or Ctrl-C, then
 stops the jobs and hands every heliostat still in a visit back to tracking. A run also stops by
-itself, the field made safe the same way, when the plant's clock jumps backwards
+itself, the field made safe the same way, when the plant's clock jumps (backwards, or forwards
+beyond where it can be)
 (``reason="clock_jump"``) or the database cannot be written
 (:data:`~helicalib.campaign.runner.STORAGE_RETRIES` writes in a row, ``reason="storage"``).
 """
@@ -246,7 +247,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
         # the stop runs whatever ended the loop (the end time, Ctrl-C, a view that raised, a closed pipe)
         try:
             if result.reason in ("stopped", "clock_jump", "storage"):
-                why = {"stopped": "", "clock_jump": " (the plant's clock jumped backwards)",
+                why = {"stopped": "", "clock_jump": " (the plant's clock jumped)",
                        "storage": " (the database cannot be written)"}[result.reason]
                 _say(output, f"stopping{why}: finishing the step in progress, then every beam on a board leaves via "
                              "its standby point and goes back to tracking (Ctrl-C again to leave at once)")

@@ -258,8 +258,11 @@ class CampaignRunner:
         """Each job's last fault line (:meth:`job_failed`), until the job succeeds."""
         self._weather_lock = threading.Lock()  # one weather poll at a time (the tick's or the weather job's)
         self.clock_jump: str | None = None
-        """Set (one line) when the plant's clock jumped backwards during the run: no visit starts and a
-        live run stops (:mod:`.live`)."""
+        """Set (one line) when the plant's clock jumped (backwards, or forwards beyond where it can be)
+        during the run: no visit starts and a live run stops (:mod:`.live`)."""
+        self.clock_jump_hint = "; to go on from the plant's time, restart with --accept-clock-jump"
+        """What the clock-jump line tells the crew to do after checking the plant's clock (a command
+        without that option, ``check``, sets it empty)."""
         self.storage_errors = 0
         """Failed writes to the database or its frames folder with no observation stored with its
         frames since (a fault line the database takes is no proof that frames can be written)."""
@@ -480,7 +483,7 @@ class CampaignRunner:
             self.storage_lost = f"{where} after {self.storage_errors} attempts"
 
     def clock_jumped(self, err) -> None:
-        """The plant's clock jumped backwards: ONE fault line; no visit starts (a live run stops)."""
+        """The plant's clock jumped: ONE fault line; no visit starts (a live run stops)."""
         with self.state_lock:
             self._clock_jumped(err)
 
@@ -488,7 +491,7 @@ class CampaignRunner:
         if self.clock_jump is not None:
             return
         self.clock_jump = (f"{err}: no visit starts; the run stops and every beam goes back to tracking. Check the "
-                           "plant's clock; to go on from the plant's time, restart with --accept-clock-jump")
+                           f"plant's clock{self.clock_jump_hint}")
         self.event("fault", self.clock_jump, time_s=self.clock.estimate_s())
 
     # ------------------------------------------------------------------ back to tracking

@@ -39,7 +39,8 @@ EXIT_STORAGE = 4
 """The database could not be written during the run (full disk, read-only): after
 :data:`~helicalib.campaign.runner.STORAGE_RETRIES` attempts every beam went back to tracking."""
 EXIT_CLOCK_JUMP = 5
-"""The plant's clock jumped backwards during the run: every beam went back to tracking."""
+"""The plant's clock jumped (backwards, or forwards beyond where it can be) during the run: every
+beam went back to tracking."""
 
 CLOCK_BACK_TOLERANCE_S = 60.0
 """A resumed campaign's last record may lie this many plant seconds after the plant's time now
@@ -248,6 +249,8 @@ def live_session(args, mode: str) -> int:
                                 listeners=[output.on_event],  # a restart's own events are shown too
                                 operation=operation, rota_days=getattr(args, "rota_days", 14.0),
                                 spots_per_board=getattr(args, "spots_per_board", 1))
+        if mode == "check":  # check resumes nothing: no --accept-clock-jump to suggest
+            runner.clock_jump_hint = ""
         if operation and getattr(args, "keep_frames", None) is not None:
             runner.retention = (int(args.keep_frames), True)  # every night: frames of the newest N and the rejected
         output = attach_console(args, runner, output)  # operator actions; the crew console with --console
@@ -287,6 +290,8 @@ def _exit_status(summary: dict, result, runner, command: str) -> int:
     if result.reason == "clock_jump":
         print(f"helicalib {command}: error: {runner.clock_jump} (exit status {EXIT_CLOCK_JUMP})", file=sys.stderr)
         return EXIT_CLOCK_JUMP
+    if result.reason == "stopped":  # a clean stop (Ctrl-C, SIGTERM) is 0, whatever it measured
+        return 0
     if "rechecks" in summary and any(r["present_error_mrad"] is None for r in summary["rechecks"]):
         return EXIT_NOT_MEASURED
     return 0
@@ -314,9 +319,10 @@ def _summary(store, cfg, runner, opened: Opened, result, mode: str) -> dict:
     status = "stopped (not recorded: the database cannot be written)" if result.reason == "storage" else campaign.status
     out = {"event": "summary", "campaign": opened.campaign_id, "mode": campaign.mode, "status": status,
            "ended_because": {"until": "its end time came", "done": "every heliostat re-checked",
-                             "stopped": "Ctrl-C or SIGTERM", "clock_jump": "the plant's clock jumped backwards",
+                             "stopped": "Ctrl-C or SIGTERM", "clock_jump": "the plant's clock jumped",
                              "storage": "the database cannot be written"}[result.reason],
-           "armed": runner.armed, "heliostats": len(runner.ids), "accepted": len(runner.accepted()),
+           "stopped_by": result.reason, "armed": runner.armed, "heliostats": len(runner.ids),
+           "accepted": len(runner.accepted()),
            "visits_this_run": runner.stats.visits, "valid_visits_this_run": runner.stats.valid_visits,
            "outcomes_this_run": dict(runner.stats.outcomes),
            "observations": store.count_observations(opened.campaign_id),
@@ -451,7 +457,7 @@ def _print_summary(s: dict, mode: str) -> None:
         measured = sum(1 for r in s["rechecks"] if r["present_error_mrad"] is not None)
         print(f"campaign {s['campaign']} {s['status']} ({s['ended_because']}): {measured} of "
               f"{plural(s['heliostats'], 'heliostat')} measured, {visits} this run, {observations} in {s['database']}"
-              + ("" if measured == s["heliostats"] else
+              + ("" if measured == s["heliostats"] or s["stopped_by"] == "stopped" else
                  f" (not all measured: exit status {EXIT_NOT_MEASURED})"))
     else:
         print(f"campaign {s['campaign']} {s['status']} ({s['ended_because']}): {s['accepted']} of "

@@ -17,12 +17,16 @@ from helicalib.errors import PlantError
 STEP_BACK_TOLERANCE_S = 60.0
 """A plant time read this many plant seconds (or fewer) behind the controller's is a clock being set
 (a time server's step): the controller's clock holds until the plant's catches up. Further back,
-the plant's clock jumped (a plant restarted at an earlier date): :class:`ClockJumpError`."""
+the plant's clock jumped (a plant restarted at an earlier date): :class:`ClockJumpError`. The
+tolerance of each read grows by what the controller cannot know (:meth:`PlantClock.tolerance_s`)."""
+DRIFT_SHARE = 0.02
+"""The share of the plant seconds since the last read by which a plant's clock may run off the
+controller's extrapolation (an emulator's clock lagging 1 % under load) before a read is a jump."""
 
 
 class ClockJumpError(PlantError):
-    """The plant's time jumped backwards beyond :data:`STEP_BACK_TOLERANCE_S`; ``before_s`` is the
-    controller's plant time, ``after_s`` what the plant reads now."""
+    """The plant's time jumped backwards, or forwards, beyond :meth:`PlantClock.tolerance_s`;
+    ``before_s`` is the controller's plant time, ``after_s`` what the plant reads now."""
 
     def __init__(self, message: str, before_s: float, after_s: float):
         super().__init__(message)
@@ -64,11 +68,12 @@ class PlantClock:
     sleeper : callable
         Real sleep [s] (``time.sleep``).
 
-    A plant time that runs backwards between reads by more than :data:`STEP_BACK_TOLERANCE_S` is
-    refused (:class:`ClockJumpError`, every read until it is consistent again); a smaller step back
-    is taken, and ``now_s`` holds until the plant's time catches up: it never decreases. :attr:`uncertainty_s` is how far the extrapolation may be off: half the
-    plant seconds the last read of the plant's time took on the wire (the read answers somewhere
-    inside that span).
+    A plant time that runs backwards between reads, or ahead of the extrapolation, by more than
+    :meth:`tolerance_s` is refused (:class:`ClockJumpError`, every read until it is consistent
+    again); a smaller step back is taken, and ``now_s`` holds until the plant's time catches up: it
+    never decreases. :attr:`uncertainty_s` is how far the extrapolation may be off: half the plant
+    seconds the last read of the plant's time took on the wire (the read answers somewhere inside
+    that span).
     """
 
     def __init__(self, plant, resync_s: float = 30.0, source: Callable[[], float] = time.monotonic,
@@ -84,19 +89,38 @@ class PlantClock:
         self.uncertainty_s = 0.0
         self._last = -float("inf")
 
+    def tolerance_s(self, rate: float, round_trip_s: float, since_s: float) -> float:
+        """Plant seconds a read may lie off the controller's clock without being a jump: the step a
+        time server may make (:data:`STEP_BACK_TOLERANCE_S`), the last read's uncertainty and this
+        one's (half its round trip ``round_trip_s`` [real s] at ``rate``), and :data:`DRIFT_SHARE` of
+        the plant seconds since the last read (``since_s`` real seconds)."""
+        rate = max(float(rate), self.rate)
+        return (STEP_BACK_TOLERANCE_S + self.uncertainty_s + 0.5 * rate * max(round_trip_s, 0.0)
+                + DRIFT_SHARE * rate * max(since_s, 0.0))
+
     def sync(self) -> float:
         """Read the plant's time and rate now; returns the plant time [UTC s]."""
         m_before = float(self._source())
         t, rate = self._plant.plant_time()
         m_after = float(self._source())
+        m = 0.5 * (m_before + m_after)  # the plant read its clock somewhere between the request and the answer
         with self._lock:
-            if self._t0 is not None and t < self._last - STEP_BACK_TOLERANCE_S:
-                raise ClockJumpError(f"plant time went backwards: the plant reads {_iso(t)} after {_iso(self._last)} "
-                                     f"({self._last - t:.0f} s back)", self._last, t)
-            # the plant read its clock somewhere between the request and the answer: take the middle
-            self._t0, self._m0, self.rate = float(t), 0.5 * (m_before + m_after), float(rate)
+            if self._t0 is not None:
+                self._check_jump(float(t), float(rate), m_after - m_before, m)
+            self._t0, self._m0, self.rate = float(t), m, float(rate)
             self.uncertainty_s = 0.5 * float(rate) * (m_after - m_before)
         return float(t)
+
+    def _check_jump(self, t: float, rate: float, round_trip_s: float, m: float) -> None:
+        tol = self.tolerance_s(rate, round_trip_s, m - self._m0)
+        if t < self._last - tol:  # behind the newest time this clock gave
+            raise ClockJumpError(f"plant time went backwards: the plant reads {iso_utc(t)} after {iso_utc(self._last)} "
+                                 f"({self._last - t:.0f} s back)", self._last, t)
+        # ahead of where the plant's time can be now, whichever of the two rates it ran at since the last read
+        high = max(self._t0 + max(rate, self.rate) * (m - self._m0), self._last)
+        if t > high + tol:
+            raise ClockJumpError(f"plant time jumped forwards: the plant reads {iso_utc(t)}, the controller's clock "
+                                 f"{iso_utc(high)} ({t - high:.0f} s ahead)", high, t)
 
     def estimate_s(self) -> float:
         """Plant time extrapolated from the last read, without asking the plant (the controller's
@@ -128,7 +152,8 @@ class PlantClock:
         self._sleeper(float(seconds) / self.rate)
 
 
-def _iso(t_s: float) -> str:
+def iso_utc(t_s: float) -> str:
+    """``2026-11-28T09:30:00+00:00`` (a time no calendar holds: its number of seconds)."""
     import datetime as dt
 
     try:
