@@ -57,30 +57,36 @@ def test_check_without_arm_says_not_armed(night, capsys):
     assert code == EXIT_NOT_MEASURED and "not measured: not armed" in row and "--arm" in row
 
 
+def _check_with(path, after_s: float, action):
+    """``check --arm --hours 2`` of H0001 with ``action()`` done ``after_s`` real seconds in;
+    returns (exit status, real seconds it took)."""
+    import threading
+    import time
+
+    timer = threading.Timer(after_s, action)
+    timer.start()
+    t0 = time.monotonic()
+    try:
+        return main(["check", str(path), "--arm", "--heliostats", "H0001", "--hours", "2"]), time.monotonic() - t0
+    finally:
+        timer.cancel()
+
+
 def test_a_check_stopped_by_ctrl_c_exits_0(night, capsys):
     """A clean stop is status 0 (docs/running.md), even with nothing measured yet."""
     import os
     import signal
-    import threading
-    import time
 
     path, _start, _sim = night
-    timer = threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    t0 = time.monotonic()
-    try:
-        code = main(["check", str(path), "--arm", "--heliostats", "H0001", "--hours", "2"])
-    finally:
-        timer.cancel()
+    code, took = _check_with(path, 3.0, lambda: os.kill(os.getpid(), signal.SIGINT))
     out = capsys.readouterr().out.strip().splitlines()
-    assert time.monotonic() - t0 < 30.0
+    assert took < 30.0
     assert code == 0, out[-3:]
     assert "Ctrl-C or SIGTERM" in out[-1] and "exit status" not in out[-1], out[-1]
 
 
 def test_a_clock_jump_during_a_check_does_not_suggest_an_option_check_lacks(night, capsys, monkeypatch):
     import threading
-    import time
 
     from helicalib.campaign.session import EXIT_CLOCK_JUMP
     from helicalib.devices.clock import ClockJumpError, PlantClock
@@ -101,14 +107,8 @@ def test_a_clock_jump_during_a_check_does_not_suggest_an_option_check_lacks(nigh
 
     monkeypatch.setattr(PlantClock, "sync", sync_then_jump)
     monkeypatch.setattr(PlantClock, "__init__", resync_often)
-    timer = threading.Timer(2.0, jumped.set)
-    timer.start()
-    t0 = time.monotonic()
-    try:
-        code = main(["check", str(path), "--arm", "--heliostats", "H0001", "--hours", "2"])
-    finally:
-        timer.cancel()
+    code, took = _check_with(path, 2.0, jumped.set)
     err = capsys.readouterr().err.strip().splitlines()
-    assert time.monotonic() - t0 < 20.0  # seen at once, not at the end of the check
+    assert took < 20.0  # seen at once, not at the end of the check
     assert code == EXIT_CLOCK_JUMP, err[-3:]
     assert "went backwards" in err[-1] and "--accept-clock-jump" not in err[-1], err[-1]
