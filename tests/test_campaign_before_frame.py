@@ -19,7 +19,7 @@ from helicalib.campaign.board import Board
 from helicalib.config import load_field_config
 from helicalib.devices.registers import HeliostatState
 from helicalib.geometry import optics
-from helicalib.sim.fast_sensor import FastSensor, SpotPhysics, lost_light_share
+from helicalib.sim.fast_sensor import SpotPhysics, lost_light_share
 
 from campaign_helpers import inprocess_campaign
 
@@ -176,4 +176,3 @@ def test_the_fast_sensor_sees_light_lost_since_the_before_frame_as_the_vision_do
     assert lost_light_share(ours, (other,), target, 0.3) == pytest.approx(1.0, abs=0.15)
     assert lost_light_share(ours, (faint,), target, 0.3) == 0.0
     assert lost_light_share(ours, (), target, 0.3) == 0.0
-    assert FastSensor.retake  # the same retake as the camera sensor's

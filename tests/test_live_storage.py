@@ -8,7 +8,8 @@ Real failures, not mocks (the tests run as root, for whom a chmod changes nothin
   after a few failed writes every beam goes back to tracking and the run exits with status 4 and
   one line (it used to log "database or disk is full" 2255 times in 120 s and never exit).
 
-Both need CAP_LINUX_IMMUTABLE / CAP_SYS_ADMIN; without them the tests are skipped.
+Both need CAP_LINUX_IMMUTABLE / CAP_SYS_ADMIN; without them the tests are skipped, except under CI
+(``CI`` set: CI runs as root, so a missing capability is a broken runner and fails the test).
 """
 
 from __future__ import annotations
@@ -30,12 +31,19 @@ from helicalib.cli import main
 from helicalib.store.sqlite import Store
 
 
+def _skip_unless_ci(why: str) -> None:
+    """Skip the test for ``why``; under CI (``CI`` set, root) fail it instead: it must run there."""
+    if os.environ.get("CI"):
+        pytest.fail(f"{why} (CI is set: these tests must run)")
+    pytest.skip(why)
+
+
 @contextmanager
 def _immutable(path):
     """``chattr +i path`` for the block (root cannot write it either); skips the test if not allowed."""
     r = subprocess.run(["chattr", "+i", str(path)], capture_output=True, text=True)
     if r.returncode != 0:
-        pytest.skip(f"chattr +i not allowed here: {r.stderr.strip()}")
+        _skip_unless_ci(f"chattr +i not allowed here: {r.stderr.strip()}")
     try:
         yield
     finally:
@@ -78,7 +86,7 @@ def small_disk(tmp_path):
     disk.mkdir()
     r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs", str(disk)], capture_output=True, text=True)
     if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+        _skip_unless_ci(f"cannot mount a tmpfs here: {r.stderr.strip()}")
     try:
         yield disk
     finally:
