@@ -29,7 +29,7 @@ import threading
 import traceback
 from dataclasses import dataclass, field
 
-from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner, storage_error
+from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner
 from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.modbus import quiet_pymodbus
 from helicalib.devices.protocols import PlantUnreachableError
@@ -61,21 +61,11 @@ def _guarded(runner: CampaignRunner, what: str, fn) -> None:
         fn()
     except ClockJumpError as err:  # one line; the run stops (run_live)
         runner.clock_jumped(err)
-    except HelicalibError as err:
-        if storage_error(err):
-            runner.storage_failed(err)
-            return
-        if isinstance(err, PlantUnreachableError):  # a plant that does not answer: said once per job and loss
-            runner.plant_failed(f"{what}: {err}")
-            if runner.said_once(what):
-                return
-            _fault(runner, f"{what}: {err}")
-            return
-        # the plant (or a device) answered with a refusal: reachable; one line while the reason stays
-        _recorded(lambda: runner.job_failed(what, f"{what}: {err}"), f"{what}: {err}")
     except Exception as err:  # noqa: BLE001 - a job must never die, nor print a traceback each retry
-        if storage_error(err):  # a full disk, a read-only database: counted, one line (the run stops after a few)
-            runner.storage_failed(err)
+        if runner.storage_fault(err):  # a full disk, a read-only database: counted, one line (the run stops after a few)
+            return
+        if isinstance(err, HelicalibError):
+            _said(runner, what, err)
             return
         log = runner.store.path.with_name(runner.store.path.name + ".errors.log")
         try:
@@ -87,6 +77,17 @@ def _guarded(runner: CampaignRunner, what: str, fn) -> None:
     else:  # the job's next refusal is news again
         if runner.job_fault:
             runner.job_fault.pop(what, None)
+
+
+def _said(runner: CampaignRunner, what: str, err: HelicalibError) -> None:
+    """The plant or a device said no: a plant that does not answer is one line per job and loss; a
+    refusal one line while its reason stays."""
+    if isinstance(err, PlantUnreachableError):
+        runner.plant_failed(f"{what}: {err}")
+        if not runner.said_once(what):
+            _fault(runner, f"{what}: {err}")
+    else:
+        _recorded(lambda: runner.job_failed(what, f"{what}: {err}"), f"{what}: {err}")
 
 
 def _fault(runner: CampaignRunner, reason: str) -> None:

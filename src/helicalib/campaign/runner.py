@@ -375,9 +375,8 @@ class CampaignRunner:
                                         heliostat_id=heliostat_id, data=dict(ev.data, clock=source)
                                         if source != "plant" else ev.data or None)
             except Exception as err:  # noqa: BLE001 - a full disk must not break the step that records (a stow)
-                if not storage_error(err):
+                if not self.storage_fault(err):
                     raise
-                self.storage_failed(err)
         for listener in list(self.listeners):
             try:
                 listener(ev)
@@ -460,6 +459,14 @@ class CampaignRunner:
                 return True
             self._said_lost.add(job)
             return False
+
+    def storage_fault(self, err: BaseException) -> bool:
+        """Count ``err`` (:meth:`storage_failed`) if it says the storage cannot be written
+        (:func:`storage_error`); returns whether it did (anything else is the caller's to raise)."""
+        if not storage_error(err):
+            return False
+        self.storage_failed(err)
+        return True
 
     def storage_failed(self, err) -> None:
         """A write to the database failed (full disk, read-only): the first is one ``fault`` line,
@@ -904,8 +911,7 @@ class CampaignRunner:
                 answer = self._serve(hid, ctx, request, stopping)
             except Exception as err:  # noqa: BLE001 - the visit decides; it must still leave the board
                 error = err
-                if storage_error(err):
-                    self.storage_failed(err)
+                self.storage_fault(err)
 
     def _serve(self, hid: str, ctx: VisitContext, request, stopping: bool):
         if isinstance(request, Record):
@@ -1104,9 +1110,8 @@ class CampaignRunner:
             try:  # a database that cannot be written (the reason of some stops) must not keep a beam on a board
                 self.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
             except Exception as err:  # noqa: BLE001
-                if not storage_error(err):
+                if not self.storage_fault(err):
                     raise
-                self.storage_failed(err)
             self.event("visit_end", f"{hid} off {tid}: aborted (campaign stopped), leaving via standby", hid, tid,
                        data={"outcome": "aborted"})
             leaving.append([now, hid, ctx, leave_board(ctx)])

@@ -141,8 +141,7 @@ def open_campaign(store, cfg, args, mode: str, now_s: float, ids: list[str] | No
         if ids and sorted(ids) != sorted(held):
             raise ConfigError(f"--heliostats: campaign {resumed.id} calibrates {plural(len(held), 'heliostat')}, not the "
                               f"{len(ids)} named; resume it without --heliostats, or add --new-campaign")
-        jump = check_plant_clock(store, resumed.id, now_s, rate, written_wall_s,
-                                 bool(getattr(args, "accept_clock_jump", False)))
+        jump = check_plant_clock(store, resumed.id, now_s, rate, written_wall_s, bool(args.accept_clock_jump))
         was = resumed.status
         store.reopen_campaign(resumed.id)
         accepted = f"; resumed from the plant's time although {jump} (--accept-clock-jump)" if jump else ""
@@ -231,7 +230,7 @@ def live_session(args, mode: str) -> int:
         else:
             until_s = now + 86400.0 * days
         with storage_errors(cfg.database_path):
-            opened = open_campaign(store, cfg, args, mode, now, ids, rate=float(getattr(clock, "rate", 1.0) or 1.0),
+            opened = open_campaign(store, cfg, args, mode, now, ids, rate=float(clock.rate),
                                    written_wall_s=written)
             store.record_event(campaign_id=opened.campaign_id, time_s=now, kind="campaign", reason=opened.line,
                                data={"command": command, "operation": operation})

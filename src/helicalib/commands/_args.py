@@ -138,9 +138,13 @@ def add_live_target(p: argparse.ArgumentParser, days_help: str) -> None:
 
 
 def add_live_session(p: argparse.ArgumentParser) -> None:
-    """``--new-campaign``, ``--json`` and the console's arguments of the live commands (``run``, ``operate``)."""
+    """``--new-campaign``, ``--accept-clock-jump``, ``--json`` and the console's arguments of the live
+    commands that resume a campaign (``run``, ``operate``)."""
     p.add_argument("--new-campaign", action="store_true",
                    help="start a new campaign instead of resuming the field's (its points stay in the database)")
+    p.add_argument("--accept-clock-jump", action="store_true",
+                   help="resume the campaign although the plant's time lies before its last record, or far beyond "
+                        "it (a plant restarted at another date): refused without it, with both times named")
     p.add_argument("--json", action="store_true",
                    help="JSON lines on stdout: one per event, a status line every 5 s, a final summary")
     add_console(p)

@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "heliostat's present error, limit and verdict")
     add_console(p)
     add_spots(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, accept_clock_jump=False)  # check starts its own campaign: it resumes nothing
 
 
 def run(args) -> int:

@@ -28,9 +28,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="every night keep the frames of each heliostat's newest N observations and of every rejected "
                         "one, delete the rest (default 20; the database keeps every observation)")
     add_live_session(p)
-    p.add_argument("--accept-clock-jump", action="store_true",
-                   help="resume the campaign although the plant's time lies before its last record, or far beyond "
-                        "it (a plant restarted at another date): refused without it, with both times named")
     add_spots(p)
     p.set_defaults(func=run, recheck=False, planner="gaps", refine=False)
 

@@ -21,9 +21,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="gaps planner: spend target time no acceptance gap needs on the heliostats whose model is "
                         "most uncertain at the present sun, accepted ones included (better year-round accuracy)")
     add_live_session(p)
-    p.add_argument("--accept-clock-jump", action="store_true",
-                   help="resume the campaign although the plant's time lies before its last record, or far beyond "
-                        "it (a plant restarted at another date): refused without it, with both times named")
     add_spots(p)
     p.set_defaults(func=run, recheck=False)
 
