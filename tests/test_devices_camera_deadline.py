@@ -189,3 +189,53 @@ def test_the_deadline_covers_the_retries(raw):
     err, took = _timed(HttpCamera(server.url, timeout_s=0.4, retries=2, deadline_s=1.0))
     assert server.connections > 1  # it did retry
     assert err.reason == "camera_deadline" and took < 1.0 + 2.0, took
+
+
+def _answer_png(server, conn):
+    server.send(conn, b"HTTP/1.1 200 OK\r\nContent-Type: image/png\r\nX-Capture-Time: 1.0\r\n"
+                      b"Content-Length: %d\r\nConnection: close\r\n\r\n" % len(PNG) + PNG)
+
+
+def _redirect_to(url):
+    def behaviour(server, conn):
+        server.send(conn, b"HTTP/1.1 302 Found\r\nLocation: " + url.encode() + b"\r\nContent-Length: 0\r\n"
+                          b"Connection: close\r\n\r\n")
+
+    return behaviour
+
+
+def test_one_redirect_is_followed(raw):
+    camera = raw(_answer_png)
+    proxy = raw(_redirect_to(camera.url))
+    frame = HttpCamera(proxy.url, timeout_s=2.0, retries=0, expected_size_px=(64, 48), deadline_s=3.0).grab()
+    assert frame.data == PNG and frame.capture_time_s == 1.0
+    assert proxy.connections == 1 and camera.connections == 1
+
+
+def test_a_second_redirect_is_refused_in_one_line(raw):
+    camera = raw(_answer_png)
+    second = raw(_redirect_to(camera.url))
+    first = raw(_redirect_to(second.url))
+    err, _took = _timed(HttpCamera(first.url, timeout_s=2.0, retries=0, deadline_s=3.0))
+    assert err.reason == "camera_http_error" and "302" in str(err) and "second redirect" in str(err)
+    assert second.url in str(err) and len(str(err).splitlines()) == 1
+    assert camera.connections == 0
+
+
+def test_a_resolver_that_does_not_answer_ends_within_the_deadline():
+    """The name is resolved within the fetch's deadline (a hung resolver: no socket yet for the
+    watchdog to shut)."""
+    hung = threading.Event()
+
+    def resolver(*_a, **_k):
+        hung.wait(20.0)
+        raise OSError("resolver gave up")
+
+    cam = HttpCamera("http://camera-t1.plant.invalid:8080/T1.png", timeout_s=0.5, retries=2, deadline_s=1.0,
+                     resolve=resolver)
+    try:
+        err, took = _timed(cam)
+    finally:
+        hung.set()
+    assert err.reason == "camera_deadline" and "camera-t1.plant.invalid" in str(err), err
+    assert took < 1.0 + 2.0, took

@@ -4,8 +4,9 @@
 library only. A timeout, a refused connection, a 5xx answer or a truncated body is retried
 (``retries`` times, with back-off); a 4xx answer, a body that is not an image, a missing or
 unreadable capture time, or a frame of the wrong size is not. Every fetch has a whole-request
-deadline (monotonic; a watchdog shuts the socket when it passes, so a camera trickling its answer
-cannot hold the controller) and a size cap from the frame's expected size (an endless body cannot
+deadline (monotonic; the name is resolved and the connection made within it, and a watchdog shuts
+the socket when it passes, so a camera trickling its answer cannot hold the controller; one
+redirect is followed within the same deadline) and a size cap from the frame's expected size (an endless body cannot
 fill the memory). Every failure raises
 :class:`CameraError` (a :class:`~helicalib.errors.MeasurementError`) whose ``reason`` is a short
 code the visit records and whose message is one readable sentence.
@@ -14,6 +15,7 @@ code the visit records and whose message is one readable sentence.
 from __future__ import annotations
 
 import http.client
+import ipaddress
 import math
 import socket
 import struct
@@ -29,6 +31,8 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 PNG_END = b"IEND\xaeB`\x82"
 JPEG_MAGIC = b"\xff\xd8\xff"
 JPEG_END = b"\xff\xd9"
+REDIRECTS = (301, 302, 303, 307, 308)
+"""Answers whose ``Location`` is followed, once per fetch (a camera behind a proxy or moved)."""
 
 REASONS = ("camera_timeout", "camera_unreachable", "camera_http_error", "camera_truncated", "camera_not_image",
            "camera_no_capture_time", "camera_wrong_size", "camera_deadline", "camera_too_large")
@@ -108,6 +112,9 @@ class HttpCamera:
         ``camera_too_large`` once that much has arrived (memory stays bounded).
     monotonic : callable
         Real time for the deadline (``time.monotonic``), injected.
+    resolve : callable
+        ``socket.getaddrinfo``, injected: the camera's host name is resolved within the deadline (a
+        resolver that does not answer ends the fetch as ``camera_deadline``).
 
     A camera is a device: it gives frames. Its flux calibration (FLUX.yaml) is the sensor's
     business (:func:`helicalib.campaign.sensor.camera_sensors`).
@@ -115,7 +122,8 @@ class HttpCamera:
 
     def __init__(self, url: str, timeout_s: float = 5.0, retries: int = 2, expected_size_px: tuple[int, int] | None = None,
                  backoff_s: float = 0.2, sleep: Callable[[float], None] = time.sleep, deadline_s: float | None = None,
-                 max_bytes: int | None = None, monotonic: Callable[[], float] = time.monotonic):
+                 max_bytes: int | None = None, monotonic: Callable[[], float] = time.monotonic,
+                 resolve: Callable[..., list] = socket.getaddrinfo):
         self.url = url
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
@@ -125,6 +133,7 @@ class HttpCamera:
         self.deadline_s = float(DEADLINE_S if deadline_s is None else deadline_s)
         self.max_bytes = int(max_bytes) if max_bytes is not None else frame_cap_bytes(self.expected_size_px)
         self._monotonic = monotonic
+        self._resolve = resolve
         self._parts = urllib.parse.urlsplit(url)
 
     def grab(self) -> Frame:
@@ -147,21 +156,53 @@ class HttpCamera:
                     raise
         raise AssertionError("unreachable")
 
-    def _connection(self, timeout_s: float) -> http.client.HTTPConnection:
-        p = self._parts
-        kind = http.client.HTTPSConnection if p.scheme == "https" else http.client.HTTPConnection
-        return kind(p.hostname, p.port, timeout=timeout_s)
+    def _connection(self, parts, timeout_s: float, end: float, where: str) -> http.client.HTTPConnection:
+        kind = http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
+        conn = kind(parts.hostname, parts.port, timeout=timeout_s)
+        # the name is resolved within the deadline (the watchdog cannot shut a socket that does not exist yet)
+        conn._create_connection = lambda address, timeout, source=None: socket.create_connection(
+            self._address(address, end, where), timeout, source)
+        return conn
 
-    def _once(self, end: float) -> Frame:
-        """One request, ended (its socket shut) at monotonic time ``end`` whatever the server does."""
-        where = f"camera {self.url}"
-        if self._parts.scheme not in ("http", "https") or not self._parts.hostname:
+    def _address(self, address: tuple[str, int], end: float, where: str) -> tuple[str, int]:
+        """``(host, port)`` resolved to an address, waiting at most until monotonic time ``end``."""
+        try:
+            ipaddress.ip_address(address[0])
+            return address  # an address already: nothing to resolve
+        except ValueError:
+            pass
+        found: dict[str, object] = {}
+
+        def resolve() -> None:
+            try:
+                found["info"] = self._resolve(address[0], address[1], type=socket.SOCK_STREAM)
+            except OSError as exc:
+                found["error"] = exc
+
+        worker = threading.Thread(target=resolve, daemon=True, name="helicalib-camera-resolve")
+        worker.start()
+        worker.join(max(0.0, end - self._monotonic()))
+        if worker.is_alive():
+            raise CameraError("camera_deadline", f"{where}: the name {address[0]} was not resolved within the "
+                                                 f"fetch's deadline of {self.deadline_s:g} s")
+        if "error" in found or not found.get("info"):
+            raise CameraError("camera_unreachable", f"{where}: the name {address[0]} cannot be resolved "
+                                                    f"({found.get('error', 'no address')})", True)
+        return found["info"][0][4][:2]
+
+    def _once(self, end: float, parts=None) -> Frame:
+        """One request, ended (its socket shut) at monotonic time ``end`` whatever the server does;
+        ``parts``: the address a redirect gave (one is followed)."""
+        redirected = parts is not None
+        parts = parts or self._parts
+        where = f"camera {self.url}" + (f" (redirected to {urllib.parse.urlunsplit(parts)})" if redirected else "")
+        if parts.scheme not in ("http", "https") or not parts.hostname:
             raise CameraError("camera_unreachable", f"{where}: not an http:// or https:// address")
         left = end - self._monotonic()
         if left <= 0:
             raise CameraError("camera_deadline", f"{where}: no frame within the fetch's deadline of "
                                                  f"{self.deadline_s:g} s")
-        conn = self._connection(min(self.timeout_s, left))
+        conn = self._connection(parts, min(self.timeout_s, left), end, where)
         cut = threading.Event()
 
         def shut() -> None:  # the watchdog: a blocked read returns at once once the socket is shut
@@ -175,23 +216,20 @@ class HttpCamera:
 
         watchdog = threading.Timer(left, shut)
         watchdog.daemon = True
-        path = self._parts.path or "/"
-        if self._parts.query:
-            path += "?" + self._parts.query
+        path = parts.path or "/"
+        if parts.query:
+            path += "?" + parts.query
         try:
             watchdog.start()
             try:
                 conn.request("GET", path, headers={"Accept": "image/png, image/jpeg"})
                 resp = conn.getresponse()
                 headers = resp.headers
-                if resp.status >= 300:
-                    transient = resp.status >= 500
-                    raise CameraError("camera_http_error", f"{where}: HTTP {resp.status} {resp.reason}", transient)
                 length = headers.get("Content-Length")
-                if length is not None and length.isdigit() and int(length) > self.max_bytes:
-                    raise CameraError("camera_too_large", f"{where}: answer of {int(length)} bytes announced, more than "
-                                                          f"the {self.max_bytes} bytes a frame of this camera can hold")
-                body = self._body(resp, end, where)
+                follow = self._redirect(resp, parts, redirected)
+                if follow is None:
+                    self._check_answer(resp, length, where)
+                    body = self._body(resp, end, where)
             except CameraError:
                 raise
             except (TimeoutError, socket.timeout) as exc:
@@ -210,7 +248,26 @@ class HttpCamera:
         finally:
             watchdog.cancel()
             conn.close()
+        if follow is not None:  # within the same deadline
+            return self._once(end, follow)
         return self._frame(body, headers, length, where)
+
+    @staticmethod
+    def _redirect(resp, parts, redirected: bool):
+        """The address a redirect answer points to (the first of a fetch only), else None."""
+        location = resp.headers.get("Location")
+        if resp.status not in REDIRECTS or not location or redirected:
+            return None
+        return urllib.parse.urlsplit(urllib.parse.urljoin(urllib.parse.urlunsplit(parts), location))
+
+    def _check_answer(self, resp, length: str | None, where: str) -> None:
+        """Refuse an error answer (a second redirect included) or one announcing more than a frame."""
+        if resp.status >= 300:
+            more = " (a second redirect: one is followed)" if resp.status in REDIRECTS else ""
+            raise CameraError("camera_http_error", f"{where}: HTTP {resp.status} {resp.reason}{more}", resp.status >= 500)
+        if length is not None and length.isdigit() and int(length) > self.max_bytes:
+            raise CameraError("camera_too_large", f"{where}: answer of {int(length)} bytes announced, more than "
+                                                  f"the {self.max_bytes} bytes a frame of this camera can hold")
 
     def _late(self, where: str) -> CameraError:
         return CameraError("camera_deadline", f"{where}: the answer did not end within the fetch's deadline of "
