@@ -457,7 +457,7 @@ def compare_files(a: Side, b: Side, result: RunResult, keep: int) -> None:
             result.add(Difference(f"file:{rel}", None, "(file)", "present" if rel in fa else "missing",
                                   "present" if rel in fb else "missing"), keep)
             continue
-        result.compared[f"file:{rel}"] = 1
+        result.compared["files"] = result.compared.get("files", 0) + 1
         if rel.endswith((".json", ".stdout")):
             try:
                 ja, jb = _json_lines(fa[rel]), _json_lines(fb[rel])
@@ -608,9 +608,9 @@ def compare(a_dir: Path, b_dir: Path, keep: int = 10) -> dict:
 
 def print_report(report: dict) -> None:
     for name, r in report["runs"].items():
-        tables = sum(1 for k in r["compared"] if not k.startswith("file:"))
-        rows = sum(v for k, v in r["compared"].items() if not k.startswith("file:"))
-        files = sum(1 for k in r["compared"] if k.startswith("file:"))
+        tables = sum(1 for k in r["compared"] if k != "files")
+        rows = sum(v for k, v in r["compared"].items() if k != "files")
+        files = r["compared"].get("files", 0)
         if "live facts" in r["compared"]:
             what = f"{r['compared']['live facts']} facts; {r['note']}"
         else:

@@ -76,7 +76,7 @@ def test_two_recordings_of_the_same_behaviour_are_identical(rr, tmp_path, capsys
     compared = report["runs"]["tiny"]["compared"]
     # every table was read, with its rows (not an empty comparison that passes by reading nothing)
     assert compared["helicalib.db:visits"] == 1 and compared["helicalib.db:operator_actions"] == 1
-    assert compared["helicalib.db:heliostats"] == 2 and "file:simulate.stdout" in compared
+    assert compared["helicalib.db:heliostats"] == 2 and compared["files"] == 2  # simulate.stdout, .stderr
 
 
 def test_one_changed_float_is_named_by_table_row_and_column(rr, tmp_path, capsys):
@@ -154,3 +154,11 @@ def test_recordings_of_different_commands_are_not_identical(rr, tmp_path, capsys
     out = capsys.readouterr().out
     assert "manifest, (commands): A ['helicalib simulate <repo>/demo.yaml --days 0.28'] | B" in out
     assert "tiny: 1 difference(s)" in out
+
+
+def test_the_same_row_under_another_id_is_a_difference(rr, tmp_path, capsys):
+    a, b = _recording(tmp_path / "a"), _recording(tmp_path / "b")
+    db = b / "tiny" / "sim" / "helicalib.db"
+    _set(db, "UPDATE verdicts SET id = 7 WHERE id = 1")  # every value alike, the row count too
+    assert rr.main(["compare", str(a), str(b)]) == 1
+    assert "verdicts, row 1, (row id): A 1 | B 7" in capsys.readouterr().out
