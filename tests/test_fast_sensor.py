@@ -38,6 +38,9 @@ class _Both:
         self.pairs.append((reading, fast, self.fast.spot(ctx.index)))
         return reading
 
+    def retake(self, ctx, before, reading):
+        return self.camera.retake(ctx, before, reading)
+
     def cleanliness(self, *args):
         return self.camera.cleanliness(*args)
 

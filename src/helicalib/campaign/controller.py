@@ -446,12 +446,9 @@ def retake_before(ctx: VisitContext, before: Before, reading, iteration: int):
     heliostats is moving by the plant's state (at most :data:`BEAM_CLEAR_TIMEOUT_S`), a new before
     frame (saved; the visit's later placements use it), and the same after frames judged against it:
     a clean frame gives the reading the after frames hold; one that holds a beam again is retaken.
-    Returns ``(before, reading)``; the reading's message says how many times and why. A sensor
-    without ``retake`` keeps the refusal; a frame that cannot be had ends the retakes (the refusal
-    stands, with that said)."""
-    retake = getattr(ctx.sensor, "retake", None)
-    if retake is None:
-        return before, reading
+    Returns ``(before, reading)``; the reading's message says how many times and why. A frame that
+    cannot be had ends the retakes (the refusal stands, with that said)."""
+    retake = ctx.sensor.retake
     n, waited_for, still = 0, [], []
     while reading.before_beam and n < MAX_BEFORE_RETAKES:
         n += 1

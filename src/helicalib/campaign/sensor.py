@@ -100,9 +100,9 @@ class SpotSensor(Protocol):
                     sun_enu: np.ndarray) -> float | None:
         """The mirror's present cleanliness from a valid reading, or None when it cannot be told."""
 
-    # Optional (a sensor without it refuses a reading whose before frame held another beam):
-    #   retake(ctx, before, reading) -> (Before, Reading): a new before frame, taken with the beam at
-    #   standby, and ``reading``'s after frames judged against it.
+    def retake(self, ctx, before: Before, reading: Reading) -> tuple[Before, Reading]:
+        """A new before frame, taken with the beam at its standby point, and ``reading``'s after
+        frames judged against it (a reading whose before frame held another beam)."""
 
 
 class CaptureTimeError(MeasurementError):
