@@ -415,7 +415,7 @@ class CampaignRunner:
                 return False
             self.plant_unreachable_since_s = since
             self.event("plant_lost", f"plant not answering ({err}); no visit starts until it answers",
-                       data={"since_s": since})
+                       time_s=since, data={"since_s": since})
             return True
 
     def plant_answered(self, now: float, link: str = "scs") -> None:
@@ -428,8 +428,10 @@ class CampaignRunner:
             self.plant_unreachable_since_s = None
             self._said_lost.clear()
             lost = max(0.0, now - since)
-            self.event("plant_back", f"plant answers again after {_duration(lost)} unreachable", time_s=now,
-                       data={"lost_s": lost})
+            # never stamped before its plant_lost: ``since`` is the controller's estimate, which may run a
+            # little ahead of the time the plant gives when it answers again
+            self.event("plant_back", f"plant answers again after {_duration(lost)} unreachable",
+                       time_s=max(now, since), data={"lost_s": lost})
 
     def job_failed(self, job: str, reason: str, time_s: float | None = None) -> None:
         """``job`` failed with ``reason`` (the plant refused, a device said no): a ``fault`` line,
