@@ -102,9 +102,9 @@ def gate_text(s: Snapshot) -> str:
         text = f"night: {s.gate_reason}"
     else:
         text = ("open: " if s.gate_open else "paused: ") + s.gate_reason
-    # (the web console passes the gate alone, without the plant's state)
-    lost = getattr(s, "plant_unreachable_since_s", None)
-    return text if lost is None else f"unknown, plant unreachable (last known: {text})"
+    if s.plant_unreachable_since_s is None:
+        return text
+    return f"unknown, plant unreachable (last known: {text})"
 
 
 def unreachable_text(s: Snapshot, tz: dt.tzinfo | None = None) -> str | None:

@@ -180,7 +180,8 @@ def _gate(cfg, snapshot, events, last_obs, standing, now_s) -> dict:
         if obs is None:
             open_ = None
         source = "database"
-    text = gate_text(SimpleNamespace(stowed=stowed, gate_open=open_, night=night, gate_reason=reason))
+    text = gate_text(SimpleNamespace(stowed=stowed, gate_open=open_, night=night, gate_reason=reason,
+                                      plant_unreachable_since_s=None))  # the page says the loss itself
     return {"source": source, "wind_ms": _num(wind, 1), "dni_wm2": _num(dni, 0), "stowed": stowed, "text": text,
             "open": bool(open_) and not stowed and unreachable is None, "limits": limits, "paused": standing.paused,
             "night": night, "as_of_s": time_s, "age_s": _age(now_s, time_s),
