@@ -1,7 +1,7 @@
 """Readings refused because another beam lay on the board in the before frame, with and without
 taking the before frame again (``campaign.controller.retake_before``).
 
-Runs :func:`helicalib.simulation.simulate_campaign` on each case twice, with the same field,
+Runs :func:`helicalib.app.simulated.simulate_campaign` on each case twice, with the same field,
 seed and start: once as the campaign runs (``retake``: up to ``MAX_BEFORE_RETAKES`` new before
 frames) and once with ``MAX_BEFORE_RETAKES = 0`` (``no-retake``: the reading refused at once, as
 before 2026-11-28). For each it counts the placements (observations with iteration ≥ 0), those
@@ -76,7 +76,7 @@ def count(db: Path) -> dict:
 def run_case(name: str, mode: str, args) -> dict:
     from helicalib.campaign import controller
     from helicalib.config import load_field_config
-    from helicalib.simulation import default_start_s, simulate_campaign
+    from helicalib.app.simulated import default_start_s, simulate_campaign
 
     spec = CASES[name]
     cfg = load_field_config(ROOT / spec["field"])

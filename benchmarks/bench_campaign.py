@@ -2,7 +2,7 @@
 
 For a simulated field (default ``simulations/fields/bench500.yaml``, made by ``helicalib sim-field
 --n 500 --targets 4`` at the demo site) and the standard weather scenario
-(``simulations/scenarios/benchmark.yaml``), runs :func:`helicalib.simulation.simulate_campaign`
+(``simulations/scenarios/benchmark.yaml``), runs :func:`helicalib.app.simulated.simulate_campaign`
 in-process with ``planner="gaps"`` (the product's default: a free board is lent to heliostats of a
 busy one, ``calibration.share_targets``), the same with ``refine`` (``gaps+refine``: idle board time
 spent on uncertain models, ``--refine``), the same with each heliostat on its own board only
@@ -175,7 +175,7 @@ def band_throughput(db: Path, cfg, start_s: float, end_s: float, boards: int) ->
 
 def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: Path, keep_frames: bool,
             start_s: float | None = None, fidelity: str = "render") -> dict:
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
 
     shutil.rmtree(out_dir, ignore_errors=True)
     n = len(ids) if ids else len(cfg.heliostats)

@@ -1,7 +1,7 @@
 """Fast against render fidelity: the same simulated campaign measured by the camera + vision and by
 the fast sensor, side by side.
 
-Runs :func:`helicalib.simulation.simulate_campaign` twice on one field, scenario, seed and
+Runs :func:`helicalib.app.simulated.simulate_campaign` twice on one field, scenario, seed and
 start (default: ``simulations/fields/bench500.yaml``, the benchmark scenario, seed 1, the September
 equinox), once with ``fidelity="render"`` (every frame drawn and measured) and once with
 ``fidelity="fast"`` (the simulator's true spot plus the fitted measurement-error model), and prints:

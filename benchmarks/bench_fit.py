@@ -31,7 +31,7 @@ import pandas as pd
 
 from helicalib.calibration.fit import fit_error_model
 from helicalib.config import load_field_config
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import rotate
 from helicalib.geometry.heliostat import HeliostatModel

@@ -100,7 +100,7 @@ def main() -> None:
 
 def run_one(cfg, field: str, days: float, seed: int, ids: list[str], fidelity: str) -> dict:
     """One simulated campaign and the prediction's figures against its truth."""
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
 
     t0 = time.perf_counter()
     last = [t0]
@@ -126,7 +126,7 @@ def evaluate(cfg, runner, truth, end_s: float) -> dict:
     """The figures and ablations (module docstring) for the runner's fitted heliostats."""
     from helicalib.calibration.fit import SIGMA_MRAD
     from helicalib.calibration.uncertainty import beam_jacobians_mrad, unexplained_mrad, year_prediction
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     from helicalib.sim.evaluate import evaluate_model, year_sun_times
 
     hids = [h for h in runner.ids if runner.book.h[h].fit is not None]
@@ -187,7 +187,7 @@ def synthetic(cfg, n: int, mode: str, seed: int = 7) -> dict:
 
     from helicalib.calibration.fit import SIGMA_MRAD, fit_error_model
     from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     from helicalib.geometry import optics
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.geometry.sun import sun_at_site
@@ -286,7 +286,7 @@ def _with_noise(fits, sigma_mrad: float) -> np.ndarray:
 
 def _full(lin, cov_x: np.ndarray) -> np.ndarray:
     """(P, P) parameter covariance from one in whitened unknowns (free parameters first)."""
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
 
     f = len(lin.free_idx)
     cov = np.zeros((em.P, em.P))

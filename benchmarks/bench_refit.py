@@ -25,7 +25,7 @@ import pandas as pd
 from helicalib.calibration.fit import sky_grid
 from helicalib.campaign import policy
 from helicalib.config import load_field_config
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry.heliostat import HeliostatModel
 
 ROOT = Path(__file__).resolve().parents[1]

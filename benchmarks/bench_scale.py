@@ -3,7 +3,7 @@
 For each field size N (``--sizes``, default 1000,3000) the field is made by ``helicalib sim-field --n N
 --site 40.063,94.426,1267 --targets 8`` (the demo site; in a temporary directory, or kept in
 ``--fields-dir`` and reused when its board count matches), then
-:func:`helicalib.simulation.simulate_campaign` runs it in-process for ``--days`` plant days
+:func:`helicalib.app.simulated.simulate_campaign` runs it in-process for ``--days`` plant days
 from a daylight start (``simulate``'s default start, local midnight of 2026-06-01, plus
 ``--start-hour`` hours, default 6; or ``--start ISO``), under cProfile unless ``--no-profile``.
 
@@ -167,7 +167,7 @@ def peak_rss_mb() -> float:
 def run_size(n: int, field: Path, days: float, seed: int, start: str | None, start_hour: float,
              profile: bool) -> dict:
     """The campaign on ``field`` (``n`` heliostats) in this process; its figures."""
-    from helicalib.simulation import default_start_s, simulate_campaign
+    from helicalib.app.simulated import default_start_s, simulate_campaign
     from helicalib.config import load_field_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds
 

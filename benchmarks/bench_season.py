@@ -89,7 +89,7 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
     rate (as operation's fits do), and the models are judged against the heliostats as they are at
     the end of the observations (the drift's state then); otherwise at the start."""
     from helicalib.calibration.fit import fit_error_model
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     from helicalib.geometry.sun import sun_at_site, to_unix_seconds
     from helicalib.sim.evaluate import evaluate_model, year_sun_times
     from helicalib.sim.truth import TrueField

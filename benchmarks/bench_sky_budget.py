@@ -63,7 +63,7 @@ def operated_run(field: str, days: float, start: str, seed: int, drift_share: fl
     from helicalib.config import load_field_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds
     from helicalib.sim.scenario import load_scenario
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
 
     cfg = load_field_config(field)
     scenario = with_drift_share(load_scenario(None), drift_share, days)
@@ -94,9 +94,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from helicalib.calibration.fit import fit_error_model
-    from helicalib.campaign import operation as op_rules
+    from helicalib.campaign.operation import rules as op_rules
     from helicalib.campaign import policy
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     from helicalib.geometry import optics
     from helicalib.sim.evaluate import evaluate_model
     from helicalib.sim.truth import TrueField

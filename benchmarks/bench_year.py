@@ -1,7 +1,7 @@
 """Year-round operation benchmark: a field after a June campaign, with drift, under three policies.
 
 For each policy the same simulated field, weather, hidden errors and drift (seed) run for
-``--days`` plant days from ``--start`` in fast fidelity (:func:`helicalib.simulation.simulate_campaign`):
+``--days`` plant days from ``--start`` in fast fidelity (:func:`helicalib.app.simulated.simulate_campaign`):
 
 * ``ranked``: the campaign, then operation with the ranked checks (``simulate --operate``);
 * ``none``: the campaign alone (after acceptance the boards idle; the tracking corrections are still
@@ -40,7 +40,7 @@ KEYS = ("accepted", "heliostats", "visits", "checks", "true_sky_rms_mrad", "true
 
 def one(policy: str, field: str, days: float, start: str, seed: int, drift_share: float, n: int | None,
         rota_days: float) -> dict:
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
     from helicalib.commands.simulate import with_drift_share
     from helicalib.config import load_field_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds

@@ -69,7 +69,7 @@ def record(field: Path, days: float, seed: int, scenario_path: str | None, rows:
            heliostats: int | None = None) -> None:
     from helicalib.campaign.runner import CampaignRunner
     from helicalib.campaign.sensor import camera_sensors
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
     from helicalib.config import load_field_config
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.clock import VirtualClock

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from helicalib.campaign.runner import CampaignRunner
-from helicalib.simulation import default_start_s
+from helicalib.app.simulated import default_start_s
 from helicalib.sim.camera import SimCamera, simulated_flux
 from helicalib.sim.clock import VirtualClock
 from helicalib.sim.plant import SimulatedPlant

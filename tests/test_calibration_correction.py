@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from helicalib.calibration.correction import observed_normal, stroke_correction
 from helicalib.config import load_field_config, parse_field_config
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import gamma_rad
 from helicalib.geometry.heliostat import HeliostatModel

@@ -10,7 +10,7 @@ import pytest
 
 from helicalib.calibration.fit import beam_spread_mrad, fit_error_model, leave_out_params, predict_strokes
 from helicalib.config import load_field_config
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_at_site

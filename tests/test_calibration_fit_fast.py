@@ -23,7 +23,7 @@ from helicalib.calibration import fit_solver
 from helicalib.calibration.fit import _Problem, fit_error_model, sky_grid
 from helicalib.campaign import policy
 from helicalib.config import load_field_config
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry.heliostat import HeliostatModel
 
 ROOT = Path(__file__).resolve().parents[1]

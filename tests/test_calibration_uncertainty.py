@@ -7,7 +7,7 @@ import pytest
 
 from helicalib.calibration import uncertainty as unc
 from helicalib.config import load_field_config
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from helicalib.campaign.policy import Book, choose_next
-from helicalib.simulation import default_start_s
+from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 from helicalib.store.records import Observation
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from helicalib.campaign import policy
-from helicalib.campaign.drift import drift_evidence
+from helicalib.campaign.operation.drift import drift_evidence
 from helicalib.geometry.heliostat import HeliostatModel
 from test_calibration_fit_fast import CFG, recorded  # noqa: F401  (the fixture)
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from helicalib.campaign.runner import CampaignRunner
-from helicalib.simulation import default_start_s
+from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 from helicalib.devices.camera_http import HttpCamera
 from helicalib.devices.clock import PlantClock
@@ -127,7 +127,7 @@ def test_faults_make_visits_invalid_and_the_campaign_goes_on(demo_field_path, tm
 
 def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
     from helicalib.campaign.runner import WEATHER_POLL_S
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
     from helicalib.devices.registers import FieldState
 
     cfg = load_field_config(demo_field_path)
@@ -160,7 +160,7 @@ def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
 def test_campaign_measures_mirror_cleanliness_from_the_spot(demo_field_path, tmp_path):
     """Issue 9: each valid visit records the cleanliness measured from the spot's power; the
     simulated plant's soiling records (the register) are the independent truth."""
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
 
     cfg = load_field_config(demo_field_path)
     start = default_start_s(cfg) + MORNING_S + 3 * 3600

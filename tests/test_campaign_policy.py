@@ -218,7 +218,7 @@ def test_heliostats_without_a_point_share_one_verdict_and_one_set_of_gaps(demo_f
     instants over two days, against each heliostat's own evaluation)."""
     from helicalib.calibration import acceptance as acc
     from helicalib.campaign import policy as pol
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
     from helicalib.config import load_field_config
 
     cfg = load_field_config(demo_field_path)

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from helicalib.simulation import default_start_s
+from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 
 IDS = "H0001,H0040"

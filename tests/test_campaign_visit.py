@@ -11,11 +11,11 @@ import pytest
 
 from helicalib.campaign import policy
 from helicalib.campaign.runner import CampaignRunner
-from helicalib.simulation import default_start_s, simulate_campaign
+from helicalib.app.simulated import default_start_s, simulate_campaign
 from helicalib.config import load_field_config
 from helicalib.errors import ConfigError
 from helicalib.devices.registers import HeliostatState
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable, sun_at_site
 from helicalib.sim.camera import SimCamera

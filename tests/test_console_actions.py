@@ -1,4 +1,4 @@
-"""Operator actions (campaign/operator.py) on a real runner, and the console's address rules.
+"""Operator actions (campaign/operation/crew.py) on a real runner, and the console's address rules.
 
 In-process simulated plant on a virtual clock with the fast spot sensor (no frames: these tests
 are about who goes on a board, not about the vision), a real SQLite file. Requests are written to
@@ -14,7 +14,7 @@ import sys
 import pytest
 
 from campaign_helpers import inprocess_campaign
-from helicalib.campaign.operator import OperatorDesk, check_request, replay
+from helicalib.campaign.operation.crew import OperatorDesk, check_request, replay
 from helicalib.config import load_field_config
 from helicalib.console.server import parse_address
 from helicalib.errors import ConfigError

@@ -2,7 +2,7 @@
 
 One campaign for the module: the simulated plant served on loopback Modbus TCP + HTTP cameras
 (plant time 150x real), the real clients, a real SQLite file, the runner on APScheduler
-(:func:`helicalib.campaign.live.run_live`) in a thread, armed, with ``--console 127.0.0.1:0``
+(:func:`helicalib.app.live.run_live`) in a thread, armed, with ``--console 127.0.0.1:0``
 attached exactly as ``helicalib run`` attaches it. The operator's name carries markup and a script
 (``<script>…</script>``; heliostat ids are restricted to a safe alphabet by the field config), so
 escaping is checked on every panel that shows it. Chromium and
@@ -27,8 +27,8 @@ import pytest
 import yaml
 
 from conftest import DEMO_FIELD
-from helicalib.campaign import live
-from helicalib.campaign.console import LineLog
+from helicalib.app import live
+from helicalib.app.terminal import LineLog
 from helicalib.config import load_field_config
 from helicalib.console.server import attach_console
 from helicalib.store.sqlite import Store
@@ -83,7 +83,7 @@ def browser():
 def campaign(tmp_path_factory):
     """A live armed campaign of six heliostats with its console on 127.0.0.1 (a free port)."""
     from helicalib.campaign.runner import CampaignRunner
-    from helicalib.simulation import _network_plant, default_start_s
+    from helicalib.app.simulated import _network_plant, default_start_s
     from helicalib.sim.scenario import Scenario
 
     tmp = tmp_path_factory.mktemp("console")

@@ -23,7 +23,7 @@ import urllib.request
 import pytest
 
 from campaign_helpers import inprocess_campaign
-from helicalib.campaign.console import LineLog
+from helicalib.app.terminal import LineLog
 from helicalib.config import load_field_config
 from helicalib.console.server import attach_console
 from helicalib.store.sqlite import Store

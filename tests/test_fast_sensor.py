@@ -10,7 +10,7 @@ import pytest
 
 from campaign_helpers import inprocess_campaign
 from helicalib.campaign.sensor import camera_sensors
-from helicalib.simulation import simulate_campaign, default_start_s
+from helicalib.app.simulated import simulate_campaign, default_start_s
 from helicalib.config import load_field_config
 from helicalib.sim.fast_sensor import MODEL_PATH, FastSensor, SensorErrorModel
 from helicalib.store.sqlite import Store

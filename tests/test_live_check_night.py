@@ -10,7 +10,7 @@ import json
 import pytest
 
 from test_live_clock_jump import cfg, served_field  # noqa: F401 - a fixture and its maker
-from helicalib.campaign.session import EXIT_NOT_MEASURED
+from helicalib.app.session import EXIT_NOT_MEASURED
 from helicalib.cli import main
 
 
@@ -88,7 +88,7 @@ def test_a_check_stopped_by_ctrl_c_exits_0(night, capsys):
 def test_a_clock_jump_during_a_check_does_not_suggest_an_option_check_lacks(night, capsys, monkeypatch):
     import threading
 
-    from helicalib.campaign.session import EXIT_CLOCK_JUMP
+    from helicalib.app.session import EXIT_CLOCK_JUMP
     from helicalib.devices.clock import ClockJumpError, PlantClock
 
     path, _start, _sim = night

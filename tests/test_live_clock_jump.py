@@ -15,11 +15,11 @@ import pytest
 import yaml
 
 from test_live_faults import served  # noqa: F401 - a fixture
-from helicalib.campaign import live
+from helicalib.app import live
 from helicalib.cli import main
 from helicalib.config import load_field_config
 from helicalib.devices.registers import HeliostatState
-from helicalib.simulation import default_start_s
+from helicalib.app.simulated import default_start_s
 from helicalib.store.sqlite import Store
 
 

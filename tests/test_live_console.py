@@ -12,7 +12,7 @@ import json
 import pytest
 
 from campaign_helpers import inprocess_campaign
-from helicalib.campaign.console import JsonLines, LineLog, TerminalView, site_timezone
+from helicalib.app.terminal import JsonLines, LineLog, TerminalView, site_timezone
 from helicalib.config import load_field_config
 
 

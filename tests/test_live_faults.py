@@ -20,7 +20,7 @@ import time
 import pytest
 
 from campaign_helpers import inprocess_campaign
-from helicalib.campaign import live
+from helicalib.app import live
 from helicalib.campaign.runner import Returning
 from helicalib.cli import main
 from helicalib.config import load_field_config
@@ -307,7 +307,7 @@ def served(cfg):
     """The simulated plant on loopback Modbus TCP + HTTP, with the real clients and the plant clock."""
     from contextlib import ExitStack
 
-    from helicalib.simulation import _network_plant, default_start_s
+    from helicalib.app.simulated import _network_plant, default_start_s
     from helicalib.sim.scenario import Scenario
 
     with ExitStack() as stack:

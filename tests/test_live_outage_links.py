@@ -11,7 +11,7 @@ import socket
 import threading
 
 from test_live_faults import _network_runner, cfg, served  # noqa: F401 - fixtures
-from helicalib.campaign import live
+from helicalib.app import live
 from helicalib.devices.modbus import ModbusLink
 
 

@@ -26,7 +26,7 @@ from contextlib import contextmanager
 import pytest
 
 from test_live_clock_jump import cfg, field  # noqa: F401 - fixtures: the simulated plant served on loopback
-from helicalib.campaign.session import EXIT_STORAGE
+from helicalib.app.session import EXIT_STORAGE
 from helicalib.cli import main
 from helicalib.store.sqlite import Store
 

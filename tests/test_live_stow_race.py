@@ -3,7 +3,7 @@
 The simulated plant is served on loopback (Modbus TCP) with the real client; each write to the
 plant is slowed down and logged in wire order. The tick's thread refreshes the field's tracking
 corrections (one track command per calibrated heliostat) while the weather job, finding the tick
-busy, reads a gust and stows the field on its own (:mod:`helicalib.campaign.live`).
+busy, reads a gust and stows the field on its own (:mod:`helicalib.app.live`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from test_live_faults import _network_runner, cfg, served  # noqa: F401 - fixtures
-from helicalib.campaign import live
+from helicalib.app import live
 from helicalib.devices import registers as R
 
 

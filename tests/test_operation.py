@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from helicalib.campaign import operation as op
-from helicalib.simulation import simulate_campaign
+from helicalib.app.simulated import simulate_campaign
 from helicalib.config import load_field_config
 from helicalib.sim.scenario import parse_scenario
 
@@ -56,7 +56,7 @@ def test_at_most_one_check_a_solar_day_and_the_rota_baseline():
 
 
 def test_checks_leaning_the_same_way_add_up():
-    from helicalib.campaign.drift import trend_p_value
+    from helicalib.campaign.operation.drift import trend_p_value
 
     # three checks, each 2 sigma off the same way: alone p = exp(-2) = 0.14 each, together exp(-6)
     assert trend_p_value([[2.0, 0.0]] * 3) == pytest.approx(math.exp(-0.5 * 3 * 4.0))
@@ -279,7 +279,7 @@ def test_a_check_averages_more_after_frames_than_a_campaign_visit(tmp_path, demo
     import json
     import sqlite3
 
-    from helicalib.campaign import operation as op_rules
+    from helicalib.campaign.operation import rules as op_rules
 
     cfg = load_field_config(demo_field_path)
     assert cfg.calibration.after_frames < op_rules.CHECK_AFTER_FRAMES  # otherwise the test shows nothing

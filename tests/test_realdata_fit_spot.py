@@ -114,7 +114,7 @@ def test_fit_uses_calibration_fit_error_model(imported_dir, capsys):
     from helicalib.calibration.fit import fit_error_model
     from helicalib.calibration.observations import observations_arrays
     from helicalib.config import load_field_config
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.realdata.fitting import REALDATA_PRIOR_SIGMA
 

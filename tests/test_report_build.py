@@ -21,11 +21,11 @@ import pandas as pd
 import pytest
 
 from helicalib.config import load_field_config
-from helicalib.geometry.errors import NAMES
+from helicalib.geometry.error_model import NAMES
 from helicalib.geometry.sun import sun_at_site
 from helicalib.store import Observation, Store
 from helicalib.vision.frames import encode_png
-from helicalib.vision.render import Spot, pose_from_camera, render_frame
+from helicalib.sim.render import Spot, pose_from_camera, render_frame
 
 ROOT = Path(__file__).resolve().parents[1]
 FIELD = ROOT / "field_config" / "demo_north.yaml"

@@ -8,7 +8,7 @@ import pytest
 
 from helicalib.config import load_field_config
 from helicalib.errors import ConfigError
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
 from helicalib.sim.scenario import parse_scenario
 from helicalib.sim.truth import DAY_S, TrueField
@@ -127,7 +127,7 @@ def test_simulate_drift_share_reports_the_drift_it_met(cfg, demo_field_path, tmp
     the run (after its first tenth here), and the summary lists the events that began."""
     import json
 
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
     from helicalib.cli import main
     from helicalib.commands.simulate import with_drift_share
     from helicalib.sim.scenario import Scenario

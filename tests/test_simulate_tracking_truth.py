@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from helicalib.campaign.policy import TRACKING_REFRESH_S, tracking_corrections
-from helicalib.simulation import default_start_s, plant_tracking_truth
+from helicalib.app.simulated import default_start_s, plant_tracking_truth
 from helicalib.config import load_field_config
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import tracking_approach
 from helicalib.geometry.sun import SunTable

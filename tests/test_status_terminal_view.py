@@ -12,7 +12,7 @@ import re
 
 import pytest
 
-from helicalib.campaign.console import LineLog, TerminalView
+from helicalib.app.terminal import LineLog, TerminalView
 from helicalib.campaign.events import BoardState, RunEvent, Snapshot
 
 T0 = 1_795_010_000.0  # 2026-11-18 13:53:20 UTC
@@ -162,7 +162,7 @@ def test_a_plant_that_stopped_answering_is_shown_first_and_the_readings_with_the
     assert "last error [mrad]" in text and "1.25 (6.0 min ago)" in text  # the board's last error and its age
     lines, js = io.StringIO(), io.StringIO()
     LineLog(UTC, stream=lines).on_snapshot(lost)
-    from helicalib.campaign.console import JsonLines
+    from helicalib.app.terminal import JsonLines
 
     JsonLines(UTC, stream=js).on_snapshot(lost)
     assert "status           plant unreachable since 2026-11-18T13:58:20Z (5.0 min)" in lines.getvalue()

@@ -140,7 +140,7 @@ def test_seeds_follow_the_documented_formula_and_not_the_order(swept, tmp_path):
 
 
 def test_a_run_alone_gives_the_summary_it_gave_in_the_sweep(swept, tmp_path):
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
     from helicalib.config import load_field_config
 
     run = next(r for r in swept["runs"] if r.planner == "round-robin" and r.seed == 3)

@@ -12,7 +12,7 @@ import yaml
 from helicalib.cli import main
 from helicalib.config import load_field_config
 from helicalib.vision.frames import encode_png, write_png
-from helicalib.vision.render import Spot, pose_from_camera, render_frame
+from helicalib.sim.render import Spot, pose_from_camera, render_frame
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import yaml
 from helicalib.config import ConfigError, DotMarks, load_field_config, parse_field_config
 from helicalib.vision.frames import read_frame, write_png
 from helicalib.vision.marks import _apply_h, find_marks, image_to_board
-from helicalib.vision.render import (DEMO_CAMERA_ENU_M, DOT_ALBEDO, Lighting, Spot, demo_dot_target, demo_target,
+from helicalib.sim.render import (DEMO_CAMERA_ENU_M, DOT_ALBEDO, Lighting, Spot, demo_dot_target, demo_target,
                                      look_at_pose, project_board_points, render_frame)
 from helicalib.vision.spot import measure_spot
 
@@ -263,7 +263,7 @@ def cylinder():
 
 
 def test_simulated_cameras_render_dot_boards_the_vision_finds(cylinder):
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
@@ -296,7 +296,7 @@ def test_simulated_cameras_render_dot_boards_the_vision_finds(cylinder):
 
 
 def test_short_simulated_campaign_on_dot_boards_gives_valid_observations(cylinder, tmp_path):
-    from helicalib.simulation import default_start_s, simulate_campaign
+    from helicalib.app.simulated import default_start_s, simulate_campaign
     from helicalib.store.sqlite import Store
 
     start = default_start_s(cylinder) + 9.5 * 3600
@@ -337,7 +337,7 @@ def test_the_scenario_paints_dot_boards_with_dot_albedo_and_mark_boards_with_mar
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
 
     def painted(cfg, **camera):
         sc = Scenario()
@@ -368,7 +368,7 @@ def test_light_grey_dots_are_found_on_frames_exposed_for_the_spot(cylinder):
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
 
     sc = Scenario()
     assert sc.camera.dot_albedo / sc.camera.board_albedo == pytest.approx(DOT_ALBEDO)
@@ -395,7 +395,7 @@ def test_the_camera_sensor_fixes_the_board_on_the_mean_of_its_before_frames(cyli
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
 
     plant = SimulatedPlant(cylinder, Scenario(), start_s=default_start_s(cylinder) + 9 * 3600)
     singles, means = [], []
@@ -428,7 +428,7 @@ def test_the_camera_sensor_finds_dim_light_grey_dots_on_more_frames_of_the_same_
     from helicalib.sim.camera import SimCamera
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.scenario import Scenario
-    from helicalib.simulation import default_start_s
+    from helicalib.app.simulated import default_start_s
     from helicalib.vision.frames import decode_frame
 
     class Counting:

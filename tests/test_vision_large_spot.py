@@ -12,7 +12,7 @@ import pytest
 
 from helicalib.vision.frames import read_frame, write_png
 from helicalib.vision.marks import find_marks
-from helicalib.vision.render import DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose, render_frame
+from helicalib.sim.render import DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose, render_frame
 from helicalib.vision.spot import measure_spot
 
 TARGET = demo_target()

@@ -12,7 +12,7 @@ import pytest
 from helicalib.config import Camera
 from helicalib.vision.frames import read_frame, write_png
 from helicalib.vision.marks import board_to_image, find_marks, image_to_board
-from helicalib.vision.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose,
+from helicalib.sim.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose,
                                      project_board_points, render_frame)
 
 TARGET = demo_target()

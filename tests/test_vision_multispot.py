@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from helicalib.vision.render import DEMO_CAMERA_ENU_M, Spot, demo_target, look_at_pose, render_frame
+from helicalib.sim.render import DEMO_CAMERA_ENU_M, Spot, demo_target, look_at_pose, render_frame
 from helicalib.vision.spot import measure_spot
 
 TARGET = demo_target()

@@ -19,7 +19,7 @@ from hypothesis.extra.numpy import arrays
 
 from helicalib.vision.frames import read_frame, write_png
 from helicalib.vision.marks import find_marks, image_to_board
-from helicalib.vision.render import DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose, render_frame
+from helicalib.sim.render import DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose, render_frame
 from helicalib.vision.spot import best_window, measure_spot, otsu_threshold, window_centroid
 
 TARGET = demo_target()

@@ -2,7 +2,7 @@
 
 Data: K observations, each the strokes the heliostat held, the sun vector, and the observed spot
 centre X in ENU (on whatever target plane). Unknowns: the named error parameters of
-:mod:`helicalib.geometry.errors` (all, or those named in ``free``).
+:mod:`helicalib.geometry.error_model` (all, or those named in ``free``).
 
 Residual (``residual_kind``):
 
@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 from helicalib.calibration import fit_solver
 from helicalib.calibration.fit_solver import NAN_RESIDUAL_MRAD
 from helicalib.calibration.fit_solver import loss_weights as _loss_weights
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import angles_to_normal, strokes_to_angles
 

@@ -5,7 +5,7 @@ Two parts:
 * :class:`BeamJacobian`: the fit's residuals of one heliostat **and their analytic Jacobian**
   with respect to all 15 error parameters, in one pass over the K observations. The effective
   drive is built once per parameter set from 3 × 3 rotation matrices (the same rotations as
-  :func:`helicalib.geometry.errors.apply`); every parameter then moves the mirror normal by a
+  :func:`helicalib.geometry.error_model.apply`); every parameter then moves the mirror normal by a
   rotation ``δn = Ω × n`` about an axis Ω carried through the drive (pedestal and canting
   angles, axis non-orthogonality), through the push-rod triangles' axis angles (stroke offsets,
   arm scales, dead bands), or moves the pivot. The beam residual's derivative follows from
@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import cross3
 

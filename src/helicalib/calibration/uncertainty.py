@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 
 LIMIT_MRAD = 1.2
@@ -122,7 +122,7 @@ class CheckTest:
     p_value : (K,) probability of a distance at least this large when nothing changed, ``exp(−d²/2)``
     outside : (K,) bool, ``p_value < alpha``: outside the predicted band
     whitened : (K, 2) ``L⁻¹ r`` with ``S = L Lᵀ``: standard normal in each component when nothing
-        changed (several checks leaning the same way add up: :mod:`helicalib.campaign.operation`)
+        changed (several checks leaning the same way add up: :mod:`helicalib.campaign.operation.rules`)
     """
 
     residual_mrad: np.ndarray

@@ -24,7 +24,7 @@ from helicalib.calibration.fit import fit_error_model, leave_out_params
 from helicalib.calibration.sun_days import sun_days
 from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import planner as planner_mod
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
 
@@ -236,7 +236,7 @@ def stored_epochs(store, campaign_id: int, until_s: float = math.inf) -> dict:
     """``{heliostat id: Epochs}`` for the heliostats of campaign ``campaign_id`` with a confirmed drift
     (its ``drift`` events) or an operator repair by ``until_s``, as the runner applies them on
     resume (:class:`Epochs`). Read once for a whole field."""
-    from helicalib.campaign.operator import replay
+    from helicalib.campaign.operation.crew import replay
 
     drifts: dict[str, list] = {}
     for e in store.events(campaign_id=campaign_id, kind="drift"):

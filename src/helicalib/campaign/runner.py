@@ -26,10 +26,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from helicalib.campaign import gating as gating_mod
-from helicalib.campaign import operation as op_rules
+from helicalib.campaign.operation import rules as op_rules
 from helicalib.campaign import policy
 from helicalib.campaign.board import AUTO_SPOTS, Board
-from helicalib.campaign.checks import OperationChecks
+from helicalib.campaign.operation.checks import OperationChecks
 from helicalib.campaign.controller import (
     APPROACH_LEAD_S,
     REQUESTS,
@@ -61,7 +61,7 @@ WEATHER_MAX_AGE_S = 3 * WEATHER_POLL_S
 STORAGE_RETRIES = 5
 """Failed writes to the database or its frames folder (full disk, read-only file or folder), with
 no observation stored with its frames between them, after which a live run gives up: every beam leaves its board and goes back to
-tracking, and the process exits with :data:`helicalib.campaign.session.EXIT_STORAGE`."""
+tracking, and the process exits with :data:`helicalib.app.session.EXIT_STORAGE`."""
 CLEANLINESS_MAX_AGE_S = 1800.0
 """The gaps planner re-reads a heliostat's cleanliness register when its last read is this old
 [plant s]. Soiling changes over days; a washed mirror counts as clean within half an hour. Re-read
@@ -579,7 +579,7 @@ class CampaignRunner:
         """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
         if self._lost_links and "scs" in self._lost_links:  # does the plant's SCS answer again?
             self.probe_scs(now)
-        if self.operator is not None:  # operator actions (campaign/operator.py): the crew's requests first
+        if self.operator is not None:  # operator actions (campaign/operation/crew.py): the crew's requests first
             self.operator.apply(self, now)
         if self.stowed and self.active:  # stowed by the weather job while this tick's thread waited on a device
             self._abort_visits(now, "field stowed for wind")
@@ -779,7 +779,7 @@ class CampaignRunner:
             spreads = policy.model_spreads(self.cfg, self.book, self.models, self._nominal_rows,
                                            [h for h in cands if h not in busy], self.sun(now)[0], now)
         usable = lambda hid: self._reaches(hid, target_id, now)  # noqa: E731
-        # operator actions (campaign/operator.py): a queued re-check goes before the planner's choice
+        # operator actions (campaign/operation/crew.py): a queued re-check goes before the planner's choice
         choice = self.operator.next_for(self, target_id, now) if self.operator is not None else None
         check = False
         if choice is None and self.operation is not None:  # a suspected drift is checked again first

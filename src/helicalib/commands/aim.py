@@ -32,7 +32,7 @@ def aim(cfg, heliostat_id: str, target_id: str | None, time, uv_m=(0.0, 0.0), pa
     """Plain-data aim solution for one heliostat (see ``run``)."""
     import numpy as np
 
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.geometry.sun import parse_time, sun_at_site
 

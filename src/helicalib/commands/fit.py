@@ -68,7 +68,7 @@ def split_report(model, strokes, sun, spot, targets, split, priors: dict, sigma_
 def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas_mrad: float = 1.0,
                splits: tuple[str, ...] = (), test_share: float = DEFAULT_TEST_SHARE, seed: int = 0) -> dict:
     from helicalib.calibration.observations import observations_arrays
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.realdata.fitting import beam_error_m, fit, identifiability, leave_one_out, normal_error_mrad
 
@@ -141,7 +141,7 @@ def run(args) -> int:
         if not (math.isfinite(sigma) and sigma >= 0):
             raise ConfigError(f"--prior {item}: SIGMA must be a finite number >= 0 (0 fixes the parameter)")
         priors[name.strip()] = sigma
-    from helicalib.geometry import errors as em
+    from helicalib.geometry import error_model as em
     for name in priors:
         if name not in em.NAMES:
             raise ConfigError(f"--prior {name}: unknown parameter; known: {', '.join(em.NAMES)}")

@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-    from helicalib.campaign.session import live_session
+    from helicalib.app.session import live_session
     from helicalib.console.server import check_console_args
 
     check_console_args(args)

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-    from helicalib.campaign.session import live_session
+    from helicalib.app.session import live_session
     from helicalib.console.server import check_console_args
 
     check_console_args(args)  # a wrong --console is refused before the plant or the database is touched

@@ -102,7 +102,7 @@ def run(args) -> int:
 def run_campaign(args, inputs: Inputs, out: Path) -> int:
     """The campaign of ``args`` into ``out`` (checked and marked by the caller), then its summary and
     report."""
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
     from helicalib.commands._progress import ProgressReporter, timed_step
     from helicalib.outdir import prepare
 

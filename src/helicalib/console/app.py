@@ -258,8 +258,8 @@ def _no_constant(name: str):
 def parse_action(raw: bytes) -> tuple[str, list[str], str]:
     """(kind, heliostat ids, who) of an action's JSON body, each of the right type and length;
     :class:`ConfigError` naming the field otherwise. Whether the kind and ids are known is
-    :func:`helicalib.campaign.operator.check_request`'s to say."""
-    from helicalib.campaign.operator import KINDS, MAX_WHO_CHARS
+    :func:`helicalib.campaign.operation.crew.check_request`'s to say."""
+    from helicalib.campaign.operation.crew import KINDS, MAX_WHO_CHARS
 
     try:
         body = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)

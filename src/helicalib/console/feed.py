@@ -1,7 +1,7 @@
 """What the controller's process tells its console page: snapshots and events, thread-safe.
 
 :class:`LiveFeed` is a view of the campaign like the terminal's (``on_event``, ``on_snapshot``):
-the runner's listener and :func:`~helicalib.campaign.live.run_live`'s output call it from the
+the runner's listener and :func:`~helicalib.app.live.run_live`'s output call it from the
 scheduler's and the main thread; the web server's thread reads :meth:`LiveFeed.latest`. Every
 method only swaps a reference or bumps a counter under a lock held for microseconds, so the
 control loop never waits on the page. :class:`Tee` hands one output's calls to the terminal view

@@ -129,11 +129,11 @@ def url(host: str, port: int, token: str | None) -> str:
 def attach_console(args, runner, output):
     """The controller's hook: operator actions, and the page when ``args.console`` is set.
 
-    An armed runner always gets its :class:`~helicalib.campaign.operator.OperatorDesk` (what the
+    An armed runner always gets its :class:`~helicalib.campaign.operation.crew.OperatorDesk` (what the
     crew's earlier actions left, paused or out of service, holds with or without a page). With
     ``--console`` the page is served from now until the run's output stops, and its address
     (with the token when needed) is said on ``output``. Returns the output ``run_live`` gets."""
-    from helicalib.campaign.operator import OperatorDesk
+    from helicalib.campaign.operation.crew import OperatorDesk
     from helicalib.console.app import Console, create_app
     from helicalib.console.feed import LiveFeed, Tee
     from helicalib.console.view import Sources
@@ -155,7 +155,7 @@ def attach_console(args, runner, output):
                       armed_actions=runner.armed, images_dir=runner.store.images_dir)
 
     def act(kind, ids, who):
-        from helicalib.campaign.operator import check_request
+        from helicalib.campaign.operation.crew import check_request
 
         ids = check_request(kind, ids, set(runner.ids), who)
         try:

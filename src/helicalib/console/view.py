@@ -148,7 +148,7 @@ def _gate(cfg, snapshot, events, last_obs, standing, now_s) -> dict:
     age; the plant unreachable since when (the snapshot's, else the newest plant_lost/plant_back)."""
     from types import SimpleNamespace
 
-    from helicalib.campaign.console import gate_text
+    from helicalib.app.terminal import gate_text
 
     g = cfg.gating if cfg is not None else None
     limits = None if g is None else {"wind_max_ms": g.wind_max_ms, "stow_wind_ms": g.stow_wind_ms,
@@ -362,7 +362,7 @@ def locate_damage(store, campaign_id: int | None) -> str | None:
 
 def read_view(src: Sources, snapshot=None) -> dict:
     """Everything the page shows (see the module's docstring); ``snapshot``: the controller's newest."""
-    from helicalib.campaign.operator import replay
+    from helicalib.campaign.operation.crew import replay
 
     store, cfg, cid = src.store, src.cfg, src.campaign_id
     campaign = store.campaign(cid)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from helicalib.geometry import errors as em
+from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import (
     DriveArrays,

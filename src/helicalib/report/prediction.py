@@ -6,7 +6,7 @@ the expected RMS of the beam error, its central 90 % interval, and the probabili
 exceeds the acceptance limit (1.2 mrad) somewhere on the path. The fit is made again from the
 campaign's valid observations, as the campaign fits them (after a confirmed drift, only the points
 since it, centred on the model from before it; a campaign that went into year-round operation with
-operation's fits, which model a settling pedestal: :mod:`helicalib.campaign.operation`).
+operation's fits, which model a settling pedestal: :mod:`helicalib.campaign.operation.rules`).
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def stored_fits(data, ids: list[str], nominal) -> dict:
     the valid located observations since its newest confirmed drift or repair, thinned to the visit
     cap as they came in, with those from before the drift in epochs of their own) and as the run fits them
     (an operated campaign with operation's fits). Heliostats without such a point are left out."""
-    from helicalib.campaign import operation as op_rules
+    from helicalib.campaign.operation import rules as op_rules
     from helicalib.campaign import policy
     from helicalib.store import Store
 

@@ -36,10 +36,10 @@ def acceptance_spans(data: CampaignData) -> dict:
 
 
 def fit_table(fit) -> dict | None:
-    """A fit's named parameters with their 1-sigma and units (``geometry.errors.PARAMETERS``)."""
+    """A fit's named parameters with their 1-sigma and units (``geometry.error_model.PARAMETERS``)."""
     if fit is None:
         return None
-    from helicalib.geometry.errors import PARAMETERS
+    from helicalib.geometry.error_model import PARAMETERS
 
     units = {p.name: (p.unit, p.description) for p in PARAMETERS}
     names = list(fit.params)

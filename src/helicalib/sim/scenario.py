@@ -225,7 +225,7 @@ class Scenario(_Model):
     def _known_parameters(cls, value):
         if value is None:
             return value
-        from helicalib.geometry import errors as em
+        from helicalib.geometry import error_model as em
 
         for name, sigma in value.items():
             if name in em.BACKLASH:

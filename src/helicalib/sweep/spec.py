@@ -158,7 +158,7 @@ class Sweep:
     def runs(self, out_dir: str | Path, progress=None) -> list[Run]:
         """Every run of the grid, cell by cell, seeds in file order; ``out_dir`` is made absolute.
         ``progress(done, total)`` is called every :data:`PROGRESS_EVERY` runs (a large grid takes seconds)."""
-        from helicalib.simulation import default_start_s
+        from helicalib.app.simulated import default_start_s
         from helicalib.geometry.sun import parse_time, to_unix_seconds
 
         out = Path(out_dir).resolve()
@@ -210,7 +210,7 @@ def simulation_seed(root_seed: int, cell: str, seed: int) -> int:
 
 def fidelity_supported() -> bool:
     """Whether ``simulate_campaign`` takes a ``fidelity`` (else every run renders frames)."""
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
 
     return "fidelity" in inspect.signature(simulate_campaign).parameters
 

@@ -56,7 +56,7 @@ def run_one(run: Run, cfg, scenario) -> dict:
 
 
 def _run(run: Run, cfg, scenario) -> dict:
-    from helicalib.simulation import simulate_campaign
+    from helicalib.app.simulated import simulate_campaign
 
     # an interrupted or stale run starts afresh, never resumes; only a run folder is cleared
     out = prepare(run.run_dir, RUN_OUTPUT, replace=True, option="run folder",

@@ -16,7 +16,7 @@ from collections import deque
 
 import numpy as np
 
-from helicalib.campaign import operation as op_rules
+from helicalib.campaign.operation import rules as op_rules
 from helicalib.campaign import policy
 from helicalib.geometry.heliostat import HeliostatModel
 
@@ -230,7 +230,7 @@ class OperationChecks:
         """A check of an accepted heliostat: its first placement against the fit the visit started
         with (:func:`.drift.drift_evidence`); :data:`.operation.CONFIRM_CHECKS` in a row outside the
         band confirm a drift and reopen the calibration (:mod:`.operation`)."""
-        from helicalib.campaign.drift import drift_evidence, trend_p_value
+        from helicalib.campaign.operation.drift import drift_evidence, trend_p_value
 
         suspect = self.suspects.get(hid)
         if suspect:  # tested against the fit from before the first suspicious check, not one it entered

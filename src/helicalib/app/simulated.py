@@ -212,7 +212,7 @@ def operation_summary(cfg, runner: CampaignRunner, sim, store: Store, campaign_i
       low band since then (None when never commissioned);
     * ``checks``: operation checks started.
     """
-    from helicalib.campaign import operation as op_rules
+    from helicalib.campaign.operation import rules as op_rules
 
     ids = set(runner.ids)
     truth = {e.heliostat_id: e for e in sim.truth.drift_events if e.start_s < end_s and e.heliostat_id in ids}

@@ -187,8 +187,8 @@ def live_session(args, mode: str) -> int:
     """Open the store, connect the plant, resume or start a campaign, run it on APScheduler."""
     from rich.console import Console
 
-    from helicalib.campaign.console import make_output, site_timezone
-    from helicalib.campaign.live import run_live
+    from helicalib.app.terminal import make_output, site_timezone
+    from helicalib.app.live import run_live
     from helicalib.campaign.runner import CampaignRunner
     from helicalib.config import load_field_config
     from helicalib.console.server import attach_console
@@ -344,9 +344,9 @@ def recheck_rows(cfg, runner) -> list[dict]:
     heliostat's model (its newest fit, which placed it) puts it: the measure acceptance judges, with
     acceptance's limit ``acceptance.max_rms_mrad``. T/GRLM formula (1) on the board, which the loop
     uses, is given beside it. ``drift``: the same placement tested against the band the newest fit
-    predicts for it (:mod:`helicalib.campaign.drift`); outside it, the heliostat changed since."""
-    from helicalib.campaign import operation as op_rules
-    from helicalib.campaign.drift import drift_evidence
+    predicts for it (:mod:`helicalib.campaign.operation.drift`); outside it, the heliostat changed since."""
+    from helicalib.campaign.operation import rules as op_rules
+    from helicalib.campaign.operation.drift import drift_evidence
     from helicalib.campaign.events import iso_utc
     from helicalib.campaign.policy import NO_EPOCH, fit_size, prediction_error_mrad, stored_basis, stored_epochs
 

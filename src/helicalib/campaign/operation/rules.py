@@ -34,7 +34,7 @@ choice; the crew's requests (console) go before everything.
 Drift
 -----
 A check whose first placement lies outside the fit's predicted band
-(:func:`helicalib.campaign.drift.drift_evidence`, p below 0.001) makes the heliostat *suspected*:
+(:func:`helicalib.campaign.operation.drift.drift_evidence`, p below 0.001) makes the heliostat *suspected*:
 it is checked again first, and that check, tested against the fit from before the first suspicious
 check (a suspicious point must not widen the band it is judged by), confirms the drift when its p is
 below :data:`CONFIRM_ALPHA` (one check alone could be a bad frame or a gust the vision did not
@@ -76,7 +76,7 @@ before the first suspicious check (the suspicious point must not widen the band 
 and after a first check below p 0.001 a second below 0.01 is strong evidence together."""
 TREND_CHECKS = 3
 """A slow creep: the last this many checks, each inside its band, whose whitened residuals lean the
-same way (:func:`helicalib.campaign.drift.trend_p_value`) ..."""
+same way (:func:`helicalib.campaign.operation.drift.trend_p_value`) ..."""
 TREND_ALPHA = 1e-3
 """... below this p-value make the heliostat suspected, as one check outside its band does."""
 TILT_RATE_IN_FITS = True
