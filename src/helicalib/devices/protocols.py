@@ -110,3 +110,54 @@ class Camera(Protocol):
     def grab(self) -> Frame:
         """The current frame; raises :class:`helicalib.errors.MeasurementError` or ``PlantError`` on failure."""
         ...
+
+
+# ---------------------------------------------------------------------------------------------
+# Optional abilities a plant declares (checked once when a campaign is built, never in its loop)
+# ---------------------------------------------------------------------------------------------
+
+
+@runtime_checkable
+class BulkTracking(Protocol):
+    """A plant that takes the track command of many heliostats in one write (the in-process
+    simulated plant): the same registers and state as one :meth:`Plant.track` per heliostat."""
+
+    def track_many(self, indices, corrections_mm: np.ndarray) -> np.ndarray:
+        """Track commands for distinct ``indices`` (k,) with ``corrections_mm`` (k, 2) [mm];
+        returns the sequence numbers (k,)."""
+        ...
+
+
+@runtime_checkable
+class BulkCleanliness(Protocol):
+    """A plant that reads the cleanliness registers of many heliostats in one read: what
+    :meth:`Plant.status` gives for each."""
+
+    def cleanliness_many(self, indices) -> np.ndarray:
+        """Cleanliness (k,) of heliostats ``indices`` (k,) now."""
+        ...
+
+
+@runtime_checkable
+class Hurries(Protocol):
+    """A plant link whose retries can be cut short when the controller is stopping."""
+
+    def hurry(self) -> None:
+        """From now on few attempts per request and no back-off."""
+        ...
+
+
+@dataclass(frozen=True)
+class PlantAbilities:
+    """What a plant offers beyond :class:`Plant`, read once from the object (``abilities_of``)."""
+
+    bulk_tracking: bool = False
+    bulk_cleanliness: bool = False
+    hurries: bool = False
+
+
+def abilities_of(plant: object) -> PlantAbilities:
+    """The optional abilities ``plant`` declares (its methods, by the protocols above)."""
+    return PlantAbilities(bulk_tracking=isinstance(plant, BulkTracking),
+                          bulk_cleanliness=isinstance(plant, BulkCleanliness),
+                          hurries=isinstance(plant, Hurries))
