@@ -42,7 +42,8 @@ import cv2
 import numpy as np
 
 from helicalib.campaign.sensor import MARKS_MEAN_FRAMES
-from helicalib.vision.marks import board_to_image, find_marks
+from helicalib.vision.homography import board_to_image
+from helicalib.vision.marks import find_marks
 from helicalib.config import load_field_config
 from helicalib.sim.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_dot_target, demo_target, look_at_pose,
                                      project_board_points, render_frame)

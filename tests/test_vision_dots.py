@@ -14,7 +14,9 @@ import yaml
 
 from helicalib.config import ConfigError, DotMarks, load_field_config, parse_field_config
 from helicalib.vision.frames import read_frame, write_png
-from helicalib.vision.marks import _apply_h, find_marks, image_to_board
+from helicalib.vision.homography import apply_homography as _apply_h
+from helicalib.vision.homography import image_to_board
+from helicalib.vision.marks import find_marks
 from helicalib.sim.render import (DEMO_CAMERA_ENU_M, DOT_ALBEDO, Lighting, Spot, demo_dot_target, demo_target,
                                      look_at_pose, project_board_points, render_frame)
 from helicalib.vision.spot import measure_spot

@@ -11,7 +11,8 @@ import pytest
 
 from helicalib.config import Camera
 from helicalib.vision.frames import read_frame, write_png
-from helicalib.vision.marks import board_to_image, find_marks, image_to_board
+from helicalib.vision.homography import board_to_image, image_to_board
+from helicalib.vision.marks import find_marks
 from helicalib.sim.render import (DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose,
                                      project_board_points, render_frame)
 

@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from helicalib.vision.frames import read_frame, write_png
-from helicalib.vision.marks import find_marks, image_to_board
+from helicalib.vision.homography import image_to_board
+from helicalib.vision.marks import find_marks
 from helicalib.sim.render import DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose, render_frame
 from helicalib.vision.spot import best_window, measure_spot, otsu_threshold, window_centroid
 

@@ -129,22 +129,6 @@ def stopped_before(target, others, origin_enu, direction_enu) -> np.ndarray:
     return out
 
 
-def mark_mask(target, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """True where board points (u, v) [m] lie on one of the four L marks (vertex inward, two arms)."""
-    out = np.zeros(np.broadcast(u, v).shape, dtype=bool)
-    if target.marks is None:
-        return out
-    arm, thick = target.marks.arm_m, target.marks.thickness_m
-    for vu, vv in target.marks.vertices_m:
-        su, sv = -np.sign(vu) or 1.0, -np.sign(vv) or 1.0   # inward directions
-        a = (u - vu) * su                                   # distance inward along u
-        b = (v - vv) * sv
-        arm_u = (a >= 0) & (a <= arm) & (b >= 0) & (b <= thick)
-        arm_v = (b >= 0) & (b <= arm) & (a >= 0) & (a <= thick)
-        out |= arm_u | arm_v
-    return out
-
-
 class BoardRenderer:
     """Renders frames of one camera (its pose, intrinsics and target board), cached static parts."""
 

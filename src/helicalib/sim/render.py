@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from helicalib.config import DotMarks, Target
+from helicalib.sim.boards import dark_mask
 
 
 @dataclass(frozen=True)
@@ -139,25 +140,6 @@ class Lighting:
         return self.dot_albedo if target.marks is not None and target.marks.kind == "dots" else self.mark_albedo
 
 
-def mark_mask(target: Target, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """True where board point (u, v) [m] lies on one of the four L marks (or the nine dots of a dot board)."""
-    m = target.marks
-    inside = np.zeros(np.broadcast(u, v).shape, dtype=bool)
-    if m is None:
-        return inside
-    if m.kind == "dots":
-        from helicalib.sim.boards import dot_mask
-
-        return dot_mask(m, u, v)
-    for pu, pv in m.vertices_m:
-        su, sv = -np.sign(pu), -np.sign(pv)  # arms run toward the board centre
-        a = su * (u - pu)  # distance from the vertex along the horizontal arm
-        b = sv * (v - pv)
-        in_quadrant = (a >= 0) & (b >= 0) & (a <= m.arm_m) & (b <= m.arm_m)
-        inside |= in_quadrant & ((a <= m.thickness_m) | (b <= m.thickness_m))
-    return inside
-
-
 def _image_to_board(pose: CameraPose, target: Target, xs: np.ndarray, ys: np.ndarray):
     if pose.distortion is not None and any(abs(d) > 0 for d in pose.distortion):
         import cv2
@@ -210,7 +192,7 @@ def render_frame(target: Target, pose: CameraPose, spots: Sequence[Spot] = (), l
                 light = lighting.ambient * (1.0 + lighting.gradient[0] * u / hw + lighting.gradient[1] * v / hh)
                 for s in spots:
                     light = light + s.irradiance(u, v)
-                albedo = np.where(mark_mask(target, u, v), lighting.albedo_of(target), 1.0)
+                albedo = np.where(dark_mask(target, u, v), lighting.albedo_of(target), 1.0)
                 acc += np.where(on_board, albedo * light, lighting.background * (1.0 + 0.1 * (ys0 / height)))
         img[y0:y1, x0:x1] = acc / supersample**2
     if lighting.noise_sigma > 0:

@@ -3,7 +3,7 @@
 The 2019 calibration article's boards carry nine round dots of two sizes on a 3 × 3 grid (any paint
 clearly darker than the board; light grey measures a spot on a dot best, docs/vision.md);
 the reference dot (the centre one by default) is the board's measuring point, (u, v) = (0, 0).
-:func:`find_dots` returns the same :class:`~helicalib.vision.marks.MarksResult` as the L marks, so
+:func:`find_dots` returns the same :class:`~helicalib.vision.homography.MarksResult` as the L marks, so
 everything downstream (rectified grid, spot centre, reuse of the marks in a campaign) is shared.
 
 Method
@@ -45,8 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from helicalib.config import Camera, Target
-from helicalib.vision.marks import (MarksResult, _apply_h, camera_model, distort_px, finish_homography,
-                                   undistort_px)
+from helicalib.vision.homography import (MarksResult, apply_homography, camera_model, distort_px, finish_homography,
+                                        undistort_px)
 
 MIN_DOTS = 5
 """Fewest identified dots that give a checked homography (four fit exactly; the fifth checks them)."""
@@ -291,8 +291,8 @@ def _find_dots(gray: np.ndarray, target: Target, camera: Camera | None, max_repr
         Hbi, _ = cv2.findHomography(model[sel], ideal_all[hit[sel]], 0)
         if Hbi is None or not np.all(np.isfinite(Hbi)):
             break
-        pred = _apply_h(Hbi, model)
-        scale = np.linalg.norm(_apply_h(Hbi, model + [marks.pitch_m, 0.0]) - pred, axis=1) / marks.pitch_m
+        pred = apply_homography(Hbi, model)
+        scale = np.linalg.norm(apply_homography(Hbi, model + [marks.pitch_m, 0.0]) - pred, axis=1) / marks.pitch_m
         pred_px = distort_px(pred, K, dist)
         new, _ = _match(pred_px, 2 * radii * scale, pts, diam, 0.15 * marks.pitch_m * scale)
         if len(set(new[new >= 0].tolist())) != np.count_nonzero(new >= 0):
@@ -319,8 +319,8 @@ def _find_dots(gray: np.ndarray, target: Target, camera: Camera | None, max_repr
             Hbi, _ = cv2.findHomography(model[use], corrected[use], 0)
             if Hbi is None or not np.all(np.isfinite(Hbi)):
                 return MarksResult(False, "marks_not_found", "the dots do not define a homography.", **not_found)
-            corrected = measured - (conic_centres(Hbi, model, radii) - _apply_h(Hbi, model))
-        res = np.linalg.norm(_apply_h(Hbi, model) - corrected, axis=1)
+            corrected = measured - (conic_centres(Hbi, model, radii) - apply_homography(Hbi, model))
+        res = np.linalg.norm(apply_homography(Hbi, model) - corrected, axis=1)
         worst = int(np.nanargmax(np.where(use, res, -1.0)))
         if np.count_nonzero(use) > MIN_DOTS and res[worst] > max(0.75, 5.0 * float(np.median(res[use]))):
             use[worst] = False
@@ -330,7 +330,7 @@ def _find_dots(gray: np.ndarray, target: Target, camera: Camera | None, max_repr
     dots_px = np.full((9, 2), np.nan)
     dots_px[use] = pts[hit[use]]
     n_used = int(np.count_nonzero(use))
-    corners = distort_px(_apply_h(Hbi, model[[0, 2, 8, 6]]), K, dist)  # the outer dots TL, TR, BR, BL
+    corners = distort_px(apply_homography(Hbi, model[[0, 2, 8, 6]]), K, dist)  # the outer dots TL, TR, BR, BL
     return finish_homography(Hib, model[use], corrected[use], K, dist, max_reprojection_px,
                              f"{n_used} of 9 dots found", kind="dots", dots_px=dots_px, vertices_px=corners)
 

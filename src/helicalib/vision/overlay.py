@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from helicalib.config import Target
-from helicalib.vision.marks import board_to_image
+from helicalib.vision.homography import board_to_image
 
 GREEN, RED, CYAN, YELLOW, MAGENTA = (0, 200, 0), (0, 0, 255), (255, 200, 0), (0, 220, 255), (255, 0, 255)
 

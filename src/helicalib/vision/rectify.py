@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from helicalib.config import Target
-from helicalib.vision.marks import MarksResult, distort_px
+from helicalib.vision.homography import MarksResult, distort_px
 
 MAX_GRID_CELLS_PER_SIDE = 2048
 

@@ -35,7 +35,8 @@ import numpy as np
 from helicalib.config import Camera, Target
 from helicalib.errors import MeasurementError
 from helicalib.vision.frames import as_gray_u8
-from helicalib.vision.marks import MarksResult, board_to_image, find_marks
+from helicalib.vision.homography import MarksResult, board_to_image
+from helicalib.vision.marks import find_marks
 from helicalib.vision.rectify import BoardGrid, board_grid
 
 METHODS = ("grlm", "grlm-centroid", "centroid")
