@@ -180,7 +180,7 @@ def test_single_frame_refuses_empty_board():
 def test_spot_extension_hook_single_frame(tmp_path, capsys):
     import argparse
 
-    from helicalib.vision import single_frame
+    from helicalib.commands import spot_single as single_frame
 
     p = argparse.ArgumentParser()
     p.add_argument("frames", nargs="+")

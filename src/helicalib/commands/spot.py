@@ -6,28 +6,19 @@
 
 Exit status: 0 valid measurement, 3 measured but invalid (the reason is printed), 1 user error.
 
-Extension point: a module ``helicalib.vision.single_frame`` may define ``add_arguments(parser)``,
-``wants(args) -> bool`` and ``run_spot(args, target, camera) -> int``; when present its arguments
-are added here and, when ``wants(args)``, it handles the run (e.g. a single-frame mode).
+Single-frame mode (``--single-frame``, ``--board-size-m``) is :mod:`helicalib.commands.spot_single`'s.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 from pathlib import Path
 
+from helicalib.commands import spot_single
 from helicalib.commands._args import fraction, positive_float
 
 EXIT_INVALID = 3
-
-
-def _extension():
-    try:
-        return importlib.import_module("helicalib.vision.single_frame")
-    except ImportError:
-        return None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -48,9 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="largest saturated fraction of the spot (default 0.10)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--overlay", type=Path, help="write the after frame with marks, board, window and centre drawn")
-    ext = _extension()
-    if ext is not None and hasattr(ext, "add_arguments"):
-        ext.add_arguments(p)
+    spot_single.add_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -153,14 +142,13 @@ def run(args) -> int:
     from helicalib.errors import ConfigError
     from helicalib.vision.spot import SpotLimits, measure_spot
 
-    ext = _extension()
-    if ext is not None and hasattr(ext, "wants") and ext.wants(args):
+    if spot_single.wants(args):
         # single-frame mode: a rectified frame of the board; a target (--target or --field/--target-id) is
         # optional (it may supply the board size) and needs no marks
         target = camera = None
         if args.target is not None or args.field is not None:
             target, camera, _ = resolve_target(args, need_marks=False)
-        return int(ext.run_spot(args, target, camera))
+        return int(spot_single.run_spot(args, target, camera))
     target, camera, default_method = resolve_target(args)
     if len(args.frames) < 2:
         raise ConfigError("give a BEFORE frame and at least one AFTER frame")

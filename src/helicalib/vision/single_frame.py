@@ -31,7 +31,6 @@ documents the pixel convention (pixel centres at integer + 0.5).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import cv2
@@ -157,44 +156,3 @@ def spot_centre_single_frame(image: np.ndarray, board_size_m: tuple[float, float
     return SingleFrameSpot(centre_px=(cx, cy), fraction_xy=(cx / w, cy / h), centre_uv_m=(u, v),
                            area_px=int(region.sum()), peak_excess=peak, background_sigma=sigma, regions=n - 1,
                            score_ratio=ratio)
-
-
-# ---------------------------------------------------------------------------- `helicalib spot` extension hook
-def add_arguments(parser) -> None:
-    """Options added to ``helicalib spot`` (see ``commands/spot.py``'s extension point)."""
-    parser.add_argument("--single-frame", action="store_true",
-                        help="one rectified board frame, no BEFORE frame: background estimated from the frame")
-    parser.add_argument("--board-size-m", nargs=2, type=float, metavar=("W", "H"), default=None,
-                        help="with --single-frame: the frame spans exactly W x H metres of board")
-
-
-def wants(args) -> bool:
-    return bool(getattr(args, "single_frame", False))
-
-
-def run_spot(args, target=None, camera=None) -> int:
-    """``helicalib spot FRAME --single-frame --board-size-m W H [--json]``: centre of one rectified frame."""
-    import json
-
-    from helicalib.errors import ConfigError
-
-    if len(args.frames) != 1:
-        raise ConfigError("--single-frame takes exactly one FRAME")
-    size = args.board_size_m
-    if size is None and target is not None:
-        size = tuple(target.size_m)
-    if size is None or not all(math.isfinite(float(x)) and float(x) > 0 for x in size):
-        raise ConfigError(f"--board-size-m {' '.join(str(x) for x in size) if size else ''}: --single-frame needs "
-                          "W H (finite, positive, metres) or a target with size_m")
-    img = cv2.imread(str(args.frames[0]), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise MeasurementError(f"{args.frames[0]}: cannot read the image")
-    res = spot_centre_single_frame(img, (float(size[0]), float(size[1])))
-    if getattr(args, "json", False):
-        print(json.dumps({"frame": str(args.frames[0]), "method": "single-frame", "board_size_m": list(size),
-                          "offset_m": list(res.centre_uv_m), **res.as_dict()}, indent=2))
-    else:
-        u, v = res.centre_uv_m
-        print(f"spot (single frame): offset (u, v) {u:+.4f} m, {v:+.4f} m; centre ({res.centre_px[0]:.2f}, "
-              f"{res.centre_px[1]:.2f}) px; {res.regions} candidate region(s)")
-    return 0
