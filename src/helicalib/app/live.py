@@ -29,10 +29,10 @@ import threading
 import traceback
 from dataclasses import dataclass, field
 
-from helicalib.campaign.runner import WEATHER_POLL_S, CampaignRunner
+from helicalib.campaign.loop import WEATHER_POLL_S, CampaignRunner
 from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.modbus import quiet_pymodbus
-from helicalib.devices.protocols import PlantUnreachableError
+from helicalib.devices.protocols import PlantUnreachableError, abilities_of
 from helicalib.errors import HelicalibError
 
 TICK_PLANT_S = 2.0
@@ -168,7 +168,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
              output=None) -> LiveResult:
     """Run ``runner`` on APScheduler until plant time ``until_s``, ``done()`` is true, or SIGINT/SIGTERM/``stop_event``.
 
-    ``output`` (see :mod:`.console`) gets every event and, twice a second, a snapshot. A first
+    ``output`` (see :mod:`.terminal`) gets every event and, twice a second, a snapshot. A first
     Ctrl-C stops cleanly: the step in progress ends (plant requests become single attempts), the
     beams on the boards leave via standby and every return to tracking is checked; a second Ctrl-C
     leaves at once.
@@ -183,6 +183,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     quiet_pymodbus()
     stop = stop_event or threading.Event()
     lock = threading.Lock()
+    hurries = abilities_of(runner.plant).hurries  # a stop asks such a plant to drop its retries
     if output is not None and output.on_event not in runner.listeners:
         runner.listeners.append(output.on_event)
     rate = _rate(runner.clock)
@@ -252,7 +253,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                        "storage": " (the database cannot be written)"}[result.reason]
                 _say(output, f"stopping{why}: finishing the step in progress, then every beam on a board leaves via "
                              "its standby point and goes back to tracking (Ctrl-C again to leave at once)")
-                if hasattr(runner.plant, "hurry"):
+                if hurries:
                     runner.plant.hurry()
             scheduler.shutdown(wait=False)
             waited = 0

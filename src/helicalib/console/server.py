@@ -17,6 +17,7 @@ import secrets
 import socket
 import threading
 import time
+from dataclasses import dataclass
 
 from helicalib.errors import ConfigError
 
@@ -40,12 +41,32 @@ def parse_address(text: str, public: bool, option: str = "--console") -> tuple[s
     return host, port
 
 
+@dataclass(frozen=True)
+class ConsoleOptions:
+    """The crew console a controller command was asked for: ``--console [HOST:]PORT`` (None: no
+    page), ``--console-public`` and ``--json`` (the page's address is then also a JSON line)."""
+
+    console: str | None = None
+    console_public: bool = False
+    json: bool = False
+
+    @classmethod
+    def from_args(cls, args) -> ConsoleOptions:
+        """The options of a parsed command line (a command without them asks for no page)."""
+        return cls(console=getattr(args, "console", None), console_public=bool(getattr(args, "console_public", False)),
+                   json=bool(getattr(args, "json", False)))
+
+    def check(self) -> None:
+        """Refuse a wrong ``--console`` / ``--console-public`` before anything starts (one line)."""
+        if self.console:
+            parse_address(self.console, self.console_public)
+        elif self.console_public:
+            raise ConfigError("--console-public: needs --console [HOST:]PORT")
+
+
 def check_console_args(args) -> None:
     """Refuse a wrong ``--console`` / ``--console-public`` before anything starts (one line)."""
-    if getattr(args, "console", None):
-        parse_address(args.console, bool(getattr(args, "console_public", False)))
-    elif getattr(args, "console_public", False):
-        raise ConfigError("--console-public: needs --console [HOST:]PORT")
+    ConsoleOptions.from_args(args).check()
 
 
 def is_loopback(host: str) -> bool:
@@ -126,8 +147,8 @@ def url(host: str, port: int, token: str | None) -> str:
     return f"http://{shown}:{port}/" + (f"?token={token}" if token else "")
 
 
-def attach_console(args, runner, output):
-    """The controller's hook: operator actions, and the page when ``args.console`` is set.
+def attach_console(options: ConsoleOptions, runner, output):
+    """The controller's hook: operator actions, and the page when ``options.console`` is set.
 
     An armed runner always gets its :class:`~helicalib.campaign.operation.crew.OperatorDesk` (what the
     crew's earlier actions left, paused or out of service, holds with or without a page). With
@@ -143,10 +164,10 @@ def attach_console(args, runner, output):
     if runner.armed:
         runner.operator = OperatorDesk(runner.store, runner.campaign_id)
         runner.operator.restore(runner)
-    address = getattr(args, "console", None)
+    address = options.console
     if not address:
         return output
-    public = bool(getattr(args, "console_public", False))
+    public = bool(options.console_public)
     host, port = parse_address(address, public)
     token = secrets.token_urlsafe(18) if public else None
     reader = Store.open(runner.store.path, runner.store.images_dir, readonly=True)
@@ -175,7 +196,7 @@ def attach_console(args, runner, output):
     output.message(f"console: {url(host, server.port, token)}"
                    + (" (the token is required on every request)" if token else " (this machine only)")
                    + ("" if runner.armed else "; read-only: actions need --arm"))
-    if getattr(args, "json", False) and hasattr(output, "emit"):
+    if options.json and hasattr(output, "emit"):
         output.emit({"event": "console", "url": url(host, server.port, token), "token": token})
 
     def stop():
