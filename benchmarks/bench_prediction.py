@@ -127,7 +127,8 @@ def evaluate(cfg, runner, truth, end_s: float) -> dict:
     from helicalib.calibration.fit import SIGMA_MRAD
     from helicalib.calibration.uncertainty import beam_jacobians_mrad, unexplained_mrad, year_prediction
     from helicalib.geometry import error_model as em
-    from helicalib.sim.evaluate import evaluate_model, year_sun_times
+    from helicalib.geometry.sun import year_sun_times
+    from helicalib.sim.evaluate import evaluate_model
 
     hids = [h for h in runner.ids if runner.book.h[h].fit is not None]
     fits = [runner.book.h[h].fit for h in hids]
@@ -191,7 +192,7 @@ def synthetic(cfg, n: int, mode: str, seed: int = 7) -> dict:
     from helicalib.geometry import optics
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.geometry.sun import sun_at_site
-    from helicalib.sim.evaluate import year_sun_times
+    from helicalib.geometry.sun import year_sun_times
 
     rng = np.random.default_rng(seed)
     _t, year_sun = year_sun_times(cfg.site, 2026, step_days=14.0, step_min=60.0)

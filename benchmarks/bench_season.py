@@ -91,7 +91,8 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
     from helicalib.calibration.fit import fit_error_model
     from helicalib.geometry import error_model as em
     from helicalib.geometry.sun import sun_at_site, to_unix_seconds
-    from helicalib.sim.evaluate import evaluate_model, year_sun_times
+    from helicalib.geometry.sun import year_sun_times
+    from helicalib.sim.evaluate import evaluate_model
     from helicalib.sim.truth import TrueField
 
     t0 = float(to_unix_seconds([start])[0])

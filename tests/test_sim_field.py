@@ -14,7 +14,7 @@ from helicalib.config import Drive, Site, load_field_config
 from helicalib.geometry.drives import DriveArrays
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
-from helicalib.sim.evaluate import year_sun_times
+from helicalib.geometry.sun import year_sun_times
 from helicalib.sim.field import (
     DRIVE_NAME,
     STROKE_MARGIN_MM,

@@ -14,7 +14,8 @@ from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import sun_at_site, to_unix_seconds
 from helicalib.sim.camera import SimCamera
 from helicalib.sim.clock import RateClock, VirtualClock
-from helicalib.sim.evaluate import evaluate_model, year_sun_times
+from helicalib.geometry.sun import year_sun_times
+from helicalib.sim.evaluate import evaluate_model
 from helicalib.sim.plant import SimulatedPlant
 from helicalib.sim.scenario import parse_scenario
 from helicalib.sim.soiling import SoilingModel

@@ -394,7 +394,7 @@ def predicted_against_truth(cfg, runner: CampaignRunner, sim, params: np.ndarray
     every 14 days, every hour, sun above 5°."""
     from helicalib.calibration.fit import SIGMA_MRAD
     from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
-    from helicalib.sim.evaluate import year_sun_times
+    from helicalib.geometry.sun import year_sun_times
 
     fitted = [hid for hid in runner.ids if runner.book.h[hid].fit is not None]
     keys = ("predicted_year_rms_median_mrad", "predicted_interval_coverage", "predicted_exceed_share",

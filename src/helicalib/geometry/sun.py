@@ -185,6 +185,19 @@ def sun_at_site(site, times: Any) -> SunPosition:
     )
 
 
+def year_sun_times(site, year: int = 2026, step_days: float = 7.0, step_min: float = 30.0,
+                   min_elevation_deg: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """Instants of one year (every ``step_days`` days, every ``step_min`` minutes of the day) with
+    the sun at least ``min_elevation_deg`` high: ``(times_s (T,), sun_enu (T, 3))``."""
+    t0 = float(to_unix_seconds(f"{int(year)}-01-01T00:00:00Z"))
+    days = np.arange(0.0, 365.0, step_days)
+    minutes = np.arange(0.0, 1440.0, step_min)
+    times = (t0 + days[:, None] * 86400.0 + minutes[None, :] * 60.0).ravel()
+    pos = sun_at_site(site, times)
+    keep = pos.elevation_deg >= min_elevation_deg
+    return times[keep], np.asarray(pos.vector_enu)[keep]
+
+
 def utc_now() -> _dt.datetime:
     """The current UTC time (for the CLI edge only; the core takes times as arguments)."""
     return _dt.datetime.now(tz=_dt.timezone.utc)

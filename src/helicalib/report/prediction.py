@@ -50,7 +50,7 @@ def year_predictions(data) -> dict | None:
     from helicalib.calibration.fit import SIGMA_MRAD
     from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
     from helicalib.geometry.heliostat import HeliostatModel
-    from helicalib.sim.evaluate import year_sun_times
+    from helicalib.geometry.sun import year_sun_times
 
     cfg = data.cfg
     if cfg is None or data.campaign is None:

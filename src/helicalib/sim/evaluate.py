@@ -19,7 +19,7 @@ import numpy as np
 
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel, tracking_approach
-from helicalib.geometry.sun import sun_at_site, to_unix_seconds
+from helicalib.geometry.sun import sun_at_site, year_sun_times
 
 TRACKING_LEAD_S = 300.0
 """Seconds ahead at which the tracking direction of each actuator is read off the model's strokes."""
@@ -55,19 +55,6 @@ class SkyEvaluation:
     field_formula1_rms_mrad: float = float("nan")
 
 
-def year_sun_times(site, year: int = 2026, step_days: float = 7.0, step_min: float = 30.0,
-                   min_elevation_deg: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
-    """Instants of one year (every ``step_days`` days, every ``step_min`` minutes of the day) with
-    the sun at least ``min_elevation_deg`` high: ``(times_s (T,), sun_enu (T, 3))``."""
-    t0 = float(to_unix_seconds(f"{int(year)}-01-01T00:00:00Z"))
-    days = np.arange(0.0, 365.0, step_days)
-    minutes = np.arange(0.0, 1440.0, step_min)
-    times = (t0 + days[:, None] * 86400.0 + minutes[None, :] * 60.0).ravel()
-    pos = sun_at_site(site, times)
-    keep = pos.elevation_deg >= min_elevation_deg
-    return times[keep], np.asarray(pos.vector_enu)[keep]
-
-
 def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np.ndarray | None = None,
                    aim_enu: np.ndarray | None = None, t_eval_s: float | None = None,
                    min_elevation_deg: float = 5.0, backlash: str = "tracking") -> SkyEvaluation:
@@ -80,7 +67,7 @@ def evaluate_model(truth, fitted, times_s: np.ndarray | None = None, sun_enu: np
     fitted : HeliostatModel or ndarray (N, P)
         The calibrated model, or its error parameters (applied to the nominal field).
     times_s, sun_enu : (T,) [UTC s] and (T, 3), optional
-        Sun positions; default :func:`year_sun_times` of the truth's start year.
+        Sun positions; default :func:`~helicalib.geometry.sun.year_sun_times` of the truth's start year.
     aim_enu : (N, 3) [m], optional
         Aim points; default the centre of each heliostat's calibration target.
     t_eval_s : float, optional

@@ -24,7 +24,7 @@ import numpy as np
 from helicalib.config import write_field_config
 from helicalib.geometry.drives import DriveArrays, angle_interval_rad, strokes_to_angles
 from helicalib.geometry.optics import AIM_ITERATIONS
-from helicalib.sim.evaluate import year_sun_times
+from helicalib.geometry.sun import year_sun_times
 
 DRIVE_NAME = "tr20"
 MIRROR_M = (4.5, 4.5)
