@@ -175,7 +175,7 @@ def band_throughput(db: Path, cfg, start_s: float, end_s: float, boards: int) ->
 
 def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: Path, keep_frames: bool,
             start_s: float | None = None, fidelity: str = "render") -> dict:
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
 
     shutil.rmtree(out_dir, ignore_errors=True)
     n = len(ids) if ids else len(cfg.heliostats)
@@ -212,9 +212,11 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     base, refine = ("gaps" if planner.startswith("gaps") else planner), planner.endswith("+refine")
     if planner == "gaps-own":
         cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"share_targets": False})})
-    result = simulate_campaign(cfg, out_dir, days, seed=seed, scenario=scenario, planner=base, heliostat_ids=ids,
-                               progress=progress, refine=refine, start_s=start_s, fidelity=fidelity,
-                               spots_per_board="auto" if planner == "gaps-turns" else 1)
+    result = simulate_campaign(cfg, out_dir, SimulationOptions(days, seed=seed, scenario=scenario, planner=base,
+                                                               heliostat_ids=ids, refine=refine, start_s=start_s,
+                                                               fidelity=fidelity,
+                                                               spots_per_board="auto" if planner == "gaps-turns" else 1),
+                               progress=progress)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     s = result.summary
     start_s, timeline = acceptance_timeline(result.database, n)

@@ -100,7 +100,7 @@ def main() -> None:
 
 def run_one(cfg, field: str, days: float, seed: int, ids: list[str], fidelity: str) -> dict:
     """One simulated campaign and the prediction's figures against its truth."""
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
 
     t0 = time.perf_counter()
     last = [t0]
@@ -111,8 +111,8 @@ def run_one(cfg, field: str, days: float, seed: int, ids: list[str], fidelity: s
             print(f"  ... {time.perf_counter() - t0:.0f} s", flush=True)
 
     with tempfile.TemporaryDirectory(prefix="bench_prediction_") as tmp:
-        res = simulate_campaign(cfg, Path(tmp), days, seed=seed, fidelity=fidelity, heliostat_ids=ids,
-                                progress=progress)
+        res = simulate_campaign(cfg, Path(tmp), SimulationOptions(days, seed=seed, fidelity=fidelity,
+                                                                  heliostat_ids=ids), progress=progress)
     wall = time.perf_counter() - t0
     print(f"  campaign {wall:.0f} s; {res.summary['accepted']} accepted; evaluating ...", flush=True)
     runner = res.runner

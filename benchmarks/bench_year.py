@@ -40,7 +40,7 @@ KEYS = ("accepted", "heliostats", "visits", "checks", "true_sky_rms_mrad", "true
 
 def one(policy: str, field: str, days: float, start: str, seed: int, drift_share: float, n: int | None,
         rota_days: float) -> dict:
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
     from helicalib.commands.simulate import with_drift_share
     from helicalib.config import load_field_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds
@@ -62,9 +62,11 @@ def one(policy: str, field: str, days: float, start: str, seed: int, drift_share
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        r = simulate_campaign(cfg, Path(tmp), days, seed=seed, scenario=scenario, start_s=start_s, heliostat_ids=ids,
-                              fidelity="fast", operation=None if policy == "none" else policy, rota_days=rota_days,
-                              monthly_tracking=True, progress=progress)
+        r = simulate_campaign(cfg, Path(tmp), SimulationOptions(days, seed=seed, scenario=scenario, start_s=start_s,
+                                                                heliostat_ids=ids, fidelity="fast",
+                                                                operation=None if policy == "none" else policy,
+                                                                rota_days=rota_days,
+                                                                monthly_tracking=True), progress=progress)
         s = r.summary
         s.setdefault("checks", 0)
         out = {k: s.get(k) for k in KEYS}

@@ -10,7 +10,7 @@ import pytest
 
 from campaign_helpers import inprocess_campaign
 from helicalib.campaign.sensor import camera_sensors
-from helicalib.app.simulated import simulate_campaign, default_start_s
+from helicalib.app.simulated import SimulationOptions, simulate_campaign, default_start_s
 from helicalib.config import load_field_config
 from helicalib.sim.fast_sensor import MODEL_PATH, FastSensor, SensorErrorModel
 from helicalib.store.sqlite import Store
@@ -69,8 +69,8 @@ def test_fast_and_rendered_measurements_agree_within_the_modelled_spread(cfg, tm
 
 
 def test_a_fast_campaign_writes_no_frames_and_everything_else(cfg, tmp_path):
-    res = simulate_campaign(cfg, tmp_path, 0.25, seed=3, start_s=default_start_s(cfg) + 7 * 3600,
-                            heliostat_ids=["H0001", "H0021"], fidelity="fast")
+    res = simulate_campaign(cfg, tmp_path, SimulationOptions(0.25, seed=3, start_s=default_start_s(cfg) + 7 * 3600,
+                                                             heliostat_ids=["H0001", "H0021"], fidelity="fast"))
     store = Store.open(res.database, readonly=True)
     obs, fits = store.observations(), store.fits()
     verdicts = store.latest_verdicts(store.campaigns()[-1].id)

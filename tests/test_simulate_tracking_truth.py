@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from helicalib.campaign.policy import TRACKING_REFRESH_S, tracking_corrections
-from helicalib.app.simulated import default_start_s, plant_tracking_truth
+from helicalib.campaign.verdict import TRACKING_REFRESH_S, tracking_corrections
+from helicalib.app.sim_figures import plant_tracking_truth
+from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics

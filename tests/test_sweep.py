@@ -140,13 +140,14 @@ def test_seeds_follow_the_documented_formula_and_not_the_order(swept, tmp_path):
 
 
 def test_a_run_alone_gives_the_summary_it_gave_in_the_sweep(swept, tmp_path):
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
     from helicalib.config import load_field_config
 
     run = next(r for r in swept["runs"] if r.planner == "round-robin" and r.seed == 3)
     record = json.loads((Path(run.run_dir) / "result.json").read_text())
-    alone = simulate_campaign(load_field_config(FIELD), tmp_path / "alone", 0.1, seed=run.sim_seed,
-                              start_s=run.start_s, planner="round-robin", heliostat_ids=["H0001", "H0002"])
+    alone = simulate_campaign(load_field_config(FIELD), tmp_path / "alone",
+                              SimulationOptions(0.1, seed=run.sim_seed, start_s=run.start_s, planner="round-robin",
+                                                heliostat_ids=["H0001", "H0002"]))
     drop = ("wall_s", "database")
     assert {k: v for k, v in alone.summary.items() if k not in drop} == \
            {k: v for k, v in record["summary"].items() if k not in drop}

@@ -298,12 +298,13 @@ def test_simulated_cameras_render_dot_boards_the_vision_finds(cylinder):
 
 
 def test_short_simulated_campaign_on_dot_boards_gives_valid_observations(cylinder, tmp_path):
-    from helicalib.app.simulated import default_start_s, simulate_campaign
+    from helicalib.app.simulated import default_start_s, SimulationOptions, simulate_campaign
     from helicalib.store.sqlite import Store
 
     start = default_start_s(cylinder) + 9.5 * 3600
     ids = ["H0001", "H0004", "H0008"]  # one on each board (west, north, east)
-    res = simulate_campaign(cylinder, tmp_path, days=1.0 / 24, seed=5, start_s=start, heliostat_ids=ids)
+    res = simulate_campaign(cylinder, tmp_path, SimulationOptions(days=1.0 / 24, seed=5, start_s=start,
+                                                                  heliostat_ids=ids))
     store = Store.open(res.database)
     obs = store.observations()
     store.close()

@@ -102,7 +102,7 @@ def run(args) -> int:
 def run_campaign(args, inputs: Inputs, out: Path) -> int:
     """The campaign of ``args`` into ``out`` (checked and marked by the caller), then its summary and
     report."""
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
     from helicalib.commands._progress import ProgressReporter, timed_step
     from helicalib.outdir import prepare
 
@@ -116,11 +116,12 @@ def run_campaign(args, inputs: Inputs, out: Path) -> int:
             done = now_s - state["t0"]
             bar.update(done, lambda: _progress_text(done, args.days, out / "helicalib.db"))
 
-        result = simulate_campaign(cfg, out, args.days, seed=args.seed, scenario=scenario, start_s=start_s,
-                                   over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
-                                   progress=progress, rate=args.rate, refine=args.refine, fidelity=args.fidelity,
-                                   operation=args.operate, rota_days=args.rota_days, keep_frames=args.keep_frames,
-                                   spots_per_board=args.spots_per_board)
+        options = SimulationOptions(args.days, seed=args.seed, scenario=scenario, start_s=start_s,
+                                    over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
+                                    rate=args.rate, refine=args.refine, fidelity=args.fidelity, operation=args.operate,
+                                    rota_days=args.rota_days, keep_frames=args.keep_frames,
+                                    spots_per_board=args.spots_per_board)
+        result = simulate_campaign(cfg, out, options, progress=progress)
     (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
     if args.report:
         from helicalib.report.build import build_report

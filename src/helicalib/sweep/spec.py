@@ -23,8 +23,8 @@ lists, on other cells, or on which worker runs it when.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
-import inspect
 import json
 import os
 import re
@@ -209,10 +209,10 @@ def simulation_seed(root_seed: int, cell: str, seed: int) -> int:
 
 
 def fidelity_supported() -> bool:
-    """Whether ``simulate_campaign`` takes a ``fidelity`` (else every run renders frames)."""
-    from helicalib.app.simulated import simulate_campaign
+    """Whether a simulated campaign takes a ``fidelity`` (else every run renders frames)."""
+    from helicalib.app.simulated import SimulationOptions
 
-    return "fidelity" in inspect.signature(simulate_campaign).parameters
+    return "fidelity" in {f.name for f in dataclasses.fields(SimulationOptions)}
 
 
 def load_sweep(path: str | Path) -> Sweep:

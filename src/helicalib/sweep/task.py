@@ -56,7 +56,7 @@ def run_one(run: Run, cfg, scenario) -> dict:
 
 
 def _run(run: Run, cfg, scenario) -> dict:
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
 
     # an interrupted or stale run starts afresh, never resumes; only a run folder is cleared
     out = prepare(run.run_dir, RUN_OUTPUT, replace=True, option="run folder",
@@ -64,8 +64,9 @@ def _run(run: Run, cfg, scenario) -> dict:
     extra = {"fidelity": run.fidelity} if fidelity_supported() else {}
     wall0, cpu0 = time.perf_counter(), time.process_time()
     with open(out / "run.log", "w", encoding="utf-8") as log, redirect_stdout(log), redirect_stderr(log):
-        result = simulate_campaign(cfg, out, run.days, seed=run.sim_seed, scenario=scenario, start_s=run.start_s,
-                                   planner=run.planner, heliostat_ids=list(run.heliostat_ids), **extra)
+        result = simulate_campaign(cfg, out, SimulationOptions(run.days, seed=run.sim_seed, scenario=scenario,
+                                                               start_s=run.start_s, planner=run.planner,
+                                                               heliostat_ids=list(run.heliostat_ids), **extra))
     record = {"run": run.as_dict(), "digest": run.digest, "summary": result.summary,
               **run_figures(result.database, result.summary, len(cfg.targets)),
               "wall_s": round(time.perf_counter() - wall0, 1), "cpu_s": round(time.process_time() - cpu0, 1),
