@@ -2,8 +2,8 @@
 
 Runs the campaign and ranked operation on ``--field`` for ``--days`` from ``--start`` (fast
 fidelity, drift on ``--drift-share`` of the heliostats, as ``bench_year.py``'s ``ranked`` policy),
-with ``policy.MAX_VISIT_POINTS`` set to ``--cap`` and ``policy.MAX_VISIT_POINTS_AFTER_DRIFT`` to
-``--cap-after-drift`` (and with ``--no-epochs``, ``policy.EPOCHS_AFTER_DRIFT`` off: the points
+with ``book.MAX_VISIT_POINTS`` set to ``--cap`` and ``book.MAX_VISIT_POINTS_AFTER_DRIFT`` to
+``--cap-after-drift`` (and with ``--no-epochs``, ``book.EPOCHS_AFTER_DRIFT`` off: the points
 before a drift leave the fits, as until version 2026-11-27). Prints the summary's figures and, for each heliostat with an injected drift,
 its model's sky-wide error at the end (the simulator's truth at the last instant, over the year's sun
 positions), the drift confirmations, and the same book refitted offline on its points after the
@@ -29,22 +29,22 @@ OUT = ROOT / "benchmarks" / "out"
 
 
 def main(argv=None) -> int:
-    from helicalib.campaign import policy
+    from helicalib.campaign import basis, book, verdict
 
     from bench_sky_budget import operated_args, operated_run
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     operated_args(ap, days=210.0)
     ap.add_argument("--drift-share", type=float, default=0.2)
-    ap.add_argument("--cap", type=int, default=policy.MAX_VISIT_POINTS)
-    ap.add_argument("--cap-after-drift", type=int, default=policy.MAX_VISIT_POINTS_AFTER_DRIFT)
+    ap.add_argument("--cap", type=int, default=book.MAX_VISIT_POINTS)
+    ap.add_argument("--cap-after-drift", type=int, default=book.MAX_VISIT_POINTS_AFTER_DRIFT)
     ap.add_argument("--no-epochs", action="store_true", help="drop the points before a drift from the fits")
     ap.add_argument("--work", type=Path, default=None, help="keep the run here (default under benchmarks/out)")
     ap.add_argument("--out", type=Path, default=OUT / "bench_cap.json")
     args = ap.parse_args(argv)
 
-    policy.MAX_VISIT_POINTS, policy.MAX_VISIT_POINTS_AFTER_DRIFT = args.cap, args.cap_after_drift
-    policy.EPOCHS_AFTER_DRIFT = not args.no_epochs
+    book.MAX_VISIT_POINTS, book.MAX_VISIT_POINTS_AFTER_DRIFT = args.cap, args.cap_after_drift
+    book.EPOCHS_AFTER_DRIFT = not args.no_epochs
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.sim.evaluate import evaluate_model
     from helicalib.sim.truth import TrueField
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
     try:
         for e in truth.drift_events:
             i = ids.index(e.heliostat_id)
-            points, centre, _earlier = policy.stored_basis(store, runner.campaign_id, e.heliostat_id)
+            points, centre, _earlier = basis.stored_basis(store, runner.campaign_id, e.heliostat_id)
             row = {"heliostat": e.heliostat_id, "kind": e.kind, "start_day": day(e.start_s), "end_day": day(e.end_s),
                    "sky_mrad": round(float(per[i]), 3), "book_visits": len({p.visit_id for p in points}),
                    "confirmed": [[day(d["since_s"]), day(d["confirmed_s"])] for d in runner.drifts
@@ -83,7 +83,7 @@ def main(argv=None) -> int:
             after = [p for p in points if p.capture_time_s >= e.end_s + 86400.0]
             if after and len(after) < len(points):
                 one = nominal.subset([i])
-                model, _fit = policy.refit(one, after, one if centre is None else one.with_params(centre[None, :]),
+                model, _fit = verdict.refit(one, after, one if centre is None else one.with_params(centre[None, :]),
                                            prior_mean=centre, tilt_rate=runner.ops.tilt_rate_of(e.heliostat_id))
                 p2 = params.copy()
                 p2[i] = model.params[0]
@@ -121,18 +121,18 @@ def _epochs_sky(store, runner, nominal, hid: str, cap: int, sky_of) -> float | N
     import math
 
     from helicalib.calibration.fit import fit_error_model
-    from helicalib.campaign import policy
+    from helicalib.campaign import book, verdict
 
     sinces = sorted(float(d["since_s"]) for d in runner.drifts if d["heliostat_id"] == hid)
-    points = policy.book_points(store.observations(campaign_id=runner.campaign_id, heliostat_id=hid), -math.inf, cap)
+    points = book.book_points(store.observations(campaign_id=runner.campaign_id, heliostat_id=hid), -math.inf, cap)
     if not sinces or not points:
         return None
     t = np.array([p.capture_time_s for p in points])
     epoch = np.array([sum(s > tt for s in sinces) for tt in t])  # 0: since the newest confirmation
-    strokes, sun, spot = policy._arrays(points)
+    strokes, sun, spot = verdict.point_arrays(points)
     age = (t.max() - t) / 86400.0 if runner.ops.tilt_rate else None
-    fit = fit_error_model(nominal, strokes, sun, spot, loss=policy.FIT_LOSS, n_suggestions=0,
-                          approach=policy._approaches(points), point_age_days=age, point_epoch=epoch)
+    fit = fit_error_model(nominal, strokes, sun, spot, loss=verdict.FIT_LOSS, n_suggestions=0,
+                          approach=verdict.point_approaches(points), point_age_days=age, point_epoch=epoch)
     return round(float(sky_of(fit.params)), 3)
 
 

@@ -3,7 +3,7 @@
 Observations: ``tests/data/fit_observations.csv`` (a one-day simulated campaign of two demo
 heliostats). For K = 5, 20 and 60 points (60 = the recorded points of both visits' sun positions
 cycled, still real observations of one heliostat), the refit the campaign runs after a new point
-(``policy.refit``: soft_l1, warm start from the fit without that point, no suggestions) is timed
+(``verdict.refit``: soft_l1, warm start from the fit without that point, no suggestions) is timed
 ``--calls`` times per solver; reported: median and 90th percentile [ms], solver evaluations, and
 the largest difference between the two solvers' beams (sky grid) and parameters.
 
@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from helicalib.calibration.fit import sky_grid
-from helicalib.campaign import policy
+from helicalib.campaign import verdict
 from helicalib.config import load_field_config
 from helicalib.geometry import error_model as em
 from helicalib.geometry.heliostat import HeliostatModel
@@ -62,14 +62,14 @@ def main() -> None:
     rows = []
     for k in KS:
         points = [pool[i % len(pool)] for i in range(k)]
-        start, _fit = policy.refit(nominal, points[:-1], nominal, method="reference")  # the model before the point
+        start, _fit = verdict.refit(nominal, points[:-1], nominal, method="reference")  # the model before the point
         result = {"k": k}
         models = {}
         for method in ("reference", "fast"):
             times, nfev = [], []
             for _ in range(args.calls):
                 t0 = time.perf_counter()
-                model, fit = policy.refit(nominal, points, start, method=method)
+                model, fit = verdict.refit(nominal, points, start, method=method)
                 times.append(time.perf_counter() - t0)
                 nfev.append(fit.nfev)
             models[method] = (model, fit)

@@ -15,7 +15,7 @@ line back), so peak memory is that size's own. Per size it reports:
 * visits, measurements (observations with iteration ≥ 0, read from the database), measurements per
   wall second, CPU seconds per measurement (of the whole run, and of the campaign loop alone, without
   the end-of-run summary, which evaluates every heliostat over the sky once); decisions (calls of
-  ``policy.choose_next_vectorised``, or ``choose_next`` for the baselines) and the profiled time per decision;
+  ``choice.choose_next_vectorised``, or ``choose_next`` for the baselines) and the profiled time per decision;
 * where the time goes: cProfile self time grouped by module (each ``helicalib.*`` module,
   ``sqlite3``, ``numpy``, ``scipy``, ``pandas``, ``other``) as percentages, and the same time
   charged to the ``helicalib`` module that called the library code ("charged": numpy called from
@@ -132,7 +132,7 @@ def breakdown(stats: pstats.Stats) -> dict:
 
     ours = [(k, v) for k, v in raw.items() if module_of(k[0], k[2]).startswith("helicalib")]
     decisions = [v for (f, _l, fn), v in raw.items()
-                 if fn in ("choose_next", "choose_next_vectorised") and f.endswith("campaign/policy.py")]
+                 if fn in ("choose_next", "choose_next_vectorised") and f.endswith("campaign/choice.py")]
     calls = sum(v[1] for v in decisions)
     return {
         "profiled_s": round(root, 2),
@@ -167,7 +167,7 @@ def peak_rss_mb() -> float:
 def run_size(n: int, field: Path, days: float, seed: int, start: str | None, start_hour: float,
              profile: bool) -> dict:
     """The campaign on ``field`` (``n`` heliostats) in this process; its figures."""
-    from helicalib.app.simulated import default_start_s, simulate_campaign
+    from helicalib.app.simulated import default_start_s, SimulationOptions, simulate_campaign
     from helicalib.config import load_field_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds
 
@@ -198,8 +198,8 @@ def run_size(n: int, field: Path, days: float, seed: int, start: str | None, sta
         if prof:
             prof.enable()
         try:
-            result = simulate_campaign(cfg, Path(tmp), days, seed=seed, start_s=start_s, fidelity="fast",
-                                       progress=progress)
+            result = simulate_campaign(cfg, Path(tmp), SimulationOptions(days, seed=seed, start_s=start_s,
+                                                                         fidelity="fast"), progress=progress)
         finally:
             if prof:
                 prof.disable()

@@ -6,8 +6,8 @@ every heliostat's stored valid points again, offline, four ways, and judges each
 simulator's truth at the last observation, over the year's sun positions (the summary's
 ``true_sky_rms_mrad``):
 
-* ``as run``: the points the runner's book kept (at most ``policy.MAX_VISIT_POINTS`` visits),
-  fitted as operation fits them (``policy.refit`` with the tilt rate);
+* ``as run``: the points the runner's book kept (at most ``book.MAX_VISIT_POINTS`` visits),
+  fitted as operation fits them (``verdict.refit`` with the tilt rate);
 * ``all points``: every valid point, no cap;
 * ``exact spots``: the kept points with each measured spot replaced by the heliostat's true,
   noise-free spot for the same strokes, sun, approach and time (no wind jitter, no stroke
@@ -63,7 +63,7 @@ def operated_run(field: str, days: float, start: str, seed: int, drift_share: fl
     from helicalib.config import load_field_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds
     from helicalib.sim.scenario import load_scenario
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
 
     cfg = load_field_config(field)
     scenario = with_drift_share(load_scenario(None), drift_share, days)
@@ -77,8 +77,9 @@ def operated_run(field: str, days: float, start: str, seed: int, drift_share: fl
             print(f"  day {(now_s - start_s) / 86400:.1f} of {days:g}", flush=True)
 
     t0 = time.perf_counter()
-    result = simulate_campaign(cfg, work, days, seed=seed, scenario=scenario, start_s=start_s, fidelity="fast",
-                               operation="ranked", monthly_tracking=monthly_tracking, progress=progress)
+    result = simulate_campaign(cfg, work, SimulationOptions(days, seed=seed, scenario=scenario, start_s=start_s,
+                                                            fidelity="fast", operation="ranked",
+                                                            monthly_tracking=monthly_tracking), progress=progress)
     return cfg, scenario, start_s, result, time.perf_counter() - t0
 
 
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
 
     from helicalib.calibration.fit import fit_error_model
     from helicalib.campaign.operation import rules as op_rules
-    from helicalib.campaign import policy
+    from helicalib.campaign import book, verdict
     from helicalib.geometry import error_model as em
     from helicalib.geometry import optics
     from helicalib.sim.evaluate import evaluate_model
@@ -147,10 +148,10 @@ def main(argv=None) -> int:
         return np.mean(hits, axis=0)
 
     def fit(i: int, points: list, spots: np.ndarray | None) -> np.ndarray:
-        strokes, sun, measured = policy._arrays(points)
+        strokes, sun, measured = verdict.point_arrays(points)
         t = np.array([p.capture_time_s for p in points], dtype=float)
         return fit_error_model(truth.nominal.subset([i]), strokes, sun, measured if spots is None else spots,
-                               loss=policy.FIT_LOSS, n_suggestions=0, approach=policy._approaches(points),
+                               loss=verdict.FIT_LOSS, n_suggestions=0, approach=verdict.point_approaches(points),
                                point_age_days=(t.max() - t) / 86400.0).params
 
     def white_noise(i: int, points: list, exact: dict) -> np.ndarray:
@@ -173,7 +174,7 @@ def main(argv=None) -> int:
                          and all(map(math.isfinite, o.spot_enu_m))), key=lambda o: o.capture_time_s)
         if not points:
             continue
-        kept = policy.book_points(points)  # the book's cap, applied point by point as the runner does
+        kept = book.book_points(points)  # the book's cap, applied point by point as the runner does
         exact = {id(o): beam_spot(i, o, jitter=False) for o in points}
         shake = {}
         for o in points:

@@ -21,7 +21,7 @@ import pytest
 
 from helicalib.calibration import fit_solver
 from helicalib.calibration.fit import _Problem, fit_error_model, sky_grid
-from helicalib.campaign import policy
+from helicalib.campaign import verdict
 from helicalib.config import load_field_config
 from helicalib.geometry import error_model as em
 from helicalib.geometry.heliostat import HeliostatModel
@@ -49,8 +49,8 @@ def recorded():
 
 
 def _inputs(points):
-    strokes, sun, spot = policy._arrays(points)
-    return strokes, sun, spot, policy._approaches(points)
+    strokes, sun, spot = verdict.point_arrays(points)
+    return strokes, sun, spot, verdict.point_approaches(points)
 
 
 def _beam_difference_mrad(a, b, hid) -> float:
@@ -116,8 +116,8 @@ def test_campaign_refits_warm_started_equal_reference(recorded, hid):
     nominal = HeliostatModel.from_config(CFG, [hid])
     current = nominal
     for k in range(1, len(points) + 1, 3):
-        ref_model, ref = policy.refit(nominal, points[:k], current, method="reference")
-        fast_model, fast = policy.refit(nominal, points[:k], current)
+        ref_model, ref = verdict.refit(nominal, points[:k], current, method="reference")
+        fast_model, fast = verdict.refit(nominal, points[:k], current)
         _assert_equivalent(ref, fast, hid)
         np.testing.assert_array_equal(fast_model.params, fast.params[None, :])
         assert fast_model.ids == (hid,)
@@ -129,8 +129,8 @@ def test_refit_without_approach_keeps_the_start_dead_bands(recorded):
     points = [SimpleNamespace(**{**vars(p), "approach": None}) for p in recorded["H0001"][:10]]
     nominal = HeliostatModel.from_config(CFG, ["H0001"])
     start = nominal.with_params(em.from_dict({"backlash_1_mm": 0.3, "stroke_offset_1_mm": 1.0}))
-    ref_model, ref = policy.refit(nominal, points, start, method="reference")
-    fast_model, fast = policy.refit(nominal, points, start)
+    ref_model, ref = verdict.refit(nominal, points, start, method="reference")
+    fast_model, fast = verdict.refit(nominal, points, start)
     assert fast.free == em.GEOMETRIC
     assert fast_model.params[0, em.index("backlash_1_mm")] == 0.3
     _assert_equivalent(ref, fast, "H0001")
@@ -140,19 +140,19 @@ def test_refit_without_approach_keeps_the_start_dead_bands(recorded):
 def test_leave_one_visit_out_errors_equal_reference(recorded, hid):
     points = recorded[hid]
     nominal = HeliostatModel.from_config(CFG, [hid])
-    visit_points = policy._visit_points(points)
+    visit_points = verdict._visit_points(points)
     assert len(visit_points) >= 10
-    model, full = policy.refit(nominal, points, nominal)
-    ref = policy.loo_errors_mrad(CFG, nominal, points, visit_points, model, exact=True, method="reference")
-    fast = policy.loo_errors_mrad(CFG, nominal, points, visit_points, model, exact=True)
+    model, full = verdict.refit(nominal, points, nominal)
+    ref = verdict.loo_errors_mrad(CFG, nominal, points, visit_points, model, exact=True, method="reference")
+    fast = verdict.loo_errors_mrad(CFG, nominal, points, visit_points, model, exact=True)
     assert np.max(np.abs(ref - fast)) < BEAM_TOL_MRAD
     # the one-step path (the campaign's verdict): vectorised prediction errors equal one model per visit
-    step = policy.loo_errors_mrad(CFG, nominal, points, visit_points, model, full=full)
+    step = verdict.loo_errors_mrad(CFG, nominal, points, visit_points, model, full=full)
     groups = [[k for k, p in enumerate(points) if p.visit_id == vp.visit_id] for vp in visit_points]
     from helicalib.calibration.fit import leave_out_params
 
     params = leave_out_params(full, groups)
-    one_by_one = [policy.prediction_error_mrad(nominal.with_params(params[g][None, :]), vp, CFG.target(vp.target_id))
+    one_by_one = [verdict.prediction_error_mrad(nominal.with_params(params[g][None, :]), vp, CFG.target(vp.target_id))
                   for g, vp in enumerate(visit_points)]
     np.testing.assert_allclose(step, one_by_one, rtol=0, atol=1e-9)
     assert np.max(np.abs(step - fast)) < 0.05  # and the Newton step stays close to the exact refits
@@ -246,22 +246,22 @@ def test_a_prior_centre_keeps_what_few_points_cannot_see(recorded):
     centre: the parameters the two points do not determine stay at that model, not at the nominal."""
     hid = "H0001"
     nominal = HeliostatModel.from_config(CFG, [hid])
-    full = policy.refit(nominal, recorded[hid], nominal)[1]
+    full = verdict.refit(nominal, recorded[hid], nominal)[1]
     few = recorded[hid][-2:]
-    centred = policy.refit(nominal, few, nominal.with_params(full.params[None, :]), prior_mean=full.params)[1]
-    plain = policy.refit(nominal, few, nominal.with_params(full.params[None, :]))[1]
+    centred = verdict.refit(nominal, few, nominal.with_params(full.params[None, :]), prior_mean=full.params)[1]
+    plain = verdict.refit(nominal, few, nominal.with_params(full.params[None, :]))[1]
     # the two points agree with the full fit, so the centred refit stays at it; the plain one is drawn to 0
     assert _beam_difference_mrad(full, centred, hid) < 0.1 * _beam_difference_mrad(full, plain, hid)
     assert _beam_difference_mrad(full, plain, hid) > 0.3
     # fast and reference solvers agree with a centre too, and so do the leave-one-out parameters
-    ref = policy.refit(nominal, few + recorded[hid][:3], nominal, method="reference", prior_mean=full.params)[1]
-    fast = policy.refit(nominal, few + recorded[hid][:3], nominal, prior_mean=full.params)[1]
+    ref = verdict.refit(nominal, few + recorded[hid][:3], nominal, method="reference", prior_mean=full.params)[1]
+    fast = verdict.refit(nominal, few + recorded[hid][:3], nominal, prior_mean=full.params)[1]
     assert _beam_difference_mrad(ref, fast, hid) < 1e-3
     from helicalib.calibration.fit import leave_out_params
 
     pts = few + recorded[hid][:3]
     loo = leave_out_params(fast, [[0]])[0]
-    exact = policy.refit(nominal, pts[1:], nominal, prior_mean=full.params)[1].params
+    exact = verdict.refit(nominal, pts[1:], nominal, prior_mean=full.params)[1].params
     np.testing.assert_allclose(loo[fast.linearisation.free_idx], exact[fast.linearisation.free_idx],
                                atol=0.05 * np.max(np.abs(full.params)))
 
@@ -297,7 +297,7 @@ def _tilting(recorded, hid, rate, days=120.0, seed=3):
 
     pts = recorded[hid]
     nominal = HeliostatModel.from_config(CFG, [hid])
-    truth = policy.refit(nominal, pts, nominal)[1]
+    truth = verdict.refit(nominal, pts, nominal)[1]
     strokes, sun, _spot, approach = _inputs(pts)
     k = len(pts)
     age = np.random.default_rng(seed).permutation(np.linspace(0.0, days, k))
@@ -357,7 +357,7 @@ def _drifted(recorded, hid, offsets, split=0.5):
     (nominal, truth fit, inputs, epochs (K,))."""
     pts = recorded[hid]
     nominal = HeliostatModel.from_config(CFG, [hid])
-    truth = policy.refit(nominal, pts, nominal)[1]
+    truth = verdict.refit(nominal, pts, nominal)[1]
     strokes, sun, _spot, approach = _inputs(pts)
     k = len(pts)
     epoch = (np.random.default_rng(7).permutation(k) < int(split * k)).astype(int)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 
-from helicalib.campaign.policy import Book, choose_next
+from helicalib.campaign.book import Book
+from helicalib.campaign.choice import choose_next
 from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 from helicalib.store.records import Observation

@@ -8,7 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from helicalib.campaign import policy
+from helicalib.campaign.book import book_points
+from helicalib.campaign.verdict import refit
 from helicalib.campaign.operation.drift import drift_evidence
 from helicalib.geometry.heliostat import HeliostatModel
 from test_calibration_fit_fast import CFG, recorded  # noqa: F401  (the fixture)
@@ -28,7 +29,7 @@ def _moved(point, mrad: float):
 def fitted(recorded):  # noqa: F811
     points = recorded["H0001"]
     nominal = HeliostatModel.from_config(CFG, ["H0001"])
-    model, fit = policy.refit(nominal, points[:30], nominal)
+    model, fit = refit(nominal, points[:30], nominal)
     assert fit is not None
     return nominal, model, points
 
@@ -63,5 +64,5 @@ def test_book_points_are_the_located_ones_since_the_epoch():
             SimpleNamespace(**{**vars(base), "valid": False}),
             SimpleNamespace(**{**vars(base), "spot_enu_m": None}),
             SimpleNamespace(**{**vars(base), "spot_enu_m": (np.nan, 0.0, 0.0)})]
-    assert policy.book_points(rows) == [base, later]
-    assert policy.book_points(rows, since_s=10.5) == [later]
+    assert book_points(rows) == [base, later]
+    assert book_points(rows, since_s=10.5) == [later]

@@ -1,5 +1,5 @@
 """The epochs a heliostat's fits stand on after confirmed drifts and repairs, replayed from a real
-SQLite store (policy.stored_epochs, stored_basis, earlier_points)."""
+SQLite store (stored_epochs, stored_basis, earlier_points)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from helicalib.campaign import policy
+from helicalib.campaign import book
+from helicalib.campaign.basis import stored_basis
+from helicalib.campaign.book import fit_size
 from helicalib.store import Observation, Store
+from helicalib.store.history import stored_epochs
 
 DAY = 86400.0
 T0 = 1_780_000_000.0
@@ -55,16 +58,16 @@ def test_each_point_before_the_drifts_keeps_the_epoch_it_was_measured_in(store):
     s, cid = store
     _drift(s, cid, 3, 3.5)
     _drift(s, cid, 7, 7.5)
-    ep = policy.stored_epochs(s, cid)["H0001"]
+    ep = stored_epochs(s, cid)["H0001"]
     assert ep.drifted and ep.boundaries == (T0 + 3 * DAY, T0 + 7 * DAY) and ep.floor_s == -math.inf
-    points, prior, earlier = policy.stored_basis(s, cid, "H0001")
+    points, prior, earlier = stored_basis(s, cid, "H0001")
     assert _days(points) == [7, 8, 9]  # the book: since the newest drift
     assert _days(earlier.points) == [0, 1, 2, 3, 5, 6]  # before it, located only (day 4 was invalid)
     assert earlier.epoch.tolist() == [2, 2, 2, 1, 1, 1]  # 1: between the drifts, 2: before the first
     assert prior is None  # the fits centre on the nominal: the earlier points carry the model before
-    assert policy.fit_size(points, earlier) == 9
+    assert fit_size(points, earlier) == 9
     # as the store stood at the first confirmation: one earlier epoch
-    points, _prior, earlier = policy.stored_basis(s, cid, "H0001", until_s=T0 + 3.6 * DAY)
+    points, _prior, earlier = stored_basis(s, cid, "H0001", until_s=T0 + 3.6 * DAY)
     assert _days(points) == [3] and _days(earlier.points) == [0, 1, 2] and earlier.epoch.tolist() == [1, 1, 1]
 
 
@@ -74,10 +77,10 @@ def test_a_repair_is_the_floor_of_the_earlier_epochs(store):
     a = s.request_action(campaign_id=cid, kind="repaired", heliostat_ids=["H0001"], who="crew",
                          requested_wall_s=0.0, requested_s=None)
     s.finish_action(a, done_s=T0 + 5.5 * DAY, outcome="model reset")
-    points, _prior, earlier = policy.stored_basis(s, cid, "H0001")
+    points, _prior, earlier = stored_basis(s, cid, "H0001")
     assert _days(points) == [6, 7, 8, 9] and earlier is None  # nothing before the repair counts
     _drift(s, cid, 8, 8.5)
-    points, _prior, earlier = policy.stored_basis(s, cid, "H0001")
+    points, _prior, earlier = stored_basis(s, cid, "H0001")
     assert _days(points) == [8, 9]
     assert _days(earlier.points) == [6, 7] and earlier.epoch.tolist() == [1, 1]  # the repair to the drift
 
@@ -85,17 +88,17 @@ def test_a_repair_is_the_floor_of_the_earlier_epochs(store):
 def test_without_epochs_the_points_before_a_drift_leave_the_fits(store, monkeypatch):
     s, cid = store
     _drift(s, cid, 3, 3.5)
-    monkeypatch.setattr(policy, "EPOCHS_AFTER_DRIFT", False)
-    points, prior, earlier = policy.stored_basis(s, cid, "H0001")
+    monkeypatch.setattr(book, "EPOCHS_AFTER_DRIFT", False)
+    points, prior, earlier = stored_basis(s, cid, "H0001")
     assert _days(points) == [3, 5, 6, 7, 8, 9] and earlier is None
     np.testing.assert_array_equal(prior, np.zeros(15))  # centred on the model from before the drift
 
 
 def test_the_earlier_points_are_thinned_to_the_cap_less_the_cap_after_a_drift(store, monkeypatch):
     s, cid = store
-    monkeypatch.setattr(policy, "MAX_VISIT_POINTS", 6)
-    monkeypatch.setattr(policy, "MAX_VISIT_POINTS_AFTER_DRIFT", 2)
+    monkeypatch.setattr(book, "MAX_VISIT_POINTS", 6)
+    monkeypatch.setattr(book, "MAX_VISIT_POINTS_AFTER_DRIFT", 2)
     _drift(s, cid, 8, 8.5)
-    points, _prior, earlier = policy.stored_basis(s, cid, "H0001")
+    points, _prior, earlier = stored_basis(s, cid, "H0001")
     assert _days(points) == [8, 9]
     assert len(earlier.points) == 4 and _days(earlier.points)[-1] == 7  # the newest one stays

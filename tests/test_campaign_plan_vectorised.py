@@ -1,11 +1,14 @@
-"""The gaps planner over arrays (policy.choose_next_vectorised) makes the same choice as the
-reference (policy.choose_next), on the states of a real simulated campaign."""
+"""The gaps planner over arrays (choice.choose_next_vectorised) makes the same choice as the
+reference (choice.choose_next), on the states of a real simulated campaign."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from helicalib.campaign import policy
+from helicalib.campaign.book import Book, PlanTable
+from helicalib.campaign.choice import choose_next
+from helicalib.campaign.verdict import verdict
 from helicalib.config import load_field_config
 from helicalib.calibration import acceptance
 from helicalib.sim.fast_sensor import FastSensor, SensorErrorModel
@@ -17,9 +20,9 @@ def _reference(runner, target_id, now, busy, active, cleanliness, recheck, refin
     cfg = runner.cfg
     guests = {h: r for h, r in runner._guests.get(target_id, {}).items() if cfg.heliostat(h).target in active}
     cands = runner._home[target_id]
-    return policy.choose_next(cfg, runner.book, cands, now, {h: cleanliness.get(h) for h in [*cands, *guests]},
-                              planner="gaps", recheck=recheck, busy_heliostats=busy, refine=refine, spreads=spreads,
-                              target_id=target_id, guests=guests, usable=usable)
+    return choose_next(cfg, runner.book, cands, now, {h: cleanliness.get(h) for h in [*cands, *guests]},
+                       planner="gaps", recheck=recheck, busy_heliostats=busy, refine=refine, spreads=spreads,
+                       target_id=target_id, guests=guests, usable=usable)
 
 
 def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(demo_field_path, tmp_path):
@@ -71,7 +74,7 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
         store.close()
     # the comparison saw real variety: many decisions, verdicts of several kinds, guests refused
     assert compared["chosen"] >= 100 and compared["n"] >= 500
-    assert len(compared["states"]) >= 4 and policy.PlanTable.BLANK in compared["states"]
+    assert len(compared["states"]) >= 4 and PlanTable.BLANK in compared["states"]
     assert compared["guest_refusals"] > 0
     assert sum(runner.book.accepted(h) for h in ids) > 0
 
@@ -79,7 +82,7 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
 def test_the_plan_table_follows_every_write_to_the_book(demo_field_path):
     cfg = load_field_config(demo_field_path)
     ids = [h.id for h in cfg.heliostats]
-    book = policy.Book(cfg, ids)
+    book = Book(cfg, ids)
     tb = book.table
     b = book.h[ids[3]]
     b.visits = 4
@@ -89,11 +92,11 @@ def test_the_plan_table_follows_every_write_to_the_book(demo_field_path):
     r = tb.row[ids[3]]
     assert (tb.visits[r], tb.cooldown_until_s[r], tb.predicted_error_mrad[r], tb.measured_cleanliness[r]) == \
         (4, 123.0, 2.5, 0.93)
-    assert tb.need[r] == policy.PlanTable.BLANK and not tb.accepted[r]
-    v = policy._verdict_of(cfg, book, ids[0], None, 0.0)
+    assert tb.need[r] == PlanTable.BLANK and not tb.accepted[r]
+    v = verdict(cfg, book, ids[0], None, 0.0)
     b.points.append(object())  # a point with no verdict yet
     tb.update(r, b)
-    assert tb.need[r] == policy.PlanTable.UNJUDGED
+    assert tb.need[r] == PlanTable.UNJUDGED
     book.set_verdict(ids[3], v)
     assert tb.need[r] >= 0 and tb.needs[tb.need[r]] == acceptance.needs(v, cfg.acceptance)
     assert tb.visits[tb.row[ids[2]]] == 0  # other rows untouched

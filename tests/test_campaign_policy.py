@@ -217,24 +217,25 @@ def test_heliostats_without_a_point_share_one_verdict_and_one_set_of_gaps(demo_f
     relies on their verdicts and gaps being equal, whatever the heliostat (checked here at
     instants over two days, against each heliostat's own evaluation)."""
     from helicalib.calibration import acceptance as acc
-    from helicalib.campaign import policy as pol
+    from helicalib.campaign.book import Book
+    from helicalib.campaign.verdict import verdict
     from helicalib.app.simulated import default_start_s
     from helicalib.config import load_field_config
 
     cfg = load_field_config(demo_field_path)
     ids = [h.id for h in cfg.heliostats]
-    book = pol.Book(cfg, ids)
+    book = Book(cfg, ids)
     t0 = default_start_s(cfg)
     for t in t0 + 3600.0 * np.arange(0.0, 48.0, 5.5):
         days = book.days(t)
-        seen = {(repr(v := pol._verdict_of(cfg, book, hid, None, t)), repr(acc.gaps(v, cfg.acceptance, days, t)))
+        seen = {(repr(v := verdict(cfg, book, hid, None, t)), repr(acc.gaps(v, cfg.acceptance, days, t)))
                 for hid in ids}
         assert len(seen) == 1
 
 
 def test_next_sun_above_in_one_call_is_the_step_by_step_answer():
     """The night gate's next opening from one array call of the sun table equals the 144 look-ups."""
-    from helicalib.campaign.policy import _next_sun_above
+    from helicalib.campaign.choice import _next_sun_above
     from helicalib.config import Site
     from helicalib.geometry.sun import SunTable, to_unix_seconds
 

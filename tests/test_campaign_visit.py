@@ -9,9 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helicalib.campaign import policy
-from helicalib.campaign.runner import CampaignRunner
-from helicalib.app.simulated import default_start_s, simulate_campaign
+from helicalib.campaign import choice
+from helicalib.campaign.book import Book
+from helicalib.campaign.verdict import prediction_error_mrad, tracking_corrections
+from helicalib.campaign.loop import CampaignRunner
+from helicalib.app.simulated import default_start_s, SimulationOptions, simulate_campaign
 from helicalib.config import load_field_config
 from helicalib.errors import ConfigError
 from helicalib.devices.registers import HeliostatState
@@ -38,7 +40,8 @@ def test_beams_that_miss_are_searched_for_within_the_budget(cfg, tmp_path):
     # large hidden stroke offsets: first placements land partly or wholly off the board
     scenario = parse_scenario({"errors": {"stroke_offset_1_mm": 25.0, "stroke_offset_2_mm": 25.0}})
     start = default_start_s(cfg) + 7.6 * 3600
-    res = simulate_campaign(cfg, tmp_path, 3 / 24, seed=4, scenario=scenario, start_s=start, heliostat_ids=IDS)
+    res = simulate_campaign(cfg, tmp_path, SimulationOptions(3 / 24, seed=4, scenario=scenario, start_s=start,
+                                                             heliostat_ids=IDS))
     store = Store.open(res.database)
     visits, obs = store.visits(), store.observations()
     store.close()
@@ -215,10 +218,10 @@ def test_tracking_correction_of_a_pure_stroke_offset_is_that_offset(cfg):
     params = em.zeros(2)
     params[:, em.index("stroke_offset_1_mm")] = [4.0, -2.5]
     sun = sun_at_site(cfg.site, default_start_s(cfg) + 10 * 3600).vector_enu
-    corr = policy.tracking_corrections(cfg, nominal, nominal.with_params(params), sun)
+    corr = tracking_corrections(cfg, nominal, nominal.with_params(params), sun)
     np.testing.assert_allclose(np.abs(corr[:, 0]), [4.0, 2.5], atol=1e-6)
     np.testing.assert_allclose(corr[:, 1], 0.0, atol=1e-6)
-    same = policy.tracking_corrections(cfg, nominal, nominal, sun)
+    same = tracking_corrections(cfg, nominal, nominal, sun)
     np.testing.assert_allclose(same, 0.0, atol=1e-9)
 
 
@@ -252,7 +255,7 @@ def test_prediction_error_is_the_angle_at_the_pivot(cfg):
                       sun_azimuth_deg=0.0, sun_elevation_deg=40.0, valid=True, spot_enu_m=tuple(seen))
     a, b = seen - pivot, predicted - pivot  # the angle by the law of cosines, independently of optics
     expected = 1000 * np.arccos(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b))
-    assert policy.prediction_error_mrad(model, obs, target) == pytest.approx(expected, rel=1e-4)
+    assert prediction_error_mrad(model, obs, target) == pytest.approx(expected, rel=1e-4)
     # formula (1) says more, by 1/cos of the angle between the board's normal and the line of sight
     obliquity = 1.0 / abs(float(np.dot(sight, w)))
     slant = np.linalg.norm(np.asarray(target.center_enu_m) - pivot)
@@ -299,9 +302,9 @@ def _own_only(cfg):
 
 def test_shared_targets_lend_boards_that_face_the_heliostat_and_have_a_camera(cfg, demo_data, write_field):
     t2 = [h.id for h in cfg.heliostats if h.target == "T2"]
-    lent = policy.shared_targets(cfg, t2, ["T1", "T2"])
+    lent = choice.shared_targets(cfg, t2, ["T1", "T2"])
     assert set(lent["T1"]) == set(t2) and set(lent["T1"].values()) == {1} and lent["T2"] == {}
-    assert policy.shared_targets(cfg, t2, ["T2"])["T1"] == {}  # no camera on T1: not lent
+    assert choice.shared_targets(cfg, t2, ["T2"])["T1"] == {}  # no camera on T1: not lent
     # T1 turned to face away from the field: none of the field may borrow it. validate refuses such a
     # file (T1's own heliostats stand behind it), so the turned board is made in memory: the policy
     # must hold on its own, whatever config it is handed.
@@ -310,13 +313,13 @@ def test_shared_targets_lend_boards_that_face_the_heliostat_and_have_a_camera(cf
         load_field_config(write_field(demo_data))
     turned = cfg.targets[0].model_copy(update={"normal_enu": (0.0, -0.81915, -0.57358)})
     away = cfg.model_copy(update={"targets": type(cfg.targets)([turned, *cfg.targets[1:]])})
-    assert policy.shared_targets(away, t2, ["T1", "T2"])["T1"] == {}
+    assert choice.shared_targets(away, t2, ["T1", "T2"])["T1"] == {}
 
 
 def test_choose_next_passes_over_guests_out_of_range_then_keeps_to_its_own(cfg):
     ids = [h.id for h in cfg.heliostats][:12]
     guests = {hid: 1 for hid in ids}
-    book = policy.Book(cfg, ids)
+    book = Book(cfg, ids)
     now = default_start_s(cfg) + 10 * 3600
     clean = {hid: 0.95 for hid in ids}
     asked = []
@@ -325,15 +328,15 @@ def test_choose_next_passes_over_guests_out_of_range_then_keeps_to_its_own(cfg):
         asked.append(hid)
         return hid == ids[5]
 
-    pick = policy.choose_next(cfg, book, [], now, clean, target_id="T9", guests=guests, usable=usable)
-    assert pick == ids[5] and ids[5] in asked and len(asked) <= policy.MAX_GUEST_TRIES
+    pick = choice.choose_next(cfg, book, [], now, clean, target_id="T9", guests=guests, usable=usable)
+    assert pick == ids[5] and ids[5] in asked and len(asked) <= choice.MAX_GUEST_TRIES
     asked.clear()
-    assert policy.choose_next(cfg, book, [], now, clean, target_id="T9", guests=guests,
+    assert choice.choose_next(cfg, book, [], now, clean, target_id="T9", guests=guests,
                               usable=lambda h: asked.append(h) and False) is None
-    assert len(asked) == policy.MAX_GUEST_TRIES  # then the target keeps to its own (none here)
+    assert len(asked) == choice.MAX_GUEST_TRIES  # then the target keeps to its own (none here)
     # its own heliostats are never range-checked here (the visit loop refuses what it cannot reach)
     own = ids[:3]
-    assert policy.choose_next(cfg, book, own, now, clean, target_id="T9", guests={h: 1 for h in ids[3:]},
+    assert choice.choose_next(cfg, book, own, now, clean, target_id="T9", guests={h: 1 for h in ids[3:]},
                               usable=lambda h: False) in own
 
 

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from helicalib.campaign import operation as op
-from helicalib.app.simulated import simulate_campaign
+from helicalib.campaign.operation import rules as op
+from helicalib.app.simulated import SimulationOptions, simulate_campaign
 from helicalib.config import load_field_config
 from helicalib.sim.scenario import parse_scenario
 
@@ -83,8 +83,8 @@ def drifted_run(tmp_path_factory, demo_field_path):
     scenario = parse_scenario({"seed": 4, "drift": {"share": 1.0, "kinds": {"settle": 1.0},
                                                     "settle_mrad": [4.0, 5.0], "after_days": 2.4,
                                                     "within_days": 0.2}})
-    result = simulate_campaign(cfg, out, 6.0, seed=4, scenario=scenario, heliostat_ids=IDS, fidelity="fast",
-                               operation="ranked")
+    result = simulate_campaign(cfg, out, SimulationOptions(6.0, seed=4, scenario=scenario, heliostat_ids=IDS,
+                                                           fidelity="fast", operation="ranked"))
     return cfg, result
 
 
@@ -104,7 +104,7 @@ def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drif
         assert truth[hid] <= d["since_s"] < d["confirmed_s"]
         assert d["evidence"]["p_value"] < op.CONFIRM_ALPHA
         # the book (acceptance, drift tests) holds the points since the first suspicious check only;
-        # the fits also carry those from before it, in an epoch of their own (policy.EPOCHS_AFTER_DRIFT)
+        # the fits also carry those from before it, in an epoch of their own (book.EPOCHS_AFTER_DRIFT)
         assert all(p.capture_time_s >= d["since_s"] for p in runner.book.points(hid))
         b = runner.book.h[hid]
         assert d["points_dropped"] == 0 and d["points_before_kept"] == len(b.earlier.points) > 0
@@ -148,7 +148,7 @@ def test_a_drifted_heliostat_is_accepted_again_on_points_after_the_drift(drifted
 
 
 def test_a_restarted_runner_keeps_the_reopened_calibration(drifted_run):
-    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.campaign.loop import CampaignRunner
     from helicalib.sim.clock import VirtualClock
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.store.sqlite import Store
@@ -186,7 +186,7 @@ def _point(visit, t, az_deg, el_deg):
 
 
 def test_thinning_drops_the_visits_nearest_in_sun_position_and_keeps_the_newest():
-    from helicalib.campaign.policy import thin_visits
+    from helicalib.campaign.book import thin_visits
 
     distinct = [(90, 10), (120, 40), (180, 70), (240, 40), (270, 10)]
     points = [_point(i, 100.0 * i, az, el) for i, (az, el) in enumerate(distinct)]
@@ -211,8 +211,9 @@ def test_nightly_frame_retention_keeps_the_disk_bounded(tmp_path, demo_field_pat
 
     cfg = load_field_config(demo_field_path)
     ids = ["H0001", "H0040"]
-    result = simulate_campaign(cfg, tmp_path, 3.0, seed=2, heliostat_ids=ids, fidelity="render", operation="ranked",
-                               keep_frames=1, monthly_tracking=False)
+    result = simulate_campaign(cfg, tmp_path, SimulationOptions(3.0, seed=2, heliostat_ids=ids, fidelity="render",
+                                                                operation="ranked", keep_frames=1,
+                                                                monthly_tracking=False))
     con = sqlite3.connect(result.database)
     rows = con.execute("SELECT heliostat_id, valid, capture_time_s, before_frame_path, after_frame_paths_json "
                        "FROM observations ORDER BY capture_time_s").fetchall()
@@ -245,13 +246,14 @@ def test_the_report_fits_an_operated_campaign_as_operation_does(drifted_run, dem
     from helicalib.report.data import load_campaign
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.report.prediction import stored_fits, year_predictions
+    from helicalib.store.history import was_operated
     from helicalib.store.sqlite import Store
 
     _cfg, result = drifted_run
     data = load_campaign(result.database, field_config=demo_field_path)
     store = Store.open(result.database, "images", readonly=True)
     try:
-        assert op.was_operated(store, data.campaign.id)
+        assert was_operated(store, data.campaign.id)
     finally:
         store.close()
     # the report's fits are the runner's models (fitted from the same stored points, as operation
@@ -283,8 +285,8 @@ def test_a_check_averages_more_after_frames_than_a_campaign_visit(tmp_path, demo
 
     cfg = load_field_config(demo_field_path)
     assert cfg.calibration.after_frames < op_rules.CHECK_AFTER_FRAMES  # otherwise the test shows nothing
-    result = simulate_campaign(cfg, tmp_path, 3.0, seed=2, heliostat_ids=["H0001"], fidelity="render",
-                               operation="ranked", monthly_tracking=False)
+    result = simulate_campaign(cfg, tmp_path, SimulationOptions(3.0, seed=2, heliostat_ids=["H0001"], fidelity="render",
+                                                                operation="ranked", monthly_tracking=False))
     con = sqlite3.connect(result.database)
     checks = {vid: n for vid, n in con.execute(
         "SELECT json_extract(data_json, '$.visit_id'), json_extract(data_json, '$.after_frames') FROM events "
@@ -306,23 +308,25 @@ def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_
     """With the visit cap at 8, and 6 after a drift (the heliostats make 27-34 valid visits; below about
     8 thinning takes the points acceptance needs, and unaccepted heliostats get no drift test), the
     drifted run's books are thinned before and after the drift: the
-    points the store gives back for each heliostat's newest fit (``policy.stored_basis``: what a
+    points the store gives back for each heliostat's newest fit (``stored_basis``: what a
     resumed runner, the report's refit and ``helicalib check``'s drift test stand on) are the live
     book's, the report's refit is the runner's model, and each stored fit's point count is found again."""
-    from helicalib.campaign import policy
+    from helicalib.campaign import book
+    from helicalib.campaign.basis import stored_basis
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.report.data import load_campaign
     from helicalib.report.prediction import stored_fits
     from helicalib.store.sqlite import Store
 
-    monkeypatch.setattr(policy, "MAX_VISIT_POINTS", 8)
-    monkeypatch.setattr(policy, "MAX_VISIT_POINTS_AFTER_DRIFT", 6)
+    monkeypatch.setattr(book, "MAX_VISIT_POINTS", 8)
+    monkeypatch.setattr(book, "MAX_VISIT_POINTS_AFTER_DRIFT", 6)
     cfg = load_field_config(demo_field_path)
     scenario = parse_scenario({"seed": 4, "drift": {"share": 1.0, "kinds": {"settle": 1.0},
                                                     "settle_mrad": [4.0, 5.0], "after_days": 2.4,
                                                     "within_days": 0.2}})
-    result = simulate_campaign(cfg, tmp_path, 6.0, seed=4, scenario=scenario, heliostat_ids=IDS, fidelity="fast",
-                               operation="ranked", monthly_tracking=False)
+    result = simulate_campaign(cfg, tmp_path, SimulationOptions(6.0, seed=4, scenario=scenario, heliostat_ids=IDS,
+                                                                fidelity="fast", operation="ranked",
+                                                                monthly_tracking=False))
     runner = result.runner
     assert len(runner.drifts) == len(IDS), "drifts not confirmed: the test shows little of the epochs"
     store = Store.open(result.database, "images", readonly=True)
@@ -333,9 +337,9 @@ def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_
             live = runner.book.points(hid)
             assert runner.book.h[hid].drifted
             assert len({p.visit_id for p in live}) <= 6
-            located = [o for o in store.observations(campaign_id=cid, heliostat_id=hid) if policy.located(o)]
+            located = [o for o in store.observations(campaign_id=cid, heliostat_id=hid) if book.located(o)]
             thinned += len({o.visit_id for o in located}) > len({p.visit_id for p in live})
-            points, centre, earlier = policy.stored_basis(store, cid, hid)
+            points, centre, earlier = stored_basis(store, cid, hid)
             assert [p.id for p in points] == [p.id for p in live], hid
             live_earlier = runner.book.h[hid].earlier
             assert [p.id for p in earlier.points] == [p.id for p in live_earlier.points], hid
@@ -344,7 +348,7 @@ def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_
             prior = runner.prior_mean(hid)
             assert (centre is None) == (prior is None) and (prior is None or np.allclose(centre, prior)), hid
             latest = store.latest_fit(hid, campaign_id=cid)
-            assert policy.fit_size(*policy.stored_basis(store, cid, hid, latest.time_s)[::2]) == latest.n_points, hid
+            assert book.fit_size(*stored_basis(store, cid, hid, latest.time_s)[::2]) == latest.n_points, hid
         assert thinned == len(IDS)  # every heliostat had more visits than the cap
     finally:
         store.close()

@@ -9,7 +9,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from helicalib.campaign.policy import MAX_SHARE_INCIDENCE_DEG
+from helicalib.campaign.choice import MAX_SHARE_INCIDENCE_DEG
 from helicalib.config import Drive, Site, load_field_config
 from helicalib.geometry.drives import DriveArrays
 from helicalib.geometry.heliostat import HeliostatModel

@@ -128,11 +128,11 @@ def _age(now_s, then_s):
 
 def _reading_gate(cfg, wind_ms, dni_wm2, sun_elevation_deg, stowed: bool, fallback):
     """(open, night, reason) of the gate for one weather reading, as the controller decides it
-    (:func:`helicalib.campaign.policy.field_gate`), so the banner and the figures beside it agree;
+    (:func:`helicalib.campaign.choice.field_gate`), so the banner and the figures beside it agree;
     ``fallback`` (open, night, reason) when there is no config or the sun is below the low band."""
     from types import SimpleNamespace
 
-    from helicalib.campaign.policy import field_gate
+    from helicalib.campaign.choice import field_gate
 
     if cfg is None or sun_elevation_deg is None or sun_elevation_deg < cfg.acceptance.low_band_deg[0]:
         return fallback

@@ -85,32 +85,34 @@ def year_predictions(data) -> dict | None:
 
 def stored_fits(data, ids: list[str], nominal) -> dict:
     """``{id: (parameters (P,), FitResult)}``: each of ``ids`` (rows of ``nominal``) fitted again from
-    the points the run's book held of it at the end (:func:`helicalib.campaign.policy.stored_basis`:
+    the points the run's book held of it at the end (:func:`helicalib.campaign.basis.stored_basis`:
     the valid located observations since its newest confirmed drift or repair, thinned to the visit
     cap as they came in, with those from before the drift in epochs of their own) and as the run fits them
     (an operated campaign with operation's fits). Heliostats without such a point are left out."""
+    from helicalib.campaign.basis import stored_basis
     from helicalib.campaign.operation import rules as op_rules
-    from helicalib.campaign import policy
+    from helicalib.campaign.verdict import model_from_fit, refit
     from helicalib.store import Store
+    from helicalib.store.history import NO_EPOCH, stored_epochs, was_operated
 
     out = {}
     store = Store.open(data.db_path, data.images_dir, readonly=True)
     try:
-        operated = op_rules.was_operated(store, data.campaign.id)
-        epochs = policy.stored_epochs(store, data.campaign.id)  # drifts and repairs, read once
+        operated = was_operated(store, data.campaign.id)
+        epochs = stored_epochs(store, data.campaign.id)  # drifts and repairs, read once
         for i, hid in enumerate(ids):
-            points, centre, earlier = policy.stored_basis(store, data.campaign.id, hid, epochs=epochs)
+            points, centre, earlier = stored_basis(store, data.campaign.id, hid, epochs=epochs)
             if not points:
                 continue
             one = nominal.subset([i])
-            ep = epochs.get(hid, policy.NO_EPOCH)
+            ep = epochs.get(hid, NO_EPOCH)
             newest = max(p.capture_time_s for p in points)
             # started where the run's newest fit of it stopped (the runner's refits start from its model)
-            start = (policy.model_from_fit(one, data.fits[hid]) if hid in data.fits
+            start = (model_from_fit(one, data.fits[hid]) if hid in data.fits
                      else one if centre is None else one.with_params(centre[None, :]))
-            model, fit = policy.refit(one, points, start, prior_mean=centre, earlier=earlier,
-                                      tilt_rate=op_rules.fits_tilt_rate(operated, ep.drifted, newest, ep.confirmed_s,
-                                                                        epochs=earlier is not None))
+            model, fit = refit(one, points, start, prior_mean=centre, earlier=earlier,
+                               tilt_rate=op_rules.fits_tilt_rate(operated, ep.drifted, newest, ep.confirmed_s,
+                                                                 epochs=earlier is not None))
             if fit is not None:
                 out[hid] = (model.params[0], fit)
     finally:

@@ -143,7 +143,7 @@ def coverage_complete(reasons) -> bool:
     """Whether a verdict found the bands and windows covered (its only reasons, if any, are about the RMS).
 
     The campaign judges the acceptance error out of sample (leave-one-visit-out) only then; before,
-    its RMS is over the points' stored placement errors (``campaign.policy``)."""
+    its RMS is over the points' stored placement errors (``campaign.verdict``)."""
     return all(str(r).startswith("RMS") for r in reasons)
 
 

@@ -81,14 +81,14 @@ TREND_ALPHA = 1e-3
 """... below this p-value make the heliostat suspected, as one check outside its band does."""
 TILT_RATE_IN_FITS = True
 """Operation's fits (either rule) have a steady pedestal tilt rate (``tilt_rate`` of
-:func:`.policy.refit`), and every point counts alike. Every heliostat drifts slowly
+:func:`helicalib.campaign.verdict.refit`), and every point counts alike. Every heliostat drifts slowly
 (foundations settle); a fit that weighs months of points alike without the rate lags it, and one
 that weighs old points down (σ × exp(age / 20 d), the rule until 2026-11-26) follows it but forgets
 the sun positions of past seasons: measured over 210 days, the models' error over the year's sky
 fell from 1.50 to 0.79 mrad with the rate and all points alike (docs/benchmarks.md). A step change
-(a drift confirmed by checks) opens a new epoch of the fits (:data:`.policy.EPOCHS_AFTER_DRIFT`)."""
+(a drift confirmed by checks) opens a new epoch of the fits (:data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT`)."""
 STILL_DAYS_AFTER_DRIFT = 14.0
-"""With :data:`.policy.EPOCHS_AFTER_DRIFT` off (the fits drop the points before a drift; the rule
+"""With :data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT` off (the fits drop the points before a drift; the rule
 until version 2026-11-27): after a confirmed drift a heliostat's fits have no steady tilt rate until its book holds a point
 this many days after the newest confirmation. A creeping pedestal tilts by 0.1-0.3 mrad a day, and a
 rate fitted to the few points since a confirmation follows it, so the checks stay inside their band
@@ -106,7 +106,7 @@ def fits_tilt_rate(operated: bool, drifted: bool, newest_point_s: float = math.i
     (:data:`TILT_RATE_IN_FITS`), but not since a confirmed drift (confirmed at ``confirmed_s``)
     until the newest point of the fit (``newest_point_s``) lies :data:`STILL_DAYS_AFTER_DRIFT`
     after it, unless the fit carries the points from before the drift in epochs of their own
-    (``epochs``, :data:`.policy.EPOCHS_AFTER_DRIFT`): their months then pin the rate, and the few
+    (``epochs``, :data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT`): their months then pin the rate, and the few
     points since the drift cannot bend it to follow a creep."""
     if not (operated and TILT_RATE_IN_FITS):
         return False
@@ -194,11 +194,3 @@ def days_to_fix(drift_start_s: float, fixed_s: float | None) -> float:
     """Days from a drift's start to the heliostat's acceptance after it (inf when not yet)."""
     return math.inf if fixed_s is None else max(0.0, (fixed_s - drift_start_s) / 86400.0)
 
-
-def was_operated(store, campaign_id: int) -> bool:
-    """Whether a stored campaign went into year-round operation, so that its fits are operation's
-    (:data:`TILT_RATE_IN_FITS`): ``simulate --operate`` (its settings) or ``helicalib operate`` (the command
-    its ``campaign`` event records)."""
-    if (store.campaign(campaign_id).settings or {}).get("operation"):
-        return True
-    return any((e.data or {}).get("operation") for e in store.events(campaign_id=campaign_id, kind="campaign"))
