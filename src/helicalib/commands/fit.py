@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -47,13 +48,28 @@ def _rms(a) -> float | None:
     return float(np.sqrt(np.mean(a**2))) if a.size else None
 
 
-def split_report(model, strokes, sun, spot, targets, split, priors: dict, sigma_meas_mrad: float,
-                 record_ids) -> dict:
+@dataclass(frozen=True)
+class FitOptions:
+    """How ``helicalib fit`` fits and what it reports: ``priors`` (parameter name → prior sigma in its
+    unit; 0 fixes it at nominal), ``sigma_meas_mrad`` (the scatter of one observation), ``loo``
+    (leave-one-out too), ``splits`` (benchmark splits, :data:`~helicalib.calibration.splits.SPLITS`),
+    their ``test_share`` and ``seed``."""
+
+    priors: dict
+    sigma_meas_mrad: float = 1.0
+    loo: bool = False
+    splits: tuple[str, ...] = ()
+    test_share: float = DEFAULT_TEST_SHARE
+    seed: int = 0
+
+
+def split_report(model, strokes, sun, spot, targets, split, options: FitOptions, record_ids) -> dict:
     """Fit on ``split.train``, predict ``split.test``: the out-of-sample errors of one benchmark split."""
     from helicalib.realdata.fitting import beam_error_m, fit, normal_error_mrad
 
     tr, te = split.train, split.test
-    res = fit(model, strokes[tr], sun[tr], spot[tr], prior_sigma=priors, sigma_meas_mrad=sigma_meas_mrad)
+    res = fit(model, strokes[tr], sun[tr], spot[tr], prior_sigma=options.priors,
+              sigma_meas_mrad=options.sigma_meas_mrad)
     test_normal = normal_error_mrad(res.model, strokes[te], sun[te], spot[te])
     test_beam = beam_error_m(res.model, strokes[te], sun[te], spot[te], [targets[i] for i in te])
     train_normal = normal_error_mrad(res.model, strokes[tr], sun[tr], spot[tr])
@@ -65,13 +81,15 @@ def split_report(model, strokes, sun, spot, targets, split, priors: dict, sigma_
             "test_beam_m_rms": _rms(test_beam), "test_beam_m_mean": _mean(test_beam), "converged": res.success}
 
 
-def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas_mrad: float = 1.0,
-               splits: tuple[str, ...] = (), test_share: float = DEFAULT_TEST_SHARE, seed: int = 0) -> dict:
+def fit_report(cfg, rows, heliostat_id: str, options: FitOptions) -> dict:
+    """The fit of ``heliostat_id``'s observations ``rows``: nominal and in-sample errors, parameters and
+    their identifiability, and (as ``options`` asks) leave-one-out and the benchmark splits."""
     from helicalib.calibration.observations import observations_arrays
     from helicalib.geometry import error_model as em
     from helicalib.geometry.heliostat import HeliostatModel
     from helicalib.realdata.fitting import beam_error_m, fit, identifiability, leave_one_out, normal_error_mrad
 
+    priors, sigma_meas_mrad, splits = options.priors, options.sigma_meas_mrad, options.splits
     a = observations_arrays(rows)
     targets = [cfg.target(r.target_id) for r in rows]
     model = HeliostatModel.from_config(cfg, [heliostat_id])
@@ -99,7 +117,7 @@ def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas
         "identifiability": identifiability(res, priors),
         "converged": res.success,
     }
-    if loo:
+    if options.loo:
         lo = leave_one_out(model, *args, targets, prior_sigma=priors, sigma_meas_mrad=sigma_meas_mrad)
         rep.update({"loo_normal_mrad_mean": _mean(lo["normal_mrad"]), "loo_normal_mrad": lo["normal_mrad"].tolist(),
                     "loo_normal_mrad_rms": _rms(lo["normal_mrad"]),
@@ -108,10 +126,11 @@ def fit_report(cfg, rows, heliostat_id: str, loo: bool, priors: dict, sigma_meas
         from helicalib.calibration.splits import make_split
 
         strokes, sun, spot = (np.asarray(x, dtype=float) for x in args)
-        rep["test_share"], rep["seed"] = test_share, seed
+        rep["test_share"], rep["seed"] = options.test_share, options.seed
         rep["splits"] = {kind: split_report(model, strokes, sun, spot, targets,
-                                            make_split(kind, sun, cfg.site.latitude_deg, test_share, seed),
-                                            priors, sigma_meas_mrad, rep["record_ids"]) for kind in splits}
+                                            make_split(kind, sun, cfg.site.latitude_deg, options.test_share,
+                                                       options.seed),
+                                            options, rep["record_ids"]) for kind in splits}
     return rep
 
 
@@ -150,8 +169,8 @@ def run(args) -> int:
     if loo and len(rows) < 3:
         raise MeasurementError(f"{args.observations}: {len(rows)} observations of {args.heliostat}; "
                                "leave-one-out and the splits need at least 3")
-    rep = fit_report(cfg, rows, args.heliostat, loo, priors, args.sigma_meas_mrad, splits, args.test_share,
-                     args.seed)
+    rep = fit_report(cfg, rows, args.heliostat, FitOptions(priors, args.sigma_meas_mrad, loo, splits,
+                                                           args.test_share, args.seed))
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0
