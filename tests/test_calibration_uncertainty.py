@@ -110,7 +110,7 @@ def test_unexplained_error_from_residuals():
 
 def _checks(cfg, model, aim, true_params, sun, sigma, rng):
     """Spots of the true heliostat at the strokes the fitted ``model`` commands, with noise σ [mrad]."""
-    from helicalib.calibration.fit import _basis
+    from helicalib.calibration.fit_solver import beam_basis as _basis
 
     k = len(sun)
     strokes = model.repeat(k).strokes_for_aim(sun, aim).strokes_mm

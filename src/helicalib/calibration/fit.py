@@ -31,8 +31,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from helicalib.calibration import fit_solver
-from helicalib.calibration.fit_solver import NAN_RESIDUAL_MRAD
+from helicalib.calibration.fit_solver import NAN_RESIDUAL_MRAD, beam_basis
 from helicalib.calibration.fit_solver import loss_weights as _loss_weights
+from helicalib.calibration.uncertainty import beam_jacobians_mrad
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import angles_to_normal, strokes_to_angles
@@ -158,15 +159,6 @@ class FitResult:
         }
 
 
-def _basis(d: np.ndarray) -> np.ndarray:
-    """Two unit vectors (K, 2, 3) across unit directions d (K, 3): right (horizontal) and up."""
-    right = np.cross(d, [0.0, 0.0, 1.0])
-    small = np.linalg.norm(right, axis=-1) < 1e-9
-    right[small] = np.cross(d[small], [0.0, 1.0, 0.0])
-    right = optics.unit(right)
-    return np.stack([right, np.cross(right, d)], axis=1)
-
-
 class _Problem:
     """Vectorised residuals for many parameter sets at once."""
 
@@ -185,7 +177,7 @@ class _Problem:
                                     np.full(self.k, model.mirror_offset_m[0]))
         else:
             raise ValueError(f"residual_kind must be 'beam' or 'normal', not {kind!r}")
-        self.basis = _basis(ref)
+        self.basis = beam_basis(ref)
 
     def residuals(self, param_sets: np.ndarray) -> np.ndarray:
         """(M, P) parameter sets, or (M, K, P) one per observation → residuals (M, K, 2) [mrad]."""
@@ -598,8 +590,6 @@ def beam_spread_mrad(model, covariance: np.ndarray, sun_enu: np.ndarray, aim_enu
     -------
     ndarray (N,), NaN where the aim cannot be reached inside the stroke range.
     """
-    from helicalib.calibration.uncertainty import beam_jacobians_mrad
-
     n, p = len(model), em.P
     cov = np.asarray(covariance, dtype=float).reshape(n, p, p)
     jac, ok = beam_jacobians_mrad(model, np.asarray(sun_enu, dtype=float).reshape(1, 3), aim_enu)

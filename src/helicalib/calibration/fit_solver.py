@@ -49,6 +49,16 @@ EPS = np.finfo(float).eps
 STALL_FTOL = 1e-10
 
 
+def beam_basis(d: np.ndarray) -> np.ndarray:
+    """Two unit vectors (K, 2, 3) across unit directions d (K, 3): right (horizontal) and up (the
+    two components of a beam-angle residual)."""
+    right = np.cross(d, [0.0, 0.0, 1.0])
+    small = np.linalg.norm(right, axis=-1) < 1e-9
+    right[small] = np.cross(d[small], [0.0, 1.0, 0.0])
+    right = optics.unit(right)
+    return np.stack([right, np.cross(right, d)], axis=1)
+
+
 def rotation_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """3 × 3 matrix of the right-handed rotation about unit ``axis`` (3,) by ``angle_rad``
     (Rodrigues, the rotation of :func:`helicalib.geometry.drives.rotate`)."""

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from helicalib.calibration.fit_solver import beam_basis
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 
@@ -95,8 +96,6 @@ def beam_angle_jacobians_mrad(model, strokes_mm: np.ndarray, sun_enu: np.ndarray
     from their mirror centres to ``point_enu`` (K, 3), at held strokes (K, 2) [mm] and suns (K, 3),
     in two directions across the beam (horizontal, then up); forward differences of 1e-3 prior σ.
     ``model`` has K rows (one per beam)."""
-    from helicalib.calibration.fit import _basis
-
     k, p = len(model), em.P
     h = 1e-3 * em.PRIOR_SIGMA
     params = np.repeat(model.params[:, None, :], p + 1, axis=1)
@@ -105,7 +104,7 @@ def beam_angle_jacobians_mrad(model, strokes_mm: np.ndarray, sun_enu: np.ndarray
     rep = lambda a: np.repeat(np.asarray(a, dtype=float).reshape(k, -1), p + 1, axis=0)  # noqa: E731
     origin, direction = wide.beam(rep(strokes_mm), rep(sun_enu), None if approach is None else rep(approach))
     diff = (direction - optics.unit(rep(point_enu) - origin)).reshape(k, p + 1, 3)
-    basis = _basis(direction.reshape(k, p + 1, 3)[:, 0, :])  # (K, 2, 3)
+    basis = beam_basis(direction.reshape(k, p + 1, 3)[:, 0, :])  # (K, 2, 3)
     return 1000.0 * np.einsum("kij,kpj->kip", basis, (diff[:, 1:] - diff[:, :1]) / h[None, :, None])
 
 
@@ -154,8 +153,6 @@ def check_against_fit(model, covariance: np.ndarray, strokes_mm: np.ndarray, sun
     unexplained_mrad : error no parameter explains [mrad] (:func:`unexplained_mrad`)
     alpha : p-value below which a check is outside the band
     """
-    from helicalib.calibration.fit import _basis
-
     strokes = np.asarray(strokes_mm, dtype=float).reshape(-1, 2)
     k = len(strokes)
     sun = np.asarray(sun_enu, dtype=float).reshape(k, 3)
@@ -163,7 +160,7 @@ def check_against_fit(model, covariance: np.ndarray, strokes_mm: np.ndarray, sun
     app = None if approach is None else np.asarray(approach, dtype=float).reshape(k, 2)
     rows = model.repeat(k)
     origin, direction = rows.beam(strokes, sun, app)
-    r = 1000.0 * np.einsum("kij,kj->ki", _basis(direction), direction - optics.unit(spot - origin))
+    r = 1000.0 * np.einsum("kij,kj->ki", beam_basis(direction), direction - optics.unit(spot - origin))
     jac = beam_angle_jacobians_mrad(rows, strokes, sun, spot, app)
     cov = np.asarray(covariance, dtype=float).reshape(em.P, em.P)
     s = np.einsum("kip,pq,kjq->kij", jac, cov, jac) + (sigma_mrad**2 + 0.5 * unexplained_mrad**2) * np.eye(2)
