@@ -120,7 +120,7 @@ def _epochs_sky(store, runner, nominal, hid: str, cap: int, sky_of) -> float | N
     own tilts and zero offsets, and the steady tilt rate if the run fitted one."""
     import math
 
-    from helicalib.calibration.fit import fit_error_model
+    from helicalib.calibration.fit import FitOptions, FitPoints, fit_error_model
     from helicalib.campaign import book, verdict
 
     sinces = sorted(float(d["since_s"]) for d in runner.drifts if d["heliostat_id"] == hid)
@@ -131,8 +131,9 @@ def _epochs_sky(store, runner, nominal, hid: str, cap: int, sky_of) -> float | N
     epoch = np.array([sum(s > tt for s in sinces) for tt in t])  # 0: since the newest confirmation
     strokes, sun, spot = verdict.point_arrays(points)
     age = (t.max() - t) / 86400.0 if runner.ops.tilt_rate else None
-    fit = fit_error_model(nominal, strokes, sun, spot, loss=verdict.FIT_LOSS, n_suggestions=0,
-                          approach=verdict.point_approaches(points), point_age_days=age, point_epoch=epoch)
+    fit = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=verdict.point_approaches(points), age_days=age,
+                                             epoch=epoch),
+                          FitOptions(loss=verdict.FIT_LOSS, n_suggestions=0))
     return round(float(sky_of(fit.params)), 3)
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from helicalib.calibration.fit import fit_error_model
+from helicalib.calibration.fit import FitOptions, FitPoints, fit_error_model
 from helicalib.config import load_field_config
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
@@ -102,7 +102,8 @@ def main() -> None:
                     hit = hit + (rng.normal(size=(k, 2)) * (NOISE_MRAD * 1e-3 * dist)[:, None]) @ target.frame_enu[:2]
                     for name, free in methods.items():
                         t0 = time.perf_counter()
-                        res = fit_error_model(model, held.strokes_mm, suns, hit, free=free, sigma_mrad=NOISE_MRAD)
+                        res = fit_error_model(model, FitPoints(held.strokes_mm, suns, hit),
+                                              FitOptions(free=free, sigma_mrad=NOISE_MRAD))
                         fit_times.append(time.perf_counter() - t0)
                         acc[(unmodelled, name, k)].append(sky_error_mrad(res.model, plant, target, aim, eval_suns, rng,
                                                                          unmodelled))

@@ -186,7 +186,7 @@ def synthetic(cfg, n: int, mode: str, seed: int = 7) -> dict:
     """Coverage of the predicted interval on ``n`` exactly modelled synthetic heliostats (module docstring)."""
     import pandas as pd
 
-    from helicalib.calibration.fit import SIGMA_MRAD, fit_error_model
+    from helicalib.calibration.fit import SIGMA_MRAD, FitPoints, fit_error_model
     from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
     from helicalib.geometry import error_model as em
     from helicalib.geometry import optics
@@ -219,7 +219,7 @@ def synthetic(cfg, n: int, mode: str, seed: int = 7) -> dict:
         z = rng.normal(size=(len(sun), 2)) * SYNTH_NOISE_MRAD * 1e-3
         beam = optics.unit(beam + z[:, :1] * across + z[:, 1:] * np.cross(across, beam))
         _uv, spot, _on = optics.intersect_target(origin, beam, cfg.target(h.target))
-        fit = fit_error_model(model, held, sun, spot)
+        fit = fit_error_model(model, FitPoints(held, sun, spot))
         preds.append(year_prediction(fit.model, fit.covariance[None], year_sun, aim,
                                      unexplained_mrad(fit.rms_mrad, SIGMA_MRAD), draws=400, seed=i))
         sol = fit.model.repeat(len(year_sun)).strokes_for_aim(year_sun, aim)

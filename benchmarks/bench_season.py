@@ -88,7 +88,7 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
     """One case. ``tilt_rate``: the fit is given each point's age and fits a steady pedestal tilt
     rate (as operation's fits do), and the models are judged against the heliostats as they are at
     the end of the observations (the drift's state then); otherwise at the start."""
-    from helicalib.calibration.fit import fit_error_model
+    from helicalib.calibration.fit import FitOptions, FitPoints, fit_error_model
     from helicalib.geometry import error_model as em
     from helicalib.geometry.sun import sun_at_site, to_unix_seconds
     from helicalib.geometry.sun import year_sun_times
@@ -112,9 +112,10 @@ def run_case(cfg, scenario, start: str, days: float, every_min: float, world: st
         targets = [own] * len(times) if aims == "board" else [cfg.targets[k % len(cfg.targets)] for k in
                                                                range(len(times))]
         strokes, suns, spots, approach = observe(truth, cfg, i, times, targets, world, rng, noise_mrad)
-        params[i] = fit_error_model(truth.nominal.subset([i]), strokes, suns, spots, loss="soft_l1",
-                                    approach=approach if backlash_term else None,
-                                    point_age_days=(t_eval - times) / 86400.0 if tilt_rate else None).params
+        points = FitPoints(strokes, suns, spots, approach=approach if backlash_term else None,
+                           age_days=(t_eval - times) / 86400.0 if tilt_rate else None)
+        params[i] = fit_error_model(truth.nominal.subset([i]), points,
+                                    FitOptions(loss="soft_l1")).params
     backlash = "tracking" if world.startswith("real") else "none"
     year_t, year_sun = year_sun_times(cfg.site, int(start[:4]))
     fitted = evaluate_model(truth, params, year_t, year_sun, backlash=backlash, t_eval_s=t_eval)

@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=OUT / "bench_sky_budget.json")
     args = ap.parse_args(argv)
 
-    from helicalib.calibration.fit import fit_error_model
+    from helicalib.calibration.fit import FitOptions, FitPoints, fit_error_model
     from helicalib.campaign.operation import rules as op_rules
     from helicalib.campaign import book, verdict
     from helicalib.geometry import error_model as em
@@ -150,9 +150,10 @@ def main(argv=None) -> int:
     def fit(i: int, points: list, spots: np.ndarray | None) -> np.ndarray:
         strokes, sun, measured = verdict.point_arrays(points)
         t = np.array([p.capture_time_s for p in points], dtype=float)
-        return fit_error_model(truth.nominal.subset([i]), strokes, sun, measured if spots is None else spots,
-                               loss=verdict.FIT_LOSS, n_suggestions=0, approach=verdict.point_approaches(points),
-                               point_age_days=(t.max() - t) / 86400.0).params
+        data = FitPoints(strokes, sun, measured if spots is None else spots, approach=verdict.point_approaches(points),
+                         age_days=(t.max() - t) / 86400.0)
+        return fit_error_model(truth.nominal.subset([i]), data,
+                               FitOptions(loss=verdict.FIT_LOSS, n_suggestions=0)).params
 
     def white_noise(i: int, points: list, exact: dict) -> np.ndarray:
         """The exact spots plus Gaussian noise on the board, per component ``--white-mrad`` / √2 as a beam angle."""

@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from helicalib.calibration.fit import beam_spread_mrad, fit_error_model, leave_out_params, predict_strokes
+from helicalib.calibration.fit import (FitOptions, FitPoints, beam_spread_mrad, fit_error_model, leave_out_params,
+                                      predict_strokes)
 from helicalib.config import load_field_config
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
@@ -56,7 +57,8 @@ def _observe_approached(hid, true_params, k, seed, outlier_mrad=0.0, approached=
 def test_fit_recovers_injected_parameters_within_3_sigma(hid, kind):
     model, plant, strokes, sun, spot, aim, _, approach = _observe_approached(hid, PATTERN, 24, seed=int(hid[1:]),
                                                                              approached=True)
-    res = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD, residual_kind=kind, approach=approach)
+    res = fit_error_model(model, FitPoints(strokes, sun, spot, approach=approach),
+                          FitOptions(sigma_mrad=NOISE_MRAD, residual_kind=kind))
     assert res.success
     assert res.free == em.NAMES  # with approaches, the dead bands are fitted too
     z = (res.params - PATTERN) / res.sigma
@@ -72,7 +74,7 @@ def test_fit_recovers_injected_parameters_within_3_sigma(hid, kind):
 
 def test_calibrated_model_predicts_strokes_for_other_sun_positions():
     model, plant, strokes, sun, spot, aim, target = _observe("H0010", PATTERN, 20, seed=7)
-    res = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD)
+    res = fit_error_model(model, FitPoints(strokes, sun, spot), FitOptions(sigma_mrad=NOISE_MRAD))
     others = SUNS[::5]
     sol = predict_strokes(res, others, aim)
     origin, direction = plant.repeat(len(others)).beam(sol.strokes_mm, others)
@@ -87,21 +89,21 @@ def test_calibrated_model_predicts_strokes_for_other_sun_positions():
 
 def test_robust_loss_resists_an_outlier():
     model, plant, strokes, sun, spot, aim, _ = _observe("H0005", PATTERN, 16, seed=11, outlier_mrad=25.0)
-    res = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD)
+    res = fit_error_model(model, FitPoints(strokes, sun, spot), FitOptions(sigma_mrad=NOISE_MRAD))
     assert res.free == em.GEOMETRIC  # without approaches the dead bands are not fitted (nor seen)
     free = [em.index(n) for n in res.free]
     z = (res.params[free] - PATTERN[free]) / res.sigma[free]
     assert np.all(np.abs(z) <= 3.0)
     assert res.residual_mrad[0] > 50 * NOISE_MRAD  # the outlier stands out
     assert np.median(res.residual_mrad[1:]) < 3 * NOISE_MRAD
-    plain = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD, loss="linear")
+    plain = fit_error_model(model, FitPoints(strokes, sun, spot), FitOptions(sigma_mrad=NOISE_MRAD, loss="linear"))
     assert plain.residual_mrad[0] < res.residual_mrad[0]  # least squares bends toward the outlier
 
 
 def test_identifiability_one_sun_position_is_not_enough():
     model, plant, strokes, sun, spot, aim, _ = _observe("H0012", PATTERN, 1, seed=3)
     strokes, sun, spot = (np.repeat(a, 6, axis=0) for a in (strokes, sun, spot))
-    res = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD)
+    res = fit_error_model(model, FitPoints(strokes, sun, spot), FitOptions(sigma_mrad=NOISE_MRAD))
     ident = res.identifiability
     assert len(ident.prior_dominated) >= 6
     assert all(ident.data_fraction[n] < 0.75 for n in ("arm_scale_1", "arm_scale_2", "pivot_de_m"))
@@ -113,12 +115,12 @@ def test_identifiability_one_sun_position_is_not_enough():
 def test_free_subset_and_fixed_values():
     model, plant, strokes, sun, spot, aim, _ = _observe("H0020", PATTERN, 8, seed=5)
     free = ("stroke_offset_1_mm", "stroke_offset_2_mm")
-    res = fit_error_model(model, strokes, sun, spot, free=free)
+    res = fit_error_model(model, FitPoints(strokes, sun, spot), FitOptions(free=free))
     others = [i for i in range(em.P) if em.NAMES[i] not in free]
     assert np.all(res.params[others] == 0.0) and np.all(res.sigma[others] == 0.0)
     assert res.free == free
     with pytest.raises(ValueError):
-        fit_error_model(HeliostatModel.from_config(CFG, ["H0001", "H0002"]), strokes, sun, spot)
+        fit_error_model(HeliostatModel.from_config(CFG, ["H0001", "H0002"]), FitPoints(strokes, sun, spot))
 
 
 def test_beam_spread_matches_monte_carlo_of_the_fit_covariance():
@@ -128,7 +130,7 @@ def test_beam_spread_matches_monte_carlo_of_the_fit_covariance():
     fits, models = [], []
     for hid in ids:
         model, _plant, strokes, sun, spot, aim, _ = _observe(hid, PATTERN, 6, seed=7)
-        fits.append(fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD))
+        fits.append(fit_error_model(model, FitPoints(strokes, sun, spot), FitOptions(sigma_mrad=NOISE_MRAD)))
         models.append(model)
     fitted = HeliostatModel.from_config(CFG, ids, np.vstack([f.params for f in fits]))
     cov = np.stack([f.covariance for f in fits])
@@ -156,12 +158,13 @@ def test_leave_out_params_match_full_refits(outlier):
     """One Newton step from the full solution gives the same left-out models as refitting without
     each group (pairs of observations, like a visit's placements), also with a robust-loss outlier."""
     model, _plant, strokes, sun, spot, aim, target = _observe("H0017", PATTERN, 12, seed=11, outlier_mrad=outlier)
-    full = fit_error_model(model, strokes, sun, spot, sigma_mrad=NOISE_MRAD)
+    full = fit_error_model(model, FitPoints(strokes, sun, spot), FitOptions(sigma_mrad=NOISE_MRAD))
     groups = [[2 * g, 2 * g + 1] for g in range(6)]
     fast = leave_out_params(full, groups)
     for g, idx in enumerate(groups):
         keep = np.setdiff1d(np.arange(12), idx)
-        slow = fit_error_model(model, strokes[keep], sun[keep], spot[keep], sigma_mrad=NOISE_MRAD)
+        slow = fit_error_model(model, FitPoints(strokes[keep], sun[keep], spot[keep]),
+                               FitOptions(sigma_mrad=NOISE_MRAD))
         # compare what matters: where each model puts the left-out beams on the board [mrad]
         for i in idx:
             a = model.with_params(fast[g]).spot_on_target(strokes[i:i + 1], sun[i], target)[0]

@@ -20,7 +20,7 @@ import pandas as pd
 import pytest
 
 from helicalib.calibration import fit_solver
-from helicalib.calibration.fit import _Problem, fit_error_model, sky_grid
+from helicalib.calibration.fit import FitOptions, FitPoints, _Problem, fit_error_model, sky_grid
 from helicalib.campaign import verdict
 from helicalib.config import load_field_config
 from helicalib.geometry import error_model as em
@@ -88,8 +88,8 @@ def test_fast_fit_equals_reference_on_recorded_observations(recorded, hid, k):
     points = recorded[hid][:k]
     nominal = HeliostatModel.from_config(CFG, [hid])
     strokes, sun, spot, approach = _inputs(points)
-    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, method="reference")
-    fast = fit_error_model(nominal, strokes, sun, spot, approach=approach)  # the default
+    ref = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach), FitOptions(method="reference"))
+    fast = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach))  # the default
     _assert_equivalent(ref, fast, hid)
     # suggestions are ranked alike
     np.testing.assert_allclose([s["sun_enu"] for s in fast.identifiability.suggestions],
@@ -104,9 +104,9 @@ def test_fast_fit_equals_reference_for_each_residual_and_loss(recorded, kind, lo
     points = recorded["H0017"][:24]
     nominal = HeliostatModel.from_config(CFG, ["H0017"])
     strokes, sun, spot, approach = _inputs(points)
-    kw = dict(approach=approach, residual_kind=kind, loss=loss, n_suggestions=0)
-    _assert_equivalent(fit_error_model(nominal, strokes, sun, spot, method="reference", **kw),
-                       fit_error_model(nominal, strokes, sun, spot, **kw), "H0017", fast_ran=loss != "huber")
+    data, kw = FitPoints(strokes, sun, spot, approach=approach), dict(residual_kind=kind, loss=loss, n_suggestions=0)
+    _assert_equivalent(fit_error_model(nominal, data, FitOptions(method="reference", **kw)),
+                       fit_error_model(nominal, data, FitOptions(**kw)), "H0017", fast_ran=loss != "huber")
 
 
 @pytest.mark.parametrize("hid", ["H0001", "H0017"])
@@ -189,7 +189,8 @@ def test_a_wrong_jacobian_is_caught(recorded, monkeypatch):
     points = recorded["H0001"]
     nominal = HeliostatModel.from_config(CFG, ["H0001"])
     strokes, sun, spot, approach = _inputs(points)
-    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, method="reference", n_suggestions=0)
+    ref = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach),
+                          FitOptions(method="reference", n_suggestions=0))
     right = fit_solver.BeamJacobian.evaluate
     col = em.index("canting_1_mrad")
 
@@ -200,7 +201,7 @@ def test_a_wrong_jacobian_is_caught(recorded, monkeypatch):
         return res, jac
 
     monkeypatch.setattr(fit_solver.BeamJacobian, "evaluate", wrong)
-    bad = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0)
+    bad = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach), FitOptions(n_suggestions=0))
     assert bad.message == "Gauss-Newton converged"
     with pytest.raises(AssertionError):
         _assert_equivalent(ref, bad, "H0001")
@@ -211,14 +212,15 @@ def test_fast_fit_from_far_starts_reaches_the_same_minimum(recorded):
     points = recorded["H0017"][:20]
     nominal = HeliostatModel.from_config(CFG, ["H0017"])
     strokes, sun, spot, approach = _inputs(points)
-    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, method="reference", n_suggestions=0)
+    ref = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach),
+                          FitOptions(method="reference", n_suggestions=0))
     rng = np.random.default_rng(11)
     for _ in range(4):
         start = 2.0 * rng.normal(size=em.P) * em.PRIOR_SIGMA
-        _assert_equivalent(ref, fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0,
-                                                start=start), "H0017")
+        _assert_equivalent(ref, fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach),
+                                                FitOptions(n_suggestions=0), start=start), "H0017")
     with pytest.raises(ValueError, match="method"):
-        fit_error_model(nominal, strokes, sun, spot, method="newton")
+        fit_error_model(nominal, FitPoints(strokes, sun, spot), FitOptions(method="newton"))
 
 
 def _cusp_problem(k: float, x0: float):
@@ -273,19 +275,20 @@ def test_points_weighed_down_by_their_sigma(recorded):
     pts = recorded[hid]
     strokes, sun, spot, approach = _inputs(pts)
     nominal = HeliostatModel.from_config(CFG, [hid])
-    base = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0)
-    same = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0,
-                           point_sigma_scale=np.ones(len(pts)))
+    base = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach), FitOptions(n_suggestions=0))
+    same = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach, sigma_scale=np.ones(len(pts))),
+                           FitOptions(n_suggestions=0))
     np.testing.assert_allclose(same.params, base.params, atol=1e-12)
     scale = np.ones(len(pts))
     scale[:6] = 1e6
-    down = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_sigma_scale=scale)
+    down = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach, sigma_scale=scale),
+                           FitOptions(n_suggestions=0))
     s2, u2, p2, a2 = _inputs(pts[6:])
-    without = fit_error_model(nominal, s2, u2, p2, approach=a2, n_suggestions=0)
+    without = fit_error_model(nominal, FitPoints(s2, u2, p2, approach=a2), FitOptions(n_suggestions=0))
     assert _beam_difference_mrad(down, without, hid) < 1e-3
     assert _beam_difference_mrad(down, base, hid) > 10 * _beam_difference_mrad(down, without, hid)
-    ref = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_sigma_scale=scale,
-                          method="reference")
+    ref = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach, sigma_scale=scale),
+                          FitOptions(n_suggestions=0, method="reference"))
     assert _beam_difference_mrad(ref, down, hid) < 1e-3
 
 
@@ -293,7 +296,7 @@ def _tilting(recorded, hid, rate, days=120.0, seed=3):
     """The recorded day's points seen again over ``days`` by a heliostat whose pedestal tilts at
     ``rate`` (east, north) [mrad/day]: each point gets an age and the spot that heliostat's beam
     made then (the recorded fit is the heliostat now). Returns (truth fit, inputs, ages, rows)."""
-    from helicalib.calibration.fit import _TILT
+    from helicalib.calibration.fit_inputs import TILT as _TILT
 
     pts = recorded[hid]
     nominal = HeliostatModel.from_config(CFG, [hid])
@@ -317,10 +320,10 @@ def test_a_tilt_rate_keeps_old_points_consistent(recorded):
     hid = "H0001"
     rate = np.array([0.012, -0.018])
     nominal, truth, (strokes, sun, spot, approach), age, _rows = _tilting(recorded, hid, rate)
-    kw = dict(approach=approach, n_suggestions=0, point_age_days=age)
-    fast = fit_error_model(nominal, strokes, sun, spot, **kw)
-    ref = fit_error_model(nominal, strokes, sun, spot, method="reference", **kw)
-    plain = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0)
+    data = FitPoints(strokes, sun, spot, approach=approach, age_days=age)
+    fast = fit_error_model(nominal, data, FitOptions(n_suggestions=0))
+    ref = fit_error_model(nominal, data, FitOptions(method="reference", n_suggestions=0))
+    plain = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach), FitOptions(n_suggestions=0))
     assert fast.message == "Gauss-Newton converged"
     for f in (fast, ref):
         np.testing.assert_allclose(f.tilt_rate_mrad_per_day, rate, atol=3 * f.tilt_rate_sigma.max())
@@ -335,16 +338,19 @@ def test_a_tilt_rate_keeps_old_points_consistent(recorded):
 def test_leaving_a_visit_out_gives_the_tilts_of_its_time(recorded):
     """Leave-one-out parameters of a fit with a tilt rate are those of the left-out point's time:
     equal to a full refit without the point, moved back by its age."""
-    from helicalib.calibration.fit import _TILT, leave_out_params
+    from helicalib.calibration.fit import leave_out_params
+    from helicalib.calibration.fit_inputs import TILT as _TILT
 
     hid = "H0001"
     nominal, _truth, (strokes, sun, spot, approach), age, rows = _tilting(recorded, hid, (0.012, -0.018))
-    fast = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_age_days=age)
+    fast = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach, age_days=age),
+                           FitOptions(n_suggestions=0))
     oldest = int(np.argmax(age))
     loo = leave_out_params(fast, [[oldest]])[0]
     keep = np.arange(len(age)) != oldest
-    exact = fit_error_model(nominal, strokes[keep], sun[keep], spot[keep], approach=approach[keep], n_suggestions=0,
-                            point_age_days=age[keep])
+    exact = fit_error_model(nominal, FitPoints(strokes[keep], sun[keep], spot[keep], approach=approach[keep],
+                                               age_days=age[keep]),
+                            FitOptions(n_suggestions=0))
     then = exact.params[_TILT] - age[oldest] * exact.tilt_rate_mrad_per_day
     np.testing.assert_allclose(loo[_TILT], then, atol=0.01)
     # and far from the tilts now (the heliostat moved by age × rate since)
@@ -383,12 +389,13 @@ def test_each_epoch_gets_its_own_tilts_and_zero_offsets(recorded):
     hid = "H0001"
     drift = {"pedestal_tilt_e_mrad": 3.0, "pedestal_tilt_n_mrad": -2.0, "stroke_offset_1_mm": 2.0}
     nominal, truth, (strokes, sun, spot, approach), epoch = _drifted(recorded, hid, drift)
-    kw = dict(approach=approach, n_suggestions=0, point_epoch=epoch)
-    fast = fit_error_model(nominal, strokes, sun, spot, **kw)
-    ref = fit_error_model(nominal, strokes, sun, spot, method="reference", **kw)
+    data = FitPoints(strokes, sun, spot, approach=approach, epoch=epoch)
+    fast = fit_error_model(nominal, data, FitOptions(n_suggestions=0))
+    ref = fit_error_model(nominal, data, FitOptions(method="reference", n_suggestions=0))
     new = epoch == 0
-    newest = fit_error_model(nominal, strokes[new], sun[new], spot[new], approach=approach[new], n_suggestions=0)
-    plain = fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0)
+    newest = fit_error_model(nominal, FitPoints(strokes[new], sun[new], spot[new], approach=approach[new]),
+                             FitOptions(n_suggestions=0))
+    plain = fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach), FitOptions(n_suggestions=0))
     assert fast.message == "Gauss-Newton converged"
     for f in (fast, ref):
         assert f.epoch_offsets.shape == (2, em.P) and not np.any(f.epoch_offsets[0])
@@ -402,8 +409,9 @@ def test_each_epoch_gets_its_own_tilts_and_zero_offsets(recorded):
     old = int(np.flatnonzero(epoch == 1)[0])
     loo = leave_out_params(fast, [[old]])[0]
     keep = np.arange(len(epoch)) != old
-    exact = fit_error_model(nominal, strokes[keep], sun[keep], spot[keep], approach=approach[keep], n_suggestions=0,
-                            point_epoch=epoch[keep])
+    exact = fit_error_model(nominal, FitPoints(strokes[keep], sun[keep], spot[keep], approach=approach[keep],
+                                               epoch=epoch[keep]),
+                            FitOptions(n_suggestions=0))
     np.testing.assert_allclose(loo, exact.params_of_epoch(1), atol=0.01)
     tilt = em.index("pedestal_tilt_e_mrad")
     assert abs(loo[tilt] - fast.params[tilt]) > 2.0  # the tilt of before the drift, not of now
@@ -413,8 +421,8 @@ def test_epochs_need_their_parameters_free(recorded):
     hid = "H0001"
     nominal, _truth, (strokes, sun, spot, approach), epoch = _drifted(recorded, hid, {"pedestal_tilt_e_mrad": 3.0})
     with pytest.raises(ValueError, match="pedestal_tilt_e_mrad"):
-        fit_error_model(nominal, strokes, sun, spot, approach=approach, n_suggestions=0, point_epoch=epoch,
-                        free=[n for n in em.NAMES if n != "pedestal_tilt_e_mrad"])
+        fit_error_model(nominal, FitPoints(strokes, sun, spot, approach=approach, epoch=epoch),
+                        FitOptions(n_suggestions=0, free=[n for n in em.NAMES if n != "pedestal_tilt_e_mrad"]))
 
 
 def test_an_epoch_without_observations_rests_on_its_prior(recorded):
@@ -424,9 +432,9 @@ def test_an_epoch_without_observations_rests_on_its_prior(recorded):
     hid = "H0001"
     nominal, _truth, (strokes, sun, spot, approach), epoch = _drifted(recorded, hid, {"pedestal_tilt_e_mrad": 3.0})
     epoch = 2 * epoch  # the points before the drift are two epochs back
-    kw = dict(approach=approach, n_suggestions=0, point_epoch=epoch)
-    fast = fit_error_model(nominal, strokes, sun, spot, **kw)
-    ref = fit_error_model(nominal, strokes, sun, spot, method="reference", **kw)
+    data = FitPoints(strokes, sun, spot, approach=approach, epoch=epoch)
+    fast = fit_error_model(nominal, data, FitOptions(n_suggestions=0))
+    ref = fit_error_model(nominal, data, FitOptions(method="reference", n_suggestions=0))
     assert fast.message == "Gauss-Newton converged"
     assert fast.epoch_offsets.shape == (3, em.P)
     np.testing.assert_allclose(fast.epoch_offsets[1], 0.0, atol=1e-9)

@@ -111,7 +111,7 @@ def test_spot_single_frame_cli_subprocess_on_real_crop():
 
 def test_fit_uses_calibration_fit_error_model(imported_dir, capsys):
     """One fitter: ``helicalib fit`` gives what calibration.fit.fit_error_model gives with the PAINT priors."""
-    from helicalib.calibration.fit import fit_error_model
+    from helicalib.calibration.fit import FitOptions, FitPoints, fit_error_model
     from helicalib.calibration.observations import observations_arrays
     from helicalib.config import load_field_config
     from helicalib.geometry import error_model as em
@@ -125,9 +125,9 @@ def test_fit_uses_calibration_fit_error_model(imported_dir, capsys):
     cfg = load_field_config(imported_dir / "field.yaml")
     a = observations_arrays(read_observations(imported_dir / "observations.csv", "AA39"))
     priors = {**REALDATA_PRIOR_SIGMA, "pivot_du_m": 0.0}
-    res = fit_error_model(HeliostatModel.from_config(cfg, ["AA39"]), a["strokes_mm"], a["sun_enu"], a["spot_enu"],
-                          prior_sigma=priors, free=[n for n in em.NAMES if priors[n] > 0], loss="linear",
-                          sigma_mrad=2.0, residual_kind="normal")
+    res = fit_error_model(HeliostatModel.from_config(cfg, ["AA39"]), FitPoints(a["strokes_mm"], a["sun_enu"], a["spot_enu"]),
+                          FitOptions(prior_sigma=priors, free=[n for n in em.NAMES if priors[n] > 0], loss="linear",
+                                     sigma_mrad=2.0, residual_kind="normal"))
     got = np.array([rep["parameters"][n]["value"] for n in em.NAMES])
     assert np.allclose(got, res.params, rtol=1e-6, atol=1e-9)
     assert rep["parameters"]["pivot_du_m"]["value"] == 0.0 and rep["parameters"]["pivot_du_m"]["sigma"] == 0.0

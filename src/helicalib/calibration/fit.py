@@ -1,8 +1,9 @@
 """Error-model fit for one heliostat: regularised, robust non-linear least squares with uncertainty.
 
 Data: K observations, each the strokes the heliostat held, the sun vector, and the observed spot
-centre X in ENU (on whatever target plane). Unknowns: the named error parameters of
-:mod:`helicalib.geometry.error_model` (all, or those named in ``free``).
+centre X in ENU (on whatever target plane) (:class:`FitPoints`). Unknowns: the named error
+parameters of :mod:`helicalib.geometry.error_model` (all, or those named in ``free``). How to fit
+them is a :class:`FitOptions` (its fields are the names in backquotes below).
 
 Residual (``residual_kind``):
 
@@ -24,7 +25,7 @@ variance factor when the residuals are larger than ``sigma_mrad`` says.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,9 @@ from scipy.optimize import least_squares
 
 from helicalib.calibration import fit_solver
 from helicalib.calibration.fit_solver import NAN_RESIDUAL_MRAD, beam_basis
+from helicalib.calibration.fit_inputs import (EPOCH, EPOCH_PARAMS, EPOCH_SIGMA, FIT_METHODS, SIGMA_MRAD,
+                                              TILT, TILT_RATE_SIGMA_MRAD_PER_DAY, FitOptions, FitPoints, Unknowns,
+                                              unknowns)
 from helicalib.calibration.fit_solver import loss_weights as _loss_weights
 from helicalib.calibration.uncertainty import beam_jacobians_mrad
 from helicalib.geometry import error_model as em
@@ -80,7 +84,7 @@ class Linearisation:
         are then the last two of ``x``, whitened by it, and ``jacobian``, ``residual`` and the weights
         have two more columns or prior rows); 0 without
     age_days : (K,) each observation's age [days] (with a tilt rate), else None
-    epoch : (K,) each observation's epoch (0 the newest; with ``point_epoch``), else None; the
+    epoch : (K,) each observation's epoch (0 the newest; with ``FitPoints.epoch``), else None; the
         offsets of the E older epochs are then the last ``E · len(EPOCH_PARAMS)`` unknowns of ``x``,
         epoch by epoch, each whitened by ``epoch_scale`` (len(EPOCH_PARAMS),)
     """
@@ -118,10 +122,10 @@ class FitResult:
     success, message, nfev : from the solver
     linearisation : :class:`Linearisation` at the solution
     tilt_rate_mrad_per_day : (2,) fitted pedestal tilt rate (east, north) [mrad/day] when the fit
-        had one (``point_age_days``), else None; ``tilt_rate_sigma`` (2,) its posterior σ.
+        had one (``FitPoints.age_days``), else None; ``tilt_rate_sigma`` (2,) its posterior σ.
         ``params`` are then the parameters at age 0; an observation of age ``a`` was made with
         the pedestal tilts ``params − a · rate``
-    epoch_offsets : (E + 1, P) with ``point_epoch``: each epoch's parameters less ``params`` (row 0,
+    epoch_offsets : (E + 1, P) with ``FitPoints.epoch``: each epoch's parameters less ``params`` (row 0,
         the newest epoch, zero; nonzero only in :data:`EPOCH_PARAMS`), else None
     """
 
@@ -210,163 +214,55 @@ class _Problem:
         return res.reshape(m, self.k, 2)
 
 
-FIT_METHODS = ("fast", "reference")
-"""Solvers of :func:`fit_error_model`: ``"fast"`` (analytic Jacobian, damped Gauss-Newton,
-:mod:`helicalib.calibration.fit_solver`) and ``"reference"`` (``scipy.optimize.least_squares``,
-TRF, with a central-difference Jacobian). Both minimise the same cost."""
-SIGMA_MRAD = 0.3
-"""Default measurement noise of one beam-angle component [mrad] (``sigma_mrad`` of the fit)."""
-TILT_RATE_SIGMA_MRAD_PER_DAY = 0.02
-"""Prior σ of a pedestal's tilt rate per axis [mrad/day] in a fit with ``point_age_days``: 0.14 mrad
-a week, 7 mrad a year (foundations settle by a few mrad in their first years; the data of a few
-weeks determine the rate far more tightly)."""
-_TILT = np.array([em.index("pedestal_tilt_e_mrad"), em.index("pedestal_tilt_n_mrad")])
-EPOCH_PARAMS = ("stroke_offset_1_mm", "stroke_offset_2_mm", "pedestal_tilt_e_mrad", "pedestal_tilt_n_mrad")
-"""The parameters a drift changes, which a fit with ``point_epoch`` gives each earlier epoch its own
-offset of: the pedestal's tilts (a foundation settles or creeps) and the actuators' zero offsets (an
-actuator or its encoder is swapped). The others (canting, axes, pivot, arms) are the heliostat's
-build and stay one for all epochs."""
-EPOCH_SIGMA = {"stroke_offset_1_mm": 5.0, "stroke_offset_2_mm": 5.0, "pedestal_tilt_e_mrad": 5.0,
-               "pedestal_tilt_n_mrad": 5.0}
-"""Prior σ of an earlier epoch's offset from the next, per :data:`EPOCH_PARAMS` (mean 0): wider than
-the drifts helicalib is built to find (steps of 2-5 mrad, creeps of a few mrad, zero offsets of
-1-3 mm), so the data, not the prior, size them."""
-_EPOCH = np.array([em.index(n) for n in EPOCH_PARAMS])
-
-
-def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mapping[str, float] | None = None,
-                    free: Sequence[str] | None = None, loss: str = "soft_l1", f_scale_mrad: float = 1.0,
-                    sigma_mrad: float = SIGMA_MRAD, residual_kind: str = "beam", candidate_sun_enu: np.ndarray | None = None,
-                    aim_enu: np.ndarray | None = None, n_suggestions: int = 3,
-                    approach: np.ndarray | None = None, start: np.ndarray | None = None,
-                    method: str = "fast", prior_mean: np.ndarray | None = None,
-                    point_sigma_scale: np.ndarray | None = None, point_age_days: np.ndarray | None = None,
-                    tilt_rate_sigma_mrad_per_day: float = TILT_RATE_SIGMA_MRAD_PER_DAY,
-                    point_epoch: np.ndarray | None = None) -> FitResult:
+def fit_error_model(model, points: FitPoints, options: FitOptions = FitOptions(), *,
+                    start: np.ndarray | None = None, prior_mean: np.ndarray | None = None) -> FitResult:
     """Fit the error model of one heliostat to its observations.
 
     Parameters
     ----------
     model : HeliostatModel with N = 1 (nominal geometry; its params give the values of fixed parameters
         and, without ``start``, the solver's starting point)
-    strokes_mm : (K, 2) strokes held [mm]
-    sun_enu : (K, 3) unit sun vectors at the captures
-    spot_enu : (K, 3) observed spot centres [m, ENU]
-    prior_sigma : overrides of the default prior σ by name (units of each parameter)
-    free : names to fit (default all; without ``approach`` all but the backlash parameters, which
-        the data then cannot see); the others stay at ``model.params``
-    loss, f_scale_mrad : robust loss of ``least_squares`` and its scale [mrad]
-    sigma_mrad : measurement noise of one beam-angle component [mrad]
-    residual_kind : "beam" or "normal"
-    candidate_sun_enu : (C, 3) sun positions to rank in the identifiability report (default: a sky grid,
-        elevation 10–80°); ``aim_enu`` (3,) the aim point for them (default: mean observed spot)
-    approach : (K, 2), optional
-        Direction of each actuator's last motion before each observation (±1; 0 = unknown): lets
-        the fit see the backlash parameters. A dead band is determined only where the data hold
-        both directions of an actuator; otherwise its prior keeps it near 0 and the stroke offset
-        takes the one-sided shift.
+    points : :class:`FitPoints`, the K observations (and the modes their optional columns switch on:
+        weights, a tilt rate, epochs)
+    options : :class:`FitOptions`, how to fit them (priors, free parameters, loss, noise, solver,
+        identifiability report)
     start : (P,), optional
         Parameters the solver starts from (only the free ones are used; e.g. the previous fit).
         Default ``model.params``. The priors stay centred on ``prior_mean`` either way.
-    method : "fast" (default) or "reference" (:data:`FIT_METHODS`)
-        ``"fast"``: analytic Jacobian and a damped Gauss-Newton run to a step of 1e-9 prior σ; if
-        it does not converge, the reference solver takes over. ``"reference"``:
-        ``scipy.optimize.least_squares`` (TRF) with a central-difference Jacobian, whose covariance
-        also uses that Jacobian. Both minimise the same cost; on recorded campaign observations
-        their predicted beams agree to well under 0.001 mrad (docs/model.md).
     prior_mean : (P,), optional
         Centre of the priors (default 0: the nominal heliostat). A heliostat known to have changed
         (a confirmed drift) is fitted with its earlier model as the centre.
-    point_sigma_scale : (K,), optional
-        Each observation's noise σ is ``sigma_mrad`` times this (≥ 1 weighs it less; default all 1):
-        in year-round operation older points count less, so the model follows a slow drift.
-    point_age_days : (K,), optional
-        Each observation's age [days] (≥ 0; the newest 0). Given, the fit adds a **pedestal tilt
-        rate** (east, north) [mrad/day], with a prior of mean 0 and σ ``tilt_rate_sigma_mrad_per_day``:
-        an observation of age ``a`` is fitted with the pedestal tilts ``tilt − a · rate``, so points
-        of other seasons stay consistent with a foundation that settles at a steady rate, and
-        ``params`` are the parameters now (age 0). The fast solver takes the tilt change to first
-        order; the reference solver evaluates each observation with its own tilts (on a heliostat
-        tilting 2.6 mrad over 120 days their beams agree to 0.002 mrad).
-    tilt_rate_sigma_mrad_per_day : float
-        The rate's prior σ (:data:`TILT_RATE_SIGMA_MRAD_PER_DAY`).
-    point_epoch : (K,) int, optional
-        Each observation's epoch: 0 for the newest (the heliostat as it is now), 1, 2, ... for the
-        ones before each confirmed drift, counting back. Given, every earlier epoch gets its own
-        offset of the :data:`EPOCH_PARAMS` (the tilts and zero offsets a drift changes; prior σ
-        :data:`EPOCH_SIGMA`), and the other parameters stay one for all epochs: the points from
-        before a drift keep determining the heliostat's build, and ``params`` are the newest
-        epoch's. Both solvers evaluate each epoch with its own parameters exactly.
     """
     if len(model) != 1:
         raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
-    if method not in FIT_METHODS:
-        raise ValueError(f"method must be one of {', '.join(FIT_METHODS)}, not {method!r}")
+    if options.method not in FIT_METHODS:
+        raise ValueError(f"method must be one of {', '.join(FIT_METHODS)}, not {options.method!r}")
+    approach = points.approach
     if approach is not None and not np.any(np.asarray(approach, dtype=float)):
         approach = None
-    if free is None:
-        free_names = tuple(em.NAMES) if approach is not None else em.GEOMETRIC
-    else:
-        free_names = tuple(free)
-    free_idx = np.array([em.index(n) for n in free_names], dtype=int)
-    sig_prior = em.prior_sigma(prior_sigma)[free_idx]
-    base = model.params[0].copy()
-    centre = np.zeros(em.P) if prior_mean is None else np.asarray(prior_mean, dtype=float).reshape(em.P)
-    sigma_eff = sigma_mrad / 2.0 if residual_kind == "normal" else sigma_mrad
-    prob = _Problem(model, strokes_mm, sun_enu, spot_enu, residual_kind, approach)
-    scale_k = np.ones(prob.k) if point_sigma_scale is None else np.asarray(point_sigma_scale, float).reshape(prob.k)
+    sigma_eff = options.sigma_mrad / 2.0 if options.residual_kind == "normal" else options.sigma_mrad
+    prob = _Problem(model, points.strokes_mm, points.sun_enu, points.spot_enu, options.residual_kind, approach)
+    u = unknowns(model, prob.k, points, options, approach, prior_mean)
+    scale_k = np.ones(prob.k) if points.sigma_scale is None else np.asarray(points.sigma_scale, float).reshape(prob.k)
     row_sigma = sigma_eff * np.repeat(scale_k, 2)  # the σ of each residual component (2 per observation)
-    first = base if start is None else np.asarray(start, dtype=float).reshape(em.P)
-    x0 = (first[free_idx] - centre[free_idx]) / sig_prior
-    f_scale = f_scale_mrad / sigma_eff
-    f = len(free_idx)
-    age = None
-    if point_age_days is not None:
-        if not np.all(np.isin(_TILT, free_idx)):
-            raise ValueError("a tilt rate (point_age_days) needs both pedestal tilts free")
-        age = np.asarray(point_age_days, dtype=float).reshape(prob.k)
-        x0 = np.concatenate([x0, np.zeros(2)])  # the rate, whitened by its prior σ
-    rate_scale = float(tilt_rate_sigma_mrad_per_day) if age is not None else 0.0
-    nr = 2 if age is not None else 0
-    epoch, n_ep, ep_scale = None, 0, None
-    if point_epoch is not None:
-        epoch = np.asarray(point_epoch, dtype=int).reshape(prob.k)
-        if np.any(epoch < 0):
-            raise ValueError("point_epoch must be 0 (the newest epoch) or more")
-        if not np.all(np.isin(_EPOCH, free_idx)):
-            raise ValueError(f"epochs (point_epoch) need {', '.join(EPOCH_PARAMS)} free")
-        n_ep = int(epoch.max()) if prob.k else 0
-        ep_scale = np.array([EPOCH_SIGMA[n] for n in EPOCH_PARAMS])
-        x0 = np.concatenate([x0, np.zeros(n_ep * len(_EPOCH))])
-    m_ep = len(_EPOCH)
-
-    def params_of(xs: np.ndarray) -> np.ndarray:
-        out = np.repeat(base[None, :], len(xs), axis=0)
-        out[:, free_idx] = centre[free_idx] + xs[:, :f] * sig_prior
-        return out
-
-    def offsets_of(xs: np.ndarray) -> np.ndarray:
-        """(M, E + 1, m): each epoch's offsets of the EPOCH_PARAMS (row 0 zero)."""
-        d = xs[:, f + nr:].reshape(len(xs), n_ep, m_ep) * ep_scale
-        return np.concatenate([np.zeros((len(xs), 1, m_ep)), d], axis=1)
-
-    def rows_of(xs: np.ndarray) -> np.ndarray:
-        """(M, K, P): each observation's parameters (the tilts of its age, the offsets of its epoch)."""
-        out = np.repeat(params_of(xs)[:, None, :], prob.k, axis=1)
-        if age is not None:
-            out[:, :, _TILT] -= age[None, :, None] * (xs[:, None, f:f + nr] * rate_scale)
-        if epoch is not None:
-            out[:, :, _EPOCH] += offsets_of(xs)[:, epoch, :]
-        return out
-
+    x0 = u.x0(start)
+    f_scale = options.f_scale_mrad / sigma_eff
     solved = None
-    if method == "fast":
-        solved = _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age, rate_scale,
-                             epoch, ep_scale)
+    if options.method == "fast":
+        solved = _solve_fast(prob, u, x0, row_sigma, options.loss, f_scale)
     if solved is None:
-        plain = age is None and epoch is None
-        solved = _solve_reference(prob, params_of if plain else rows_of, x0, row_sigma, loss, f_scale)
+        plain = u.age is None and u.epoch is None
+        solved = _solve_reference(prob, u.params_of if plain else u.rows_of, x0, row_sigma, options.loss, f_scale)
+    return _result(model, prob, u, solved, row_sigma, sigma_eff, f_scale, options)
+
+
+def _result(model, prob: _Problem, u: Unknowns, solved: tuple, row_sigma: np.ndarray, sigma_eff: float,
+            f_scale: float, options: FitOptions) -> FitResult:
+    """The :class:`FitResult` of a solution ``solved`` (``(x, J, residuals (K, 2), success, message,
+    nfev)``): the covariance, inflated by the a-posteriori variance factor, the identifiability
+    report and the linearisation at the solution."""
     x, j, res_vec, success, message, nfev = solved
+    f, nr = u.f, u.nr
     jd = j[: 2 * prob.k]
     info = j.T @ j
     cov_x = np.linalg.inv(info)
@@ -375,29 +271,28 @@ def fit_error_model(model, strokes_mm, sun_enu, spot_enu, *, prior_sigma: Mappin
     chi2 = float(np.sum((res_vec.ravel() / row_sigma) ** 2))
     factor = max(1.0, chi2 / dof) if dof >= 3.0 else 1.0
     cov_x = cov_x * factor
-    params = params_of(x[None, :])[0]
+    params = u.params_of(x[None, :])[0]
     cov = np.zeros((em.P, em.P))
-    cov[np.ix_(free_idx, free_idx)] = cov_x[:f, :f] * np.outer(sig_prior, sig_prior)
+    cov[np.ix_(u.free_idx, u.free_idx)] = cov_x[:f, :f] * np.outer(u.sig_prior, u.sig_prior)
     sigma = np.sqrt(np.diag(cov))
     fitted = model.with_params(params)
-    ident = _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x[:f, :f], sigma_eff,
-                             residual_kind, candidate_sun_enu, aim_enu, n_suggestions)
+    ident = _identifiability(fitted, prob, u, params, cov_x[:f, :f], sigma_eff, options)
     rate = rate_sigma = offsets = None
-    if age is not None:
-        rate, rate_sigma = x[f:f + nr] * rate_scale, np.sqrt(np.diag(cov_x)[f:f + nr]) * rate_scale
-    if epoch is not None:
-        offsets = np.zeros((n_ep + 1, em.P))
-        offsets[:, _EPOCH] = offsets_of(x[None, :])[0]
+    if u.age is not None:
+        rate, rate_sigma = x[f:f + nr] * u.rate_scale, np.sqrt(np.diag(cov_x)[f:f + nr]) * u.rate_scale
+    if u.epoch is not None:
+        offsets = np.zeros((u.n_ep + 1, em.P))
+        offsets[:, EPOCH] = u.offsets_of(x[None, :])[0]
     mag = np.linalg.norm(res_vec, axis=-1)
     r_all = np.concatenate([res_vec.ravel() / row_sigma, x])
     z = (r_all / f_scale) ** 2
-    weights, hessian_weights = _loss_weights(loss, z)
+    weights, hessian_weights = _loss_weights(options.loss, z)
     lin = Linearisation(jacobian=j, residual=r_all, weights=weights, hessian_weights=hessian_weights, x=x.copy(),
-                        free_idx=free_idx, scale=sig_prior, centre=centre[free_idx].copy(),
-                        tilt_rate_scale=rate_scale, age_days=age, epoch=epoch, epoch_scale=ep_scale)
+                        free_idx=u.free_idx, scale=u.sig_prior, centre=u.centre[u.free_idx].copy(),
+                        tilt_rate_scale=u.rate_scale, age_days=u.age, epoch=u.epoch, epoch_scale=u.ep_scale)
     return FitResult(params=params, covariance=cov, sigma=sigma, residual_mrad=mag, residual_vec_mrad=res_vec,
                      rms_mrad=float(np.sqrt(np.mean(mag**2))) if len(mag) else float("nan"),
-                     residual_kind=residual_kind, free=free_names, identifiability=ident, model=fitted,
+                     residual_kind=options.residual_kind, free=u.free_names, identifiability=ident, model=fitted,
                      success=success, message=message, nfev=nfev, linearisation=lin,
                      tilt_rate_mrad_per_day=rate, tilt_rate_sigma=rate_sigma, epoch_offsets=offsets)
 
@@ -428,18 +323,19 @@ def _solve_reference(prob, params_of, x0, row_sigma, loss, f_scale):
     return x, jac(x), prob.residuals(params_of(x[None, :]))[0], bool(sol.success), str(sol.message), int(sol.nfev)
 
 
-def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_scale, age=None, rate_scale=0.0,
-                epoch=None, ep_scale=None):
+def _solve_fast(prob, u: Unknowns, x0, row_sigma, loss, f_scale):
     """Damped Gauss-Newton with the analytic Jacobian (:mod:`.fit_solver`); None if it does not
     converge (the caller then solves with the reference solver). ``row_sigma`` (2K,): the σ of
-    each residual component. With ``age`` (K,) [days] the next two unknowns are the tilt rate
-    (whitened by ``rate_scale``), taken to first order: ``r(p − a·rate) ≈ r(p) − a · ∂r/∂tilt · rate``.
-    With ``epoch`` (K,) the last unknowns are the earlier epochs' offsets (whitened by ``ep_scale``);
-    each epoch's observations are evaluated with their own parameters."""
+    each residual component. With ``u.age`` (K,) [days] the next two unknowns are the tilt rate
+    (whitened by ``u.rate_scale``), taken to first order: ``r(p − a·rate) ≈ r(p) − a · ∂r/∂tilt · rate``.
+    With ``u.epoch`` (K,) the last unknowns are the earlier epochs' offsets (whitened by
+    ``u.ep_scale``); each epoch's observations are evaluated with their own parameters."""
+    params_of, free_idx, sig_prior = u.params_of, u.free_idx, u.sig_prior
+    age, rate_scale, epoch, ep_scale = u.age, u.rate_scale, u.epoch, u.ep_scale
     n_x = len(x0)
     f = len(free_idx)
     nr = 2 if age is not None else 0
-    m = len(_EPOCH)
+    m = len(EPOCH)
     n_groups = 1 if epoch is None or not len(epoch) else int(epoch.max()) + 1
     groups = [np.arange(prob.k)] if epoch is None else [np.flatnonzero(epoch == e) for e in range(n_groups)]
     bjs = [fit_solver.BeamJacobian(prob.model.drives, prob.model.pivots_enu[0], prob.strokes[g],
@@ -459,17 +355,17 @@ def _solve_fast(prob, params_of, x0, free_idx, sig_prior, row_sigma, loss, f_sca
                     continue
                 pe = p.copy()
                 if e:
-                    pe[_EPOCH] += x[f + nr + (e - 1) * m: f + nr + e * m] * ep_scale
+                    pe[EPOCH] += x[f + nr + (e - 1) * m: f + nr + e * m] * ep_scale
                 res[g], jac[g] = bj.evaluate(pe)
         blocks = [jac[:, :, free_idx].reshape(-1, f) * sig_prior * inv_sigma[:, None]]
         if age is not None:
-            d_rate = -age[:, None, None] * jac[:, :, _TILT] * rate_scale  # (K, 2, 2) per whitened rate
+            d_rate = -age[:, None, None] * jac[:, :, TILT] * rate_scale  # (K, 2, 2) per whitened rate
             res = res + d_rate @ x[f:f + nr]
             blocks.append(d_rate.reshape(-1, 2) * inv_sigma[:, None])
         if epoch is not None and len(groups) > 1:
             d_ep = np.zeros((prob.k, 2, (len(groups) - 1) * m))
             for e, g in enumerate(groups[1:], start=1):
-                d_ep[g, :, (e - 1) * m: e * m] = jac[g][:, :, _EPOCH] * ep_scale
+                d_ep[g, :, (e - 1) * m: e * m] = jac[g][:, :, EPOCH] * ep_scale
             blocks.append(d_ep.reshape(-1, d_ep.shape[-1]) * inv_sigma[:, None])
         return np.concatenate([res.ravel() * inv_sigma, x]), np.vstack([np.hstack(blocks), eye])
 
@@ -509,12 +405,12 @@ def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndar
         out[g, lin.free_idx] = lin.centre + xg[:f] * lin.scale
         nr = 2 if lin.age_days is not None else 0
         if lin.age_days is not None and len(idx):  # the tilts at the group's own time
-            out[g, _TILT] -= float(np.mean(lin.age_days[list(idx)])) * xg[f:f + nr] * lin.tilt_rate_scale
+            out[g, TILT] -= float(np.mean(lin.age_days[list(idx)])) * xg[f:f + nr] * lin.tilt_rate_scale
         if lin.epoch is not None and len(idx):  # and the offsets of its epoch (a visit lies in one)
             e = int(np.bincount(lin.epoch[list(idx)]).argmax())
             if e:
-                m = len(_EPOCH)
-                out[g, _EPOCH] += xg[f + nr + (e - 1) * m: f + nr + e * m] * lin.epoch_scale
+                m = len(EPOCH)
+                out[g, EPOCH] += xg[f + nr + (e - 1) * m: f + nr + e * m] * lin.epoch_scale
     return out
 
 
@@ -526,8 +422,10 @@ def sky_grid(elevations_deg=(10, 20, 30, 45, 60, 80), azimuth_step_deg: float = 
     return sun_vector_from_angles(az.ravel(), el.ravel())
 
 
-def _identifiability(fitted, prob, free_names, free_idx, sig_prior, params, cov_x, sigma_eff, kind,
-                     candidates, aim, n_best) -> Identifiability:
+def _identifiability(fitted, prob: _Problem, u: Unknowns, params, cov_x, sigma_eff, options: FitOptions
+                     ) -> Identifiability:
+    free_names, free_idx, sig_prior, kind = u.free_names, u.free_idx, u.sig_prior, options.residual_kind
+    candidates, aim, n_best = options.candidate_sun_enu, options.aim_enu, options.n_suggestions
     var = np.diag(cov_x)
     frac = np.clip(1.0 - var, 0.0, 1.0)
     data_fraction = {n: float(v) for n, v in zip(free_names, frac)}

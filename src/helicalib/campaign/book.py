@@ -44,7 +44,7 @@ EPOCHS_AFTER_DRIFT = True
 """After a confirmed drift a heliostat's fits keep its points from before the drift (up to
 :data:`MAX_VISIT_POINTS` less :data:`MAX_VISIT_POINTS_AFTER_DRIFT` visits, :class:`Earlier`), each
 epoch between two confirmed drifts with its own pedestal tilts and actuator zero offsets
-(``point_epoch`` of :func:`helicalib.calibration.fit.fit_error_model`): a drift changes those, not
+(``epoch`` of :class:`helicalib.calibration.fit.FitPoints`): a drift changes those, not
 the heliostat's build, so the months of points before it keep informing the rest of the model. The
 fits are then centred on the nominal heliostat (the earlier points carry what the model before the
 drift knew) and keep the steady tilt rate, which the earlier epochs' points pin down. The acceptance

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from helicalib.calibration import acceptance
-from helicalib.calibration.fit import fit_error_model, leave_out_params
+from helicalib.calibration.fit import FitOptions, FitPoints, fit_error_model, leave_out_params
 from helicalib.campaign.book import Book, Earlier, fit_size
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
@@ -37,8 +37,8 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
     refit after one more point takes a few steps instead of a whole descent. ``method``: the fit's
     solver (:data:`helicalib.calibration.fit.FIT_METHODS`; the fast one by default, the same minimum
     as ``"reference"``). ``tilt_rate`` (year-round operation): the fit adds a steady pedestal tilt rate
-    and fits each point with the tilts of its time (``point_age_days`` of
-    :func:`helicalib.calibration.fit.fit_error_model`, ages counted from the newest point), so points
+    and fits each point with the tilts of its time (``age_days`` of
+    :class:`helicalib.calibration.fit.FitPoints`, ages counted from the newest point), so points
     of past seasons stay consistent with a settling foundation; the model returned is the heliostat
     as of the newest point. ``earlier`` (after a confirmed drift, :data:`.book.EPOCHS_AFTER_DRIFT`): the
     points from before it join the fit after ``points``, each with its epoch's own tilts and zero
@@ -59,9 +59,9 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
     if tilt_rate:
         t = np.array([p.capture_time_s for p in points], dtype=float)
         age = (t.max() - t) / 86400.0
-    fit = fit_error_model(model, strokes, sun, spot, loss=FIT_LOSS, n_suggestions=0, approach=approach,
-                          start=start.params[0], method=method, prior_mean=prior_mean, point_age_days=age,
-                          point_epoch=epoch)
+    fit = fit_error_model(model, FitPoints(strokes, sun, spot, approach=approach, age_days=age, epoch=epoch),
+                          FitOptions(loss=FIT_LOSS, n_suggestions=0, method=method),
+                          start=start.params[0], prior_mean=prior_mean)
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return fit.model, fit

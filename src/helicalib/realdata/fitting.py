@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from helicalib.calibration.fit import FitResult, fit_error_model
+from helicalib.calibration.fit import FitOptions, FitPoints, FitResult, fit_error_model
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.heliostat import HeliostatModel
@@ -60,9 +60,11 @@ def fit(model: HeliostatModel, strokes_mm, sun_enu, spot_enu, prior_sigma: Mappi
     """
     sig = em.prior_sigma(prior_sigma)
     free = [n for n, s in zip(em.NAMES, sig) if s > 0]
-    return fit_error_model(model, np.asarray(strokes_mm, float).reshape(-1, 2), np.asarray(sun_enu, float).reshape(-1, 3),
-                           np.asarray(spot_enu, float).reshape(-1, 3), prior_sigma=dict(prior_sigma), free=free,
-                           loss=loss, sigma_mrad=2.0 * sigma_meas_mrad, residual_kind="normal", n_suggestions=0)
+    points = FitPoints(np.asarray(strokes_mm, float).reshape(-1, 2), np.asarray(sun_enu, float).reshape(-1, 3),
+                       np.asarray(spot_enu, float).reshape(-1, 3))
+    return fit_error_model(model, points, FitOptions(prior_sigma=dict(prior_sigma), free=free, loss=loss,
+                                                     sigma_mrad=2.0 * sigma_meas_mrad, residual_kind="normal",
+                                                     n_suggestions=0))
 
 
 def identifiability(result: FitResult, prior_sigma: Mapping[str, float]) -> list[dict]:
