@@ -212,11 +212,10 @@ def run_one(cfg, planner: str, days: float, seed: int, scenario, ids, out_dir: P
     base, refine = ("gaps" if planner.startswith("gaps") else planner), planner.endswith("+refine")
     if planner == "gaps-own":
         cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"share_targets": False})})
-    result = simulate_campaign(cfg, out_dir, SimulationOptions(days, seed=seed, scenario=scenario, planner=base,
-                                                               heliostat_ids=ids, refine=refine, start_s=start_s,
-                                                               fidelity=fidelity,
-                                                               spots_per_board="auto" if planner == "gaps-turns" else 1),
-                               progress=progress)
+    options = SimulationOptions(days, seed=seed, scenario=scenario, planner=base, heliostat_ids=ids, refine=refine,
+                                start_s=start_s, fidelity=fidelity,
+                                spots_per_board="auto" if planner == "gaps-turns" else 1)
+    result = simulate_campaign(cfg, out_dir, options, progress=progress)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     s = result.summary
     start_s, timeline = acceptance_timeline(result.database, n)
