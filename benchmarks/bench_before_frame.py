@@ -49,7 +49,7 @@ MODES = ("no-retake", "retake")
 
 def count(db: Path) -> dict:
     """The newest campaign's placements by what happened to their before frame."""
-    from helicalib.campaign.controller import RETAKEN
+    from helicalib.campaign.visit import RETAKEN
 
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     try:
@@ -74,7 +74,7 @@ def count(db: Path) -> dict:
 
 
 def run_case(name: str, mode: str, args) -> dict:
-    from helicalib.campaign import controller
+    from helicalib.campaign import visit as controller
     from helicalib.config import load_field_config
     from helicalib.app.simulated import default_start_s, simulate_campaign
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from helicalib.campaign.runner import CampaignRunner
+from helicalib.campaign.loop import CampaignRunner
 from helicalib.app.simulated import default_start_s
 from helicalib.sim.camera import SimCamera, simulated_flux
 from helicalib.sim.clock import VirtualClock

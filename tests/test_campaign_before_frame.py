@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helicalib.campaign import controller
+from helicalib.campaign import visit as controller
 from helicalib.campaign.board import Board
 from helicalib.config import load_field_config
 from helicalib.devices.registers import HeliostatState

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from helicalib.campaign.runner import CampaignRunner
+from helicalib.campaign.loop import CampaignRunner
 from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 from helicalib.devices.camera_http import HttpCamera
@@ -126,7 +126,7 @@ def test_faults_make_visits_invalid_and_the_campaign_goes_on(demo_field_path, tm
 
 
 def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
-    from helicalib.campaign.runner import WEATHER_POLL_S
+    from helicalib.campaign.loop import WEATHER_POLL_S
     from helicalib.app.simulated import simulate_campaign
     from helicalib.devices.registers import FieldState
 

@@ -82,7 +82,7 @@ def browser():
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
     """A live armed campaign of six heliostats with its console on 127.0.0.1 (a free port)."""
-    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.campaign.loop import CampaignRunner
     from helicalib.app.simulated import _network_plant, default_start_s
     from helicalib.sim.scenario import Scenario
 

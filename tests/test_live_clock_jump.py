@@ -29,7 +29,7 @@ def cfg(demo_field_path):
 
 
 def test_a_clock_that_jumps_back_during_a_run_is_one_line_and_the_beams_go_back(cfg, tmp_path, served):
-    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.campaign.loop import CampaignRunner
 
     plant, cameras, clock, sim, _server = served
     ids = ["H0001", "H0021"]

@@ -21,7 +21,7 @@ import pytest
 
 from campaign_helpers import inprocess_campaign
 from helicalib.app import live
-from helicalib.campaign.runner import Returning
+from helicalib.campaign.loop import Returning
 from helicalib.cli import main
 from helicalib.config import load_field_config
 from helicalib.devices.protocols import PlantUnreachableError
@@ -315,7 +315,7 @@ def served(cfg):
 
 
 def _network_runner(cfg, tmp_path, served, ids):
-    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.campaign.loop import CampaignRunner
 
     plant, cameras, clock, _sim, _server = served
     store = Store.open(tmp_path / "c.db", tmp_path / "img")

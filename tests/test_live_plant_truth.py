@@ -73,7 +73,7 @@ def test_a_stalled_camera_does_not_stop_weather_reads_nor_the_stow(cfg, tmp_path
     import time
 
     from helicalib.app import live
-    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.campaign.loop import CampaignRunner
     from helicalib.devices.camera_http import HttpCamera
     from helicalib.devices.protocols import Weather
     from helicalib.devices.registers import HeliostatState

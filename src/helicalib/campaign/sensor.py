@@ -1,6 +1,6 @@
 """The measurement seam: where a visit gets its spot measurements from.
 
-The visit loop (:mod:`.controller`) asks a :class:`SpotSensor` for a reference before the beam
+The visit (:mod:`.visit`) asks a :class:`~helicalib.devices.protocols.SpotSensor` for a reference before the beam
 arrives (:meth:`SpotSensor.before`) and for the spot once the heliostat holds on the board
 (:meth:`SpotSensor.after`); it never knows what is behind it. :class:`CameraSensor` is the
 production sensor, the board's camera and the vision (frames grabbed over HTTP or from the
@@ -15,7 +15,7 @@ beam (light on the board in the before frame that is gone in the after frames) s
 (``Reading.before_beam``; reason ``ambient_change``). Both sensors can then take the before frame
 again and judge the same after frames against it (``retake``): the visit moves its beam to the
 standby point, waits until the other beams have left the board, and asks for it
-(:func:`~.controller.retake_before`).
+(:func:`~.visit.retake_before`).
 """
 
 from __future__ import annotations
@@ -23,11 +23,10 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Generator
-from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from helicalib.devices.protocols import Before, CaptureTimeError, Reading, SpotSensor  # noqa: F401 - the seam's types
 from helicalib.errors import MeasurementError
 from helicalib.flux.visit import cleanliness_from_visit
 from helicalib.vision.frames import decode_frame
@@ -49,70 +48,6 @@ before frame alone shows no marks, this many frames of the same visit are averag
 (:meth:`CameraSensor.before`: a dimly lit board)."""
 MARKS_DOUBT = frozenset({"marks_not_found", "reprojection"})
 """Reading reasons after which the cached marks are found again on the next before frame."""
-
-
-@dataclass
-class Before:
-    """The reference taken with the beam at standby: its capture time, its frame (to store; None
-    for a sensor without frames) and what the sensor keeps for the measurement (``state``)."""
-
-    capture_time_s: float
-    data: bytes | None = None
-    state: object = None
-
-
-@dataclass(frozen=True)
-class Reading:
-    """One spot measurement.
-
-    ``offset_m`` is the spot centre (u, v) on the board from its centre [m, target frame], also
-    for a ``clipped`` spot (the visible part's centroid, which leads a search); None when there is
-    no spot. ``frames`` are the after frames to store with the observation.
-    """
-
-    valid: bool
-    reason: str
-    message: str
-    capture_time_s: float
-    offset_m: tuple[float, float] | None = None
-    spot_px: tuple[float, float] | None = None
-    spot_area_px: float | None = None
-    threshold: float | None = None
-    frames: tuple[bytes, ...] = ()
-    before_beam: bool = False
-    """The before frame held another beam (an ``ambient_change`` a new before frame may mend)."""
-    state: object = field(default=None, compare=False)
-
-
-@runtime_checkable
-class SpotSensor(Protocol):
-    """What a visit measures with. ``ctx`` is the visit's :class:`~.controller.VisitContext`."""
-
-    def before(self, ctx) -> Before:
-        """The reference with the beam off the board. Raises :class:`MeasurementError` (reason
-        code in ``.reason``) when there is none to be had."""
-
-    def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
-        """The spot with the heliostat holding on the board; yields the plant seconds it waits
-        between frames; never raises for a bad frame (an invalid reading says why)."""
-
-    def cleanliness(self, ctx, before: Before, reading: Reading, held_mm: np.ndarray, weather,
-                    sun_enu: np.ndarray) -> float | None:
-        """The mirror's present cleanliness from a valid reading, or None when it cannot be told."""
-
-    def retake(self, ctx, before: Before, reading: Reading) -> tuple[Before, Reading]:
-        """A new before frame, taken with the beam at its standby point, and ``reading``'s after
-        frames judged against it (a reading whose before frame held another beam)."""
-
-
-class CaptureTimeError(MeasurementError):
-    """A frame whose capture time disagrees with the plant clock; the frame is kept for the record."""
-
-    reason = "capture_time"
-
-    def __init__(self, message: str, frame):
-        super().__init__(message)
-        self.frame = frame
 
 
 class CameraSensor:

@@ -6,13 +6,14 @@ protocols; the controller cannot tell them apart. Times are plant time in UTC se
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Generator
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from helicalib.devices.registers import FieldState, HeliostatState
-from helicalib.errors import PlantError
+from helicalib.errors import MeasurementError, PlantError
 
 
 class PlantUnreachableError(PlantError):
@@ -110,6 +111,76 @@ class Camera(Protocol):
     def grab(self) -> Frame:
         """The current frame; raises :class:`helicalib.errors.MeasurementError` or ``PlantError`` on failure."""
         ...
+
+
+# ---------------------------------------------------------------------------------------------
+# The spot sensor: where a visit gets its spot measurements from (a camera and the vision, or a
+# simulated sensor without frames); :mod:`helicalib.campaign.sensor` holds the camera-backed one
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Before:
+    """The reference taken with the beam at standby: its capture time, its frame (to store; None
+    for a sensor without frames) and what the sensor keeps for the measurement (``state``)."""
+
+    capture_time_s: float
+    data: bytes | None = None
+    state: object = None
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One spot measurement.
+
+    ``offset_m`` is the spot centre (u, v) on the board from its centre [m, target frame], also
+    for a ``clipped`` spot (the visible part's centroid, which leads a search); None when there is
+    no spot. ``frames`` are the after frames to store with the observation.
+    """
+
+    valid: bool
+    reason: str
+    message: str
+    capture_time_s: float
+    offset_m: tuple[float, float] | None = None
+    spot_px: tuple[float, float] | None = None
+    spot_area_px: float | None = None
+    threshold: float | None = None
+    frames: tuple[bytes, ...] = ()
+    before_beam: bool = False
+    """The before frame held another beam (an ``ambient_change`` a new before frame may mend)."""
+    state: object = field(default=None, compare=False)
+
+
+@runtime_checkable
+class SpotSensor(Protocol):
+    """What a visit measures with. ``ctx`` is the visit's :class:`~helicalib.campaign.visit.VisitContext`."""
+
+    def before(self, ctx) -> Before:
+        """The reference with the beam off the board. Raises :class:`MeasurementError` (reason
+        code in ``.reason``) when there is none to be had."""
+
+    def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
+        """The spot with the heliostat holding on the board; yields the plant seconds it waits
+        between frames; never raises for a bad frame (an invalid reading says why)."""
+
+    def cleanliness(self, ctx, before: Before, reading: Reading, held_mm: np.ndarray, weather,
+                    sun_enu: np.ndarray) -> float | None:
+        """The mirror's present cleanliness from a valid reading, or None when it cannot be told."""
+
+    def retake(self, ctx, before: Before, reading: Reading) -> tuple[Before, Reading]:
+        """A new before frame, taken with the beam at its standby point, and ``reading``'s after
+        frames judged against it (a reading whose before frame held another beam)."""
+
+
+class CaptureTimeError(MeasurementError):
+    """A frame whose capture time disagrees with the plant clock; the frame is kept for the record."""
+
+    reason = "capture_time"
+
+    def __init__(self, message: str, frame):
+        super().__init__(message)
+        self.frame = frame
 
 
 # ---------------------------------------------------------------------------------------------

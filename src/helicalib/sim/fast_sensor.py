@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import ndtr
 
-from helicalib.campaign.sensor import Before, Reading
+from helicalib.devices.protocols import Before, Reading
 from helicalib.devices.registers import HeliostatState
 from helicalib.sim.camera import spot_geometry, stopped_before
 from helicalib.vision.spot import SATURATED_LEVEL, SpotLimits

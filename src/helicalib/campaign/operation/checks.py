@@ -5,14 +5,17 @@ the campaign runner asks at each free board and at each visit's end: the heliost
 drift and their reference models, the recent checks' residuals (a creep), each board's check time
 today against its share, each fitted heliostat's preferred time of day, and the confirmed drifts
 with the prior each reopened fit is centred on. The rules themselves (the gain, the budget, the
-thresholds) are in :mod:`.operation`; the statistics in :mod:`.drift`. The runner's book, models
-and store are reached through ``runner`` (``self.r``).
+thresholds) are in :mod:`.rules`; the statistics in :mod:`.drift`. It works on the campaign's
+state (:class:`~helicalib.campaign.state.CampaignState`: book, models, nominal) and asks the rest
+of a :class:`CheckHost`: whether a heliostat reaches a board, the plant's cleanliness, the sun,
+events and the store.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Protocol
 
 import numpy as np
 
@@ -24,12 +27,32 @@ SPREAD_KEEP_S = 600.0
 """A model's predicted error at the present sun is reused for this long [plant s]."""
 
 
+class CheckHost(Protocol):
+    """What operation's checks ask of the campaign besides its state."""
+
+    store: object
+
+    def reaches(self, hid: str, target_id: str, now: float) -> bool:
+        """Whether ``hid``'s model reaches board ``target_id`` (standby and centre) now and a while later."""
+
+    def cleanliness_of_rows(self, rows: np.ndarray, now: float) -> np.ndarray:
+        """The plant's cleanliness of the heliostats at ``rows`` of the state's ids (NaN: none)."""
+
+    def sun(self, t_s: float):
+        """(vector_enu, azimuth_deg, elevation_deg, rising) at plant time ``t_s``."""
+
+    def event(self, kind: str, reason: str, heliostat_id: str | None = None, target_id: str | None = None,
+              data: dict | None = None, time_s: float | None = None):
+        """Record an event (:meth:`helicalib.campaign.journal.Journal.event`)."""
+
+
 class OperationChecks:
-    """Operation's checks and drift detection for one runner.
+    """Operation's checks and drift detection for one campaign.
 
     Parameters
     ----------
-    runner : CampaignRunner
+    state : CampaignState
+    host : CheckHost
     mode : {"ranked", "rota"} or None
         None: a campaign (no checks; :meth:`prior_mean` and the drifts of a resumed operation
         still apply).
@@ -37,8 +60,8 @@ class OperationChecks:
         ``rota``: days between checks of each heliostat.
     """
 
-    def __init__(self, runner, mode: str | None, rota_days: float = 14.0):
-        self.r = runner
+    def __init__(self, state, host: CheckHost, mode: str | None, rota_days: float = 14.0):
+        self.state, self.host = state, host
         self.mode = mode
         self.rota_days = float(rota_days)
         # operation (either rule): the fits model a settling pedestal; a campaign's points are days apart
@@ -89,7 +112,7 @@ class OperationChecks:
         fits centred on the nominal again, without the points from before its drifts."""
         if prior_too:
             self._prior.pop(hid, None)
-            self.r.book.h[hid].earlier = None
+            self.state.book.h[hid].earlier = None
         self.suspects.pop(hid, None)
         self._suspect_ref.pop(hid, None)
         self._recent.pop(hid, None)
@@ -100,9 +123,9 @@ class OperationChecks:
         :data:`.policy.EPOCHS_AFTER_DRIFT`; with those off the fit is centred on the model from before
         it). Returns the epochs (plant time from which the book's points count) by heliostat."""
         epochs: dict[str, float] = {}
-        for e in self.r.store.events(campaign_id=self.r.campaign_id, kind="drift"):
+        for e in self.host.store.events(campaign_id=self.state.campaign_id, kind="drift"):
             hid = e.heliostat_id
-            if hid not in self.r._index or "since_s" not in e.data:
+            if hid not in self.state.index or "since_s" not in e.data:
                 continue
             epochs[hid] = float(e.data["since_s"])
             prior = e.data.get("prior_params")
@@ -115,7 +138,7 @@ class OperationChecks:
         """Whether ``hid``'s fit of ``points`` (default its book's) has the steady tilt rate
         (:func:`.operation.fits_tilt_rate`: in operation, but not from a confirmed drift until
         the points reach :data:`.operation.STILL_DAYS_AFTER_DRIFT` past the newest confirmation)."""
-        b = self.r.book.h[hid]
+        b = self.state.book.h[hid]
         points = b.points if points is None else points
         newest = max((p.capture_time_s for p in points), default=-math.inf)
         confirmed = max((d["confirmed_s"] for d in self.drifts if d["heliostat_id"] == hid), default=-math.inf)
@@ -125,7 +148,7 @@ class OperationChecks:
         """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
         heliostat, also after a confirmed drift whose fits carry the points from before it
         (:data:`.policy.EPOCHS_AFTER_DRIFT`), else after a drift the model from before it (:mod:`.operation`)."""
-        return None if self.r.book.h[hid].earlier is not None else self._prior.get(hid)
+        return None if self.state.book.h[hid].earlier is not None else self._prior.get(hid)
 
     # ------------------------------------------------------------------ choosing a check
     def eligible(self, hids, now: float, busy) -> list[str]:
@@ -135,46 +158,46 @@ class OperationChecks:
         Fitted, not only accepted: a heliostat that lost its verdict on accuracy alone (its band
         coverage complete) is asked for nothing by the gaps planner, and without checks its model
         would fall behind the heliostat for good."""
-        free = [h for h in hids if h not in busy and self.r.book.h[h].cooldown_until_s <= now
-                and self.r.book.h[h].fit is not None]
+        free = [h for h in hids if h not in busy and self.state.book.h[h].cooldown_until_s <= now
+                and self.state.book.h[h].fit is not None]
         if not free:
             return []
-        plant = self.r._cleanliness_of_rows(np.array([self.r._index[h] for h in free], dtype=np.int64), now)
+        plant = self.host.cleanliness_of_rows(np.array([self.state.index[h] for h in free], dtype=np.int64), now)
         out = []
         for hid, c in zip(free, plant):
             if not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
-                c = self.r.book.h[hid].measured_cleanliness
-            if c is not None and math.isfinite(float(c)) and c <= self.r.cfg.gating.cleanliness_min:
+                c = self.state.book.h[hid].measured_cleanliness
+            if c is not None and math.isfinite(float(c)) and c <= self.state.cfg.gating.cleanliness_min:
                 continue
             out.append(hid)
         return out
 
     def suspect_for(self, target_id: str, now: float, busy) -> str | None:
         """A heliostat of this board suspected of drift, off cool-down: checked again before anything else."""
-        for hid in self.r._home[target_id]:
-            if hid in self.suspects and hid not in busy and self.r.book.h[hid].cooldown_until_s <= now \
-                    and self.r._reaches(hid, target_id, now):
+        for hid in self.state.home[target_id]:
+            if hid in self.suspects and hid not in busy and self.state.book.h[hid].cooldown_until_s <= now \
+                    and self.host.reaches(hid, target_id, now):
                 return hid
         return None
 
     def day(self, now: float) -> int:
         """The solar day of ``now``; on a new one, the day's sun grid and each fitted heliostat's
         preferred check time (the hour of the day's sun at which its model is least sure) are made."""
-        day = int((now + self.r.cfg.site.longitude_deg / 15.0 * 3600.0) // 86400.0)
+        day = int((now + self.state.cfg.site.longitude_deg / 15.0 * 3600.0) // 86400.0)
         if self._day != day:
             self._day = day
-            t0 = day * 86400.0 - self.r.cfg.site.longitude_deg / 15.0 * 3600.0
+            t0 = day * 86400.0 - self.state.cfg.site.longitude_deg / 15.0 * 3600.0
             times = np.arange(t0, t0 + 86400.0, op_rules.PREFERRED_STEP_S)
-            el = np.degrees(np.arcsin(np.clip(self.r.sun_table.vector_enu(times)[:, 2], -1.0, 1.0)))
-            times = times[el >= self.r.cfg.acceptance.low_band_deg[0]]
+            el = np.degrees(np.arcsin(np.clip(self.state.sun_table.vector_enu(times)[:, 2], -1.0, 1.0)))
+            times = times[el >= self.state.cfg.acceptance.low_band_deg[0]]
             self._day_grid = times
             self._preferred = {}
-            fitted = [h for h in self.r.ids if self.r.book.h[h].fit is not None]
+            fitted = [h for h in self.state.ids if self.state.book.h[h].fit is not None]
             if fitted and times.size:
                 spread = np.full((times.size, len(fitted)), np.nan)
                 for k, t in enumerate(times):
-                    got = policy.model_spreads(self.r.cfg, self.r.book, self.r.models, self.r._nominal_rows, fitted,
-                                               self.r.sun_table.vector_enu(t), math.inf)
+                    got = policy.model_spreads(self.state.cfg, self.state.book, self.state.models, self.state.nominal_rows, fitted,
+                                               self.state.sun_table.vector_enu(t), math.inf)
                     spread[k] = [got.get(h, np.nan) for h in fitted]
                 for j, h in enumerate(fitted):
                     if np.isfinite(spread[:, j]).any():
@@ -187,23 +210,23 @@ class OperationChecks:
         out, todo = {}, []
         for h in hids:
             kept = self._spread_cache.get(h)
-            if kept is not None and now - kept[0] < SPREAD_KEEP_S and kept[1] is self.r.book.h[h].fit:
+            if kept is not None and now - kept[0] < SPREAD_KEEP_S and kept[1] is self.state.book.h[h].fit:
                 out[h] = kept[2]
             else:
                 todo.append(h)
         if todo:
-            fresh = policy.model_spreads(self.r.cfg, self.r.book, self.r.models, self.r._nominal_rows, todo,
-                                         self.r.sun(now)[0], now)
+            fresh = policy.model_spreads(self.state.cfg, self.state.book, self.state.models, self.state.nominal_rows, todo,
+                                         self.host.sun(now)[0], now)
             for h in todo:
                 out[h] = fresh.get(h, math.nan)
-                self._spread_cache[h] = (now, self.r.book.h[h].fit, out[h])
+                self._spread_cache[h] = (now, self.state.book.h[h].fit, out[h])
         return out
 
     def check_for(self, target_id: str, now: float, busy) -> str | None:
         """The accepted heliostat of this board most worth a check now (:func:`.operation.choose_check`)."""
         # only heliostats a check may take at all (unchecked long enough) are weighed: cheap tests first
         wait = self.rota_days * 86400.0 if self.mode == "rota" else op_rules.MIN_CHECK_INTERVAL_S
-        cands = [h for h in self.r._home[target_id] if now - self.r.book.h[h].last_visit_s >= wait]
+        cands = [h for h in self.state.home[target_id] if now - self.state.book.h[h].last_visit_s >= wait]
         if self.mode == "ranked" and cands:
             day = self.day(now)
             used_day, used_s = self._board_check_s.get(target_id, (day, 0.0))
@@ -211,16 +234,16 @@ class OperationChecks:
                 return None  # this board's checks are ahead of their share of the day's sun so far
             overdue = (op_rules.MAX_DAYS_UNCHECKED + 1.0) * 86400.0
             cands = [h for h in cands if now >= self._preferred.get(h, -math.inf)
-                     or now - self.r.book.h[h].last_visit_s >= overdue]
+                     or now - self.state.book.h[h].last_visit_s >= overdue]
         cands = self.eligible(cands, now, busy)
         if not cands:
             return None
-        last = [self.r.book.h[h].last_visit_s for h in cands]
+        last = [self.state.book.h[h].last_visit_s for h in cands]
         spreads = self.spreads(cands, now) if self.mode == "ranked" else {}
         for _try in range(3):  # a heliostat whose strokes do not reach the board now is passed over
             hid = op_rules.choose_check(cands, [spreads.get(h, np.nan) for h in cands], last, now,
                                         mode=self.mode, rota_days=self.rota_days)
-            if hid is None or self.r._reaches(hid, target_id, now):
+            if hid is None or self.host.reaches(hid, target_id, now):
                 return hid
             k = cands.index(hid)
             del cands[k], last[k]
@@ -235,15 +258,15 @@ class OperationChecks:
         suspect = self.suspects.get(hid)
         if suspect:  # tested against the fit from before the first suspicious check, not one it entered
             started_with, since = self._suspect_ref[hid]
-            before = [p for p in self.r.book.points(hid) if p.capture_time_s < since]
-            evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
+            before = [p for p in self.state.book.points(hid) if p.capture_time_s < since]
+            evidence = drift_evidence(self.state.nominal_of(hid), started_with, before, first,
                                       alpha=op_rules.CONFIRM_ALPHA, prior_mean=self.prior_mean(hid),
-                                      tilt_rate=self.tilt_rate_of(hid, before), earlier=self.r.book.h[hid].earlier)
+                                      tilt_rate=self.tilt_rate_of(hid, before), earlier=self.state.book.h[hid].earlier)
         else:
-            before = [p for p in self.r.book.points(hid) if p.visit_id != visit_id]
-            evidence = drift_evidence(self.r.nominal_of(hid), started_with, before, first,
+            before = [p for p in self.state.book.points(hid) if p.visit_id != visit_id]
+            evidence = drift_evidence(self.state.nominal_of(hid), started_with, before, first,
                                       prior_mean=self.prior_mean(hid), tilt_rate=self.tilt_rate_of(hid, before),
-                                      earlier=self.r.book.h[hid].earlier)
+                                      earlier=self.state.book.h[hid].earlier)
         if evidence is None:
             return
         lean = None
@@ -257,7 +280,7 @@ class OperationChecks:
         if not evidence["drift"] and lean is None:
             if self.suspects.pop(hid, None):
                 self._suspect_ref.pop(hid, None)
-                self.r.event("note", f"{hid}: check inside its band again ({evidence['residual_mrad']:.2f} mrad, "
+                self.host.event("note", f"{hid}: check inside its band again ({evidence['residual_mrad']:.2f} mrad, "
                                    f"band {evidence['band_mrad']:.2f}, p {evidence['p_value']:.2g}); "
                                    "drift not confirmed", hid, data={"drift": evidence}, time_s=now)
             return
@@ -272,24 +295,24 @@ class OperationChecks:
                 f"mrad, p {evidence['p_value']:.2g}"
                 + (f"; its last {op_rules.TREND_CHECKS} checks lean the same way (p {lean[1]:.2g})" if lean else ""))
         if len(flagged) < op_rules.CONFIRM_CHECKS:
-            self.r.event("note", text + "; suspected drift, checking again", hid, data={"drift": evidence}, time_s=now)
+            self.host.event("note", text + "; suspected drift, checking again", hid, data={"drift": evidence}, time_s=now)
             return
         # confirmed: the points from the first suspicious check on count; the fit centres on the model before
         since = flagged[0]
         del self.suspects[hid]
         self._recent.pop(hid, None)
         started_with = self._suspect_ref.pop(hid)[0]
-        b = self.r.book.h[hid]
+        b = self.state.book.h[hid]
         earlier = [p for p in b.points if p.capture_time_s < since]
-        nominal = self.r.nominal_of(hid)
+        nominal = self.state.nominal_of(hid)
         prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
                                     tilt_rate=self.tilt_rate_of(hid, earlier), earlier=b.earlier)[0]
                        if earlier else started_with)
         # the points since, from the store: as a resumed runner and the report rebuild them (a point the
         # cap thinned away while the earlier points filled the book comes back); and those before it, in
         # epochs of their own (policy.EPOCHS_AFTER_DRIFT), from the newest repair on
-        stored = self.r.store.observations(campaign_id=self.r.campaign_id, heliostat_id=hid)
-        ep = policy.stored_epochs(self.r.store, self.r.campaign_id).get(hid, policy.NO_EPOCH)
+        stored = self.host.store.observations(campaign_id=self.state.campaign_id, heliostat_id=hid)
+        ep = policy.stored_epochs(self.host.store, self.state.campaign_id).get(hid, policy.NO_EPOCH)
         b.drifted = True  # the smaller cap from now on (policy.MAX_VISIT_POINTS_AFTER_DRIFT)
         b.points = policy.book_points(stored, since, policy.visit_cap(True))
         b.earlier = policy.earlier_points(stored, ep.floor_s, ep.boundaries + (since,))
@@ -300,12 +323,12 @@ class OperationChecks:
                   "points_before_kept": kept_before,
                   "prior_params": [float(x) for x in np.asarray(prior_model.params)[0]]}
         self.drifts.append(dict(record, heliostat_id=hid))  # before the refit: its tilt rate counts from now
-        self.r.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self.prior_mean(hid),
+        self.state.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self.prior_mean(hid),
                                              tilt_rate=self.tilt_rate_of(hid), earlier=b.earlier)
         b.fit = fit
         kept = (f"{len(earlier)} earlier points left out" if b.earlier is None else
                 f"{kept_before} points from before it kept in epochs of their own")
-        self.r.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
+        self.host.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
                    f"({kept}, {len(b.points)} since)", hid, data=record, time_s=now)
         if fit is not None:
-            self.r.store.record_fit(campaign_id=self.r.campaign_id, heliostat_id=hid, time_s=now, **policy.fit_record(fit))
+            self.host.store.record_fit(campaign_id=self.state.campaign_id, heliostat_id=hid, time_s=now, **policy.fit_record(fit))

@@ -18,15 +18,39 @@ did, and logs it as an ``operator`` event with its reason. The kinds:
 
 The state the actions leave (paused, out of service, repairs) lasts across restarts:
 :func:`replay` rebuilds it from the applied rows, and :meth:`OperatorDesk.restore` re-applies it
-to a runner that was just built from the store.
+to a runner that was just built from the store. The desk works through the campaign's public
+names only (:class:`CrewHost`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from helicalib.errors import ConfigError
+
+class CrewHost(Protocol):
+    """What the crew's desk reads and changes of a campaign (:class:`~helicalib.campaign.loop.CampaignRunner`)."""
+
+    cfg: object
+    campaign_id: int
+    store: object
+    clock: object
+    book: object
+    models: dict
+    active: dict
+    ops: object
+    drifts: list
+
+    def nominal_of(self, hid: str): ...
+
+    def prior_mean(self, hid: str): ...
+
+    def reaches(self, hid: str, target_id: str, now: float) -> bool: ...
+
+    def event(self, kind: str, reason: str, heliostat_id=None, target_id=None, data=None, time_s=None): ...
+
 
 KINDS = {
     "pause": "pause calibration (no new visit; visits under way end as usual)",
@@ -101,7 +125,7 @@ class OperatorDesk:
         return self.standing.paused
 
     # ------------------------------------------------------------------ start
-    def restore(self, runner) -> None:
+    def restore(self, runner: CrewHost) -> None:
         """Re-apply what earlier actions left to a runner just built from the store: paused, out of
         service, and each repaired heliostat's points before its repair dropped (model refitted on
         the rest, or nominal)."""
@@ -141,7 +165,7 @@ class OperatorDesk:
         self._hold(runner)
 
     # ------------------------------------------------------------------ each decision
-    def apply(self, runner, now: float) -> None:
+    def apply(self, runner: CrewHost, now: float) -> None:
         """Apply every pending action (a repair of a heliostat in a visit waits for the visit's end)."""
         pending = self.store.actions(self.campaign_id, pending=True)
         if pending:
@@ -205,12 +229,12 @@ class OperatorDesk:
             if hid in runner.book.h:
                 runner.book.h[hid].cooldown_until_s = math.inf
 
-    def next_for(self, runner, target_id: str, now: float) -> str | None:
+    def next_for(self, runner: CrewHost, target_id: str, now: float) -> str | None:
         """The queued re-check that goes on ``target_id`` now (its own board, not in a visit), or None."""
         busy = set(runner.active)
         for k, (hid, action_id) in enumerate(self.queue):
             if (runner.cfg.heliostat(hid).target == target_id and hid not in busy
-                    and hid not in self.standing.out_of_service and runner._reaches(hid, target_id, now)):
+                    and hid not in self.standing.out_of_service and runner.reaches(hid, target_id, now)):
                 del self.queue[k]
                 text = f"re-check of {hid} (action {action_id}): onto {target_id} now"
                 self.store.finish_action(action_id, done_s=now, outcome=f"visit started: {hid} onto {target_id}")

@@ -1,12 +1,19 @@
-"""The visit loop of the 2022 paper (section 2.3.2) for one heliostat on one target.
+"""The visit of the 2022 paper (section 2.3.2): one heliostat on one target, as its procedure.
 
 A visit is a generator: it talks only to device protocols (:class:`~helicalib.devices.protocols.Plant`,
-``Camera``) and yields the plant seconds it wants to wait, so one runner can interleave visits on
-several targets on a virtual clock, or drive them from a live scheduler. What it needs from the
-campaign it asks for by yielding a request instead (:class:`Record` an observation,
-:class:`SaveFrame`, :class:`Refit` the model, the :class:`Corrections` to write when it leaves);
-the runner serves it and sends the answer back (or throws the error into the visit). So the visit
-holds no store and no fit: it can be read as the paper's loop. It returns a :class:`VisitOutcome`.
+the board's :class:`~helicalib.devices.protocols.SpotSensor`) and yields the plant seconds it
+wants to wait, so one loop can interleave visits on several targets on a virtual clock, or drive
+them from a live scheduler. A plant move is a :class:`~.status.MoveStatus` the visit waits on
+(:func:`~.status.wait`): it completes with the read-back strokes, or fails with a reason code.
+
+What the visit needs from the campaign (store an observation or a frame, refit the model, the
+tracking corrections to leave with) it asks of a :class:`VisitHost`, which the campaign loop
+implements (:mod:`.loop`): the store's writes and the fits happen there, in one place, and the
+visit holds no store and no fit. A host call is a plain call, made at the point of the procedure
+where the answer is needed (the loop has the whole state at hand; a request handed back at a
+phase boundary would split the procedure in the middle of a placement). A host call that fails
+raises inside the visit, which decides: a failed record of a measurement ends the visit as a
+fault, and the beam still leaves the board. It returns a :class:`VisitOutcome`.
 
 Steps: park the beam at the standby point → "before" reference from the visit's spot sensor (the
 board's camera, :mod:`.sensor`) → on-target strokes from the current model, each actuator arriving in the direction it moves while tracking (so the gears' backlash
@@ -38,13 +45,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Generator
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 
 from helicalib.calibration.correction import stroke_correction
 from helicalib.campaign.board import Board
-from helicalib.campaign.sensor import Before, CaptureTimeError, SpotSensor
-from helicalib.devices.protocols import Plant
+from helicalib.campaign.status import POLL_S, MoveFailed, start_move, wait
+from helicalib.devices.protocols import Before, CaptureTimeError, Plant, SpotSensor
 from helicalib.devices.registers import HeliostatState
 from helicalib.errors import HelicalibError, MeasurementError, PlantError
 from helicalib.geometry import optics
@@ -55,8 +63,6 @@ from helicalib.store.records import Observation
 SEARCHABLE = frozenset({"no_spot", "clipped", "low_contrast"})
 """Spot results after which the visit searches for the beam instead of giving up (DNI and cleanliness
 are gated before a visit, so a faint spot most likely means a beam mostly off the board)."""
-POLL_S = 2.0
-"""Plant seconds between status polls while waiting for a heliostat to settle."""
 APPROACH_LEAD_S = 300.0
 """Plant seconds ahead at which the tracking direction of each actuator is read off the model."""
 MAX_BEFORE_RETAKES = 3
@@ -132,45 +138,31 @@ class VisitContext:
     """The board shared with other visits (its frame lock); None: the visit is alone."""
     on_board: bool = False
     """True while the beam was last commanded onto the board (False at standby or tracking)."""
+    host: VisitHost | None = None
+    """The campaign's side: the store's writes, the refits, the corrections to leave with."""
 
 
-@dataclass(frozen=True)
-class Record:
-    """Request: store this observation (frames first: ``frames`` are ``before_frame`` and/or
-    ``after_frames``); the runner sends back its id."""
+class VisitHost(Protocol):
+    """What a visit asks of the campaign that runs it (the campaign loop implements it).
 
-    observation: Observation
-    frames: dict = field(default_factory=dict)
+    Each call may raise (a database that cannot be written): the visit then records what it can
+    and leaves the board."""
 
+    def record(self, ctx: VisitContext, observation: Observation, frames: dict) -> int:
+        """Store ``observation`` (its frames first: ``before_frame`` and/or ``after_frames``);
+        returns its id."""
 
-@dataclass(frozen=True)
-class SaveFrame:
-    """Request: store one frame of this visit; the runner sends back its stored path."""
+    def save_frame(self, ctx: VisitContext, data: bytes, iteration: int, capture_time_s: float, kind: str) -> str:
+        """Store one frame of the visit; returns its stored path."""
 
-    data: bytes
-    iteration: int
-    capture_time_s: float
-    kind: str
+    def refit(self, ctx: VisitContext, observation: Observation) -> HeliostatModel:
+        """A valid observation of the visit's heliostat: add it to its points and refit; returns
+        the model the visit goes on with."""
 
-
-@dataclass(frozen=True)
-class Refit:
-    """Request: a valid observation of this visit's heliostat; the runner adds it to the heliostat's
-    points, refits, and sends back the model the loop goes on with."""
-
-    observation: Observation
-
-
-@dataclass(frozen=True)
-class Corrections:
-    """Request, as the visit leaves: the tracking stroke corrections [mm] to write with the track
-    command for ``model``; the runner sends them back (None: the plant keeps its own)."""
-
-    model: HeliostatModel
-
-
-REQUESTS = (Record, SaveFrame, Refit, Corrections)
-"""What a visit may yield besides a wait in plant seconds."""
+    def corrections(self, ctx: VisitContext, model: HeliostatModel, stopping: bool) -> np.ndarray | None:
+        """The tracking stroke corrections [mm] to write with the track command as the visit
+        leaves with ``model`` (``stopping``: the campaign stops; the corrections last written);
+        None: the plant keeps its own."""
 
 
 @dataclass(frozen=True)
@@ -198,15 +190,10 @@ class VisitOutcome:
     """How the heliostat left the board (None: the visit has not left it)."""
 
 
-class VisitAborted(HelicalibError):
-    """A visit cannot go on: ``refused`` when the controller itself declined a command (a stroke
-    out of the drive's range: nothing was sent), else a fault (the plant's fault, refusal or a
-    timeout); the reason code is ``code``."""
-
-    def __init__(self, code: str, message: str, refused: bool = False):
-        super().__init__(message)
-        self.code = code
-        self.refused = refused
+VisitAborted = MoveFailed
+"""A visit cannot go on: ``refused`` when the controller itself declined a command (a stroke out
+of the drive's range: nothing was sent), else a fault (the plant's fault, refusal or a timeout,
+:class:`~.status.MoveStatus`); the reason code is ``code``."""
 
 
 def _in_range(ctx: VisitContext, strokes_mm: np.ndarray) -> bool:
@@ -227,22 +214,11 @@ def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray, on_board: bool = Tr
                                              "turn (another beam may be measured there); not sent", refused=True)
     ctx.on_board = bool(on_board)
     ctx.last_strokes_mm = np.asarray(strokes_mm, dtype=float)
-    seq = ctx.plant.move_to(ctx.index, np.asarray(strokes_mm, dtype=float))
+    status = start_move(ctx.plant, ctx.index, ctx.heliostat_id, strokes_mm, ctx.settings.settle_timeout_s)
     ctx.approach = _approach_after(ctx.approach, ctx.held_mm, ctx.last_strokes_mm)
-    waited = 0.0
-    while True:
-        st = ctx.plant.status(ctx.index)
-        if st.sequence_done == seq and st.state == HeliostatState.HOLDING:
-            ctx.held_mm = np.asarray(st.strokes_mm, dtype=float)
-            return st.strokes_mm
-        if st.sequence_done == seq and st.state == HeliostatState.FAULT:
-            raise VisitAborted("plant_fault", f"{ctx.heliostat_id}: plant fault code {st.fault} on a move command")
-        if st.state in (HeliostatState.STOWED, HeliostatState.OFFLINE) and st.sequence_done == seq:
-            raise VisitAborted("plant_refused", f"{ctx.heliostat_id}: heliostat is {st.state.name.lower()}")
-        if waited >= ctx.settings.settle_timeout_s:
-            raise VisitAborted("settle_timeout", f"{ctx.heliostat_id}: not holding after {waited:.0f} s")
-        yield POLL_S
-        waited += POLL_S
+    read = yield from wait(status)
+    ctx.held_mm = np.asarray(read, dtype=float)
+    return read
 
 
 APPROACH_MIN_MM = 0.01
@@ -334,7 +310,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         yield from _lock(ctx)  # the board's turn: every other beam is off it until this one is back at standby
         before = ctx.sensor.before(ctx)
         if before.data is not None:  # saved once: every observation of the visit points to it
-            ctx.before_path = yield SaveFrame(before.data, 0, before.capture_time_s, "before")
+            ctx.before_path = ctx.host.save_frame(ctx, before.data, 0, before.capture_time_s, "before")
         aim = centre.copy()
         strokes = _aim_strokes(ctx, aim, ctx.now())
         search = _search_aims(target, ctx.settings.search_steps)
@@ -359,7 +335,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
             if out.first_error_mrad is None:
                 out.first_error_mrad = obs.error_mrad
             out.final_error_mrad = obs.error_mrad
-            ctx.model = yield Refit(obs)
+            ctx.model = ctx.host.refit(ctx, obs)
             out.model = ctx.model
             if obs.error_mrad < ctx.settings.loop_threshold_mrad:
                 out.status, out.reason = "converged", "ok"
@@ -378,15 +354,15 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
         out.iterations = placements
     except VisitAborted as err:
         out.status, out.reason = ("refused" if err.refused else "fault"), err.code
-        yield from _record_failure(ctx, err.code, str(err))
+        _record_failure(ctx, err.code, str(err))
     except (PlantError, MeasurementError) as err:
         code = "plant_error" if isinstance(err, PlantError) else getattr(err, "reason", "camera_error")
         out.status, out.reason = "fault", code
-        yield from _record_failure(ctx, code, str(err), frame=err.frame if isinstance(err, CaptureTimeError) else None)
+        _record_failure(ctx, code, str(err), frame=err.frame if isinstance(err, CaptureTimeError) else None)
     except Exception as err:  # noqa: BLE001 - e.g. a full disk: the beam must still leave the board
         code = f"error_{type(err).__name__}"
         out.status, out.reason = "fault", code
-        yield from _record_failure(ctx, code, f"{ctx.heliostat_id}: {type(err).__name__}: {err}")
+        _record_failure(ctx, code, f"{ctx.heliostat_id}: {type(err).__name__}: {err}")
     out.left = yield from leave_board(ctx)
     return out
 
@@ -434,7 +410,7 @@ def _measure(ctx, before: Before, strokes_cmd, strokes_read, aim, iteration):
         if clean is not None:
             extra["cleanliness_measured"] = clean
     obs = Observation(valid=bool(reading.valid), reason=reading.reason, message=reading.message, **base, **extra)
-    obs_id = yield Record(obs, {"before_frame": _before_data(ctx, before), "after_frames": list(reading.frames)})
+    obs_id = ctx.host.record(ctx, obs, {"before_frame": _before_data(ctx, before), "after_frames": list(reading.frames)})
     return _with_id(obs, obs_id), before
 
 
@@ -461,7 +437,7 @@ def retake_before(ctx: VisitContext, before: Before, reading, iteration: int):
             return before, replace(reading, message=f"{reading.message.rstrip('.')} [{RETAKEN} {n - 1} time(s); "
                                                     f"then no before frame could be had: {err}].")
         if before.data is not None:
-            ctx.before_path = yield SaveFrame(before.data, iteration, before.capture_time_s, "before")
+            ctx.before_path = ctx.host.save_frame(ctx, before.data, iteration, before.capture_time_s, "before")
     if n == 0:
         return before, reading
     times = f"{n} time{'s' if n > 1 else ''}"
@@ -549,7 +525,7 @@ def _next_search_aim(target, obs: Observation, aim_enu: np.ndarray, search: list
     return target.uvw_to_enu(search.pop(0)) if search else None
 
 
-def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> Generator[Record, int, None]:
+def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> None:
     t = ctx.now()
     sun_vec, az, el, rising = ctx.sun(t)
     obs = Observation(campaign_id=ctx.campaign_id, heliostat_id=ctx.heliostat_id, target_id=ctx.target.id,
@@ -560,17 +536,18 @@ def _record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> G
                       sun_elevation_deg=float(el), sun_rising=bool(rising), valid=False, reason=code, message=message,
                       before_frame_path=ctx.before_path)
     try:
-        yield Record(obs, {} if frame is None else {"before_frame": frame.data})
+        ctx.host.record(ctx, obs, {} if frame is None else {"before_frame": frame.data})
     except Exception:  # noqa: BLE001 - recording the failure must not stop the beam leaving the board
         pass
 
 
-def leave_board(ctx: VisitContext) -> Generator[float, None, Left]:
+def leave_board(ctx: VisitContext, stopping: bool = False) -> Generator[float, None, Left]:
     """Back to standby (beam off the board, never across the receiver), then to tracking.
 
     Returns a :class:`Left`: what failed on the way back to tracking (the heliostat then stays
     where it is: holding at standby, or on the board if even that move failed; the runner retries
-    the return), or the corrections written with the track command."""
+    the return), or the corrections written with the track command. ``stopping``: the campaign
+    stops; the heliostat leaves with the corrections last written."""
     try:
         try:
             if ctx.on_board:  # (a stopped visit's leg: its turn is still held, or waited for)
@@ -582,7 +559,7 @@ def leave_board(ctx: VisitContext) -> Generator[float, None, Left]:
         except (VisitAborted, PlantError, MeasurementError):
             pass
         try:
-            corrections = yield Corrections(ctx.model)
+            corrections = ctx.host.corrections(ctx, ctx.model, stopping)
         except Exception:  # noqa: BLE001 - keep the plant's corrections rather than write doubtful ones
             corrections = None
         corrections = None if corrections is None else np.asarray(corrections, dtype=float)

@@ -1,0 +1,401 @@
+"""The campaign loop: tick, start a visit, step it, finish it; the campaign's one entry point.
+
+One :class:`CampaignRunner` drives the same campaign core in every place it runs:
+
+* in-process on a virtual clock (``helicalib simulate``): :meth:`~CampaignRunner.run_until` jumps
+  plant time from event to event, so days pass in seconds;
+* against a plant over Modbus TCP + HTTP (``helicalib simulate --over-network``, ``helicalib run``):
+  the same :meth:`~CampaignRunner.tick` is called by APScheduler jobs on the plant clock
+  (:mod:`helicalib.app.live`).
+
+The runner is a shell over a :class:`~.state.CampaignState`: the field's side (weather, stow,
+gate, cleanliness: :mod:`.field`), tracking and returns (:mod:`.tracking`), the journal of events,
+writes and faults (:mod:`.journal`), operation's checks (:mod:`.operation.checks`). Visits are
+generators (:func:`~.visit.run_visit`) that yield the plant seconds they want to wait; the loop
+steps each when its wake-up time comes, and is the visits' :class:`~.visit.VisitHost`: the store's
+writes and the refits happen here. A board serves up to ``spots_per_board`` visits at once, whose
+beams take turns on it (:mod:`.board`). Every observation goes to the store as soon as it is made.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from helicalib.campaign import policy
+from helicalib.campaign.events import BoardState, Snapshot
+from helicalib.campaign.field import CLEANLINESS_MAX_AGE_S, WEATHER_MAX_AGE_S, WEATHER_POLL_S, Field  # noqa: F401
+from helicalib.campaign.journal import STORAGE_RETRIES, Journal  # noqa: F401
+from helicalib.campaign.operation.checks import OperationChecks
+from helicalib.campaign.resume import resume_from_store
+from helicalib.campaign.sensor import camera_sensors
+from helicalib.campaign.shell import RunnerShell
+from helicalib.campaign.state import (  # noqa: F401 - names other modules import from here
+    RETURN_CHECK_S, RETURN_RETRY_MAX_S, RETURN_RETRY_S, CampaignDevices, CampaignOptions, Returning, RunningVisit,
+    build_state, storage_error)
+from helicalib.campaign.tracking import Tracking
+from helicalib.campaign.visit import APPROACH_LEAD_S, VisitContext, VisitOutcome, leave_board, run_visit  # noqa: F401
+from helicalib.devices.protocols import SpotSensor, abilities_of
+from helicalib.errors import HelicalibError
+from helicalib.geometry.heliostat import HeliostatModel
+
+PLANNER_TICK_S = 30.0
+"""Plant seconds between planner ticks while a target is free."""
+SHARE_REACH_S = 1800.0
+"""A borrowed board must be within the heliostat's stroke range now and this much later [plant s]."""
+STEADY_TICK_S = 300.0
+"""Plant seconds between planner ticks in operation while every heliostat is accepted (checks only)."""
+
+
+class CampaignRunner(RunnerShell):
+    """Run a calibration campaign on a plant.
+
+    Parameters
+    ----------
+    cfg : FieldConfig
+    plant : Plant protocol implementation (its optional abilities are read once, here)
+    cameras : dict target id → Camera or SpotSensor
+        Each board's camera (measured with :class:`~helicalib.campaign.sensor.CameraSensor`: the
+        vision), or a spot sensor of its own (the measurement seam).
+    clock : Clock protocol (``now_s``, ``sleep``)
+    store : helicalib.store.Store
+    campaign_id : int
+        The campaign (new or resumed) in ``store``.
+    heliostat_ids : list of str, optional
+        Heliostats to calibrate (default all).
+    **options
+        The fields of :class:`~.state.CampaignOptions` (planner, recheck, model, armed, refine,
+        listeners, operation, rota_days, spots_per_board, flux).
+    """
+
+    def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, **options):
+        opts = CampaignOptions(**options)
+        # the measurement seam: each board's spot sensor (a camera is wrapped in the camera + vision sensor)
+        wrapped = camera_sensors(cfg, {t: c for t, c in cameras.items() if not isinstance(c, SpotSensor)}, opts.flux)
+        sensors = {t: (c if isinstance(c, SpotSensor) else wrapped[t]) for t, c in cameras.items()}
+        self.cfg, self.campaign_id = cfg, campaign_id
+        self.devices = CampaignDevices(plant, sensors, clock, store, abilities_of(plant))
+        self.state = st = build_state(cfg, campaign_id, heliostat_ids, opts, list(cameras))
+        self.journal = Journal(st, self.devices, opts.listeners)
+        self.field = Field(st, self.devices, self.journal)
+        self.tracking = Tracking(st, self.devices, self.journal)
+        self.ops = OperationChecks(st, self, st.operation, opts.rota_days)
+        """Operation's checks and drift detection (:mod:`.operation.checks`)."""
+        resume_from_store(self)
+
+    # ------------------------------------------------------------------ the loop
+    def run_until(self, end_s: float, progress=None) -> None:
+        """Advance plant time to ``end_s`` (virtual or real clock), running the campaign."""
+        clock = self.devices.clock
+        while True:
+            now = clock.now_s()
+            if now >= end_s:
+                break
+            wake = self.tick(now)
+            if progress is not None:
+                progress(now)
+            nxt = min(wake, end_s)
+            if nxt > now:
+                clock.sleep(nxt - now)
+
+    def tick(self, now: float) -> float:
+        """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
+        st, field = self.state, self.field
+        if "scs" in st.faults.lost_links:  # does the plant's SCS answer again?
+            self.journal.probe_scs(now)
+        if st.operator is not None:  # operator actions (campaign/operation/crew.py): the crew's requests first
+            st.operator.apply(self, now)
+        if st.stowed and st.active:  # stowed by the weather job while this tick's thread waited on a device
+            field.abort_visits(now, "field stowed for wind")
+        if now - st.last_poll_s >= WEATHER_POLL_S:
+            field.poll_weather(now)
+        if now - st.last_refresh_s >= policy.TRACKING_REFRESH_S and st.faults.plant_unreachable_since_s is None:
+            self.tracking.refresh(now)  # (not into a plant that does not answer: once it answers again)
+        if st.retention is not None:
+            field.nightly_retention(now)
+        if st.returning and st.armed:
+            self.tracking.check_returns(now)
+        due = sorted((v.wake_s, hid) for hid, v in st.active.items() if v.wake_s <= now)
+        for _wake, hid in due:
+            if hid in st.active:
+                self._step(hid, now)
+        free = self._free_targets()
+        gate = None
+        if free and not st.stowed:
+            gate = field.gate(now)
+            if gate.open and st.faults.clock_jump is None and not (st.operator is not None and st.operator.paused):
+                for tid in free:
+                    while self._start_visit(tid, now):  # a board fills its places (--spots-per-board)
+                        pass
+        wakes = [v.wake_s for v in st.active.values()]
+        wakes.append(st.last_poll_s + WEATHER_POLL_S)
+        if st.armed and not st.stowed:  # (while stowed, or for a heliostat in a visit, no check is due)
+            wakes.extend(r.next_check_s for h, r in st.returning.items() if h not in st.active)
+        if self._free_targets() and not st.stowed:
+            if gate is not None and not gate.open and gate.night:
+                wakes.append(max(now + PLANNER_TICK_S, gate.next_open_s))
+            elif self._steady():  # operation with every heliostat accepted: the next check can wait minutes
+                wakes.append(now + STEADY_TICK_S)
+            else:
+                wakes.append(now + PLANNER_TICK_S)
+        nxt = min(wakes)
+        field.account(now, nxt, gate)
+        return max(nxt, now + 1e-3)
+
+    def _steady(self) -> bool:
+        """Operation with nothing but checks to plan: every heliostat accepted, none suspected of drift,
+        no crew request waiting."""
+        st = self.state
+        if st.operation is None or self.ops.suspects or (st.operator is not None and st.operator.queue):
+            return False
+        return bool(np.all(st.book.table.accepted))
+
+    # ------------------------------------------------------------------ starting a visit
+    def _free_targets(self) -> list[str]:
+        """Boards that can take a visit now."""
+        boards = self.state.boards
+        return [t.id for t in self.cfg.targets if boards[t.id].has_room]
+
+    def _busy_targets(self) -> list[str]:
+        """Boards with a visit under way."""
+        return sorted({v.target_id for v in self.state.active.values()})
+
+    def _choose(self, target_id: str, now: float) -> tuple[str | None, bool]:
+        """The heliostat that goes on ``target_id`` now (the crew's re-check, a suspected drift's
+        check, the planner's choice, an operation check), and whether its visit is a check."""
+        st, cfg = self.state, self.cfg
+        cands = st.home[target_id]
+        busy = list(st.active)
+        spreads = None
+        if st.refine:
+            spreads = policy.model_spreads(cfg, st.book, st.models, st.nominal_rows,
+                                           [h for h in cands if h not in busy], self.sun(now)[0], now)
+        usable = lambda hid: self.reaches(hid, target_id, now)  # noqa: E731
+        # operator actions (campaign/operation/crew.py): a queued re-check goes before the planner's choice
+        choice = st.operator.next_for(self, target_id, now) if st.operator is not None else None
+        check = False
+        if choice is None and st.operation is not None:  # a suspected drift is checked again first
+            choice = self.ops.suspect_for(target_id, now, busy)
+            check = choice is not None
+        if choice is None and st.planner_kind == "gaps":
+            # a board is lent only to heliostats whose own board is busy (a free own board takes them)
+            choice = policy.choose_next_vectorised(
+                cfg, st.book, target_id, now, lambda rows: self.field.cleanliness_of_rows(rows, now),
+                recheck=st.recheck, busy_heliostats=busy, refine=st.refine, spreads=spreads,
+                active_targets=self._busy_targets(), usable=usable)
+            if choice is None and st.operation is not None:
+                choice = self.ops.check_for(target_id, now, busy)
+                check = choice is not None
+        elif choice is None:
+            busy_boards = set(self._busy_targets())  # once, not per guest
+            guests = {h: r for h, r in st.guests.get(target_id, {}).items()
+                      if cfg.heliostat(h).target in busy_boards}
+            cleanliness = {hid: self.field.cleanliness(hid, now) for hid in [*cands, *guests]}
+            choice = policy.choose_next(cfg, st.book, cands, now, cleanliness, planner=st.planner_kind,
+                                        recheck=st.recheck, busy_heliostats=busy, target_id=target_id,
+                                        guests=guests, usable=usable)
+        return choice, check
+
+    def _start_visit(self, target_id: str, now: float) -> bool:
+        """Start the visit the planner (or the crew, or a drift check) puts on ``target_id`` now.
+        Returns whether one started."""
+        st, cfg = self.state, self.cfg
+        board = st.boards[target_id]
+        if not board.has_room:
+            return False
+        hid, check = self._choose(target_id, now)
+        if hid is None:
+            return False
+        if not st.armed:
+            self.event("note", f"not armed: would send {hid} to {target_id}", hid, target_id, time_s=now)
+            st.book.visiting(hid, now)
+            st.book.h[hid].cooldown_until_s = now + policy.COOLDOWN_VALID_S
+            return False
+        visit_id = self.devices.store.begin_visit(self.campaign_id, hid, target_id, now)
+        shared = not board.empty
+        board.join(hid)
+        ctx = VisitContext(
+            campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
+            index=cfg.heliostat_index(hid), target=cfg.target(target_id), board=board,
+            sensor=self.devices.sensors[target_id], plant=self.devices.plant, now=self.now, sun=self.sun,
+            model=st.models[hid], settings=st.check_settings if check else st.settings,
+            time_slack_s=lambda: float(self.devices.clock.uncertainty_s), host=self,
+        )
+        st.book.visiting(hid, now)
+        self.ops.started(hid, visit_id, st.models[hid], now, check)
+        st.returning.pop(hid, None)  # the visit commands it now; it ends with its own return
+        st.board_states[target_id] = BoardState(target_id, hid, None, None, now)
+        st.active[hid] = RunningVisit(hid, target_id, run_visit(ctx), ctx, now)
+        st.stats.visits += 1
+        st.stats.shared_visits += int(shared)
+        st.stats.peak_on_board = max(st.stats.peak_on_board, len(board.visitors))
+        why = "" if cfg.heliostat(hid).target == target_id else \
+            f" (lent; its own board {cfg.heliostat(hid).target} is busy)"
+        if shared:
+            why += f" ({len(board.visitors)} visits on the board, beams taking turns)"
+        if check:
+            why += " (check: suspected drift)" if hid in self.ops.suspects else " (check)"
+        self.event("visit", f"{hid} onto {target_id}{why}", hid, target_id, time_s=now,
+                   data={"check": True} if check else None)
+        if check:  # stored: which visits were checks, and how many frames their measurements average
+            suspect = hid in self.ops.suspects
+            self.event("check", f"{hid}: visit {visit_id} is a {'suspected drift ' if suspect else ''}check, "
+                       f"{ctx.settings.after_frames} after frames per measurement", hid, target_id, time_s=now,
+                       data={"visit_id": visit_id, "after_frames": ctx.settings.after_frames, "suspect": suspect})
+        return True
+
+    def reaches(self, hid: str, target_id: str, now: float) -> bool:
+        """Whether ``hid``'s model puts both the standby point and the centre of ``target_id``
+        inside its stroke range now and :data:`SHARE_REACH_S` later (a borrowed board)."""
+        target = self.cfg.target(target_id)
+        aims = np.array([target.uvw_to_enu(np.asarray(target.standby_uvw_m)), target.center_enu_m], dtype=float)
+        model = self.state.models[hid]
+        for t in (now, now + SHARE_REACH_S):
+            sun = self.sun(t)[0]
+            if not all(bool(model.strokes_for_aim(sun, aim).in_range[0]) for aim in aims):
+                return False
+        return True
+
+    # ------------------------------------------------------------------ stepping and finishing a visit
+    def _step(self, hid: str, now: float) -> None:
+        v = self.state.active[hid]
+        try:
+            wait = v.gen.send(None)
+        except StopIteration as stop:
+            self._finish(hid, stop.value, now)
+            return
+        except Exception as err:  # noqa: BLE001 - a visit must never take the campaign down
+            # the visit could not leave by itself: _finish sends it back to tracking (left is None),
+            # keeping the plant's corrections
+            self._finish(hid, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}: {err}"), now)
+            return
+        v.wake_s = now + float(wait)
+
+    def _finish(self, hid: str, out: VisitOutcome, now: float) -> None:
+        st, store = self.state, self.devices.store
+        v = st.active.pop(hid)
+        target_id, ctx = v.target_id, v.ctx
+        st.boards[target_id].leave(hid)
+        st.stats.outcomes[out.status] = st.stats.outcomes.get(out.status, 0) + 1
+        if out.valid_points:
+            st.stats.valid_visits += 1
+            st.stats.iterations.append(out.iterations)
+        first = next((o for o in out.observations if o.valid and o.iteration == 0), None)
+        if first is not None:
+            # a placement is judged as the model's only if earlier visits gave the model valid points
+            modelled = any(p.visit_id != ctx.visit_id for p in st.book.points(hid))
+            st.stats.first_errors.append((first.capture_time_s, first.error_mrad, modelled))
+        self.tracking.after_leaving(hid, out.left, now)  # the plant's side first: retries must not hang on a record
+        store.end_visit(ctx.visit_id, ended_s=now, outcome=out.status, reason=out.reason,
+                        iterations=out.iterations, first_error_mrad=out.first_error_mrad,
+                        final_error_mrad=out.final_error_mrad)
+        st.book.visited(hid, now, out)
+        was = st.book.accepted(hid)
+        self.ops.finished(hid, target_id, ctx.visit_id, first, was, now)
+        verdict = policy.verdict(self.cfg, st.book, hid, st.nominal_of(hid), now, st.models[hid])
+        store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
+                             accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
+                             reasons=list(verdict.reasons),
+                             details={"rising_ok": verdict.rising_ok, "setting_ok": verdict.setting_ok,
+                                      "window_counts": list(verdict.window_counts)})
+        st.book.set_verdict(hid, verdict)
+        errs = "" if out.first_error_mrad is None else (
+            f", {out.first_error_mrad:.2f} mrad" if out.iterations <= 1 else
+            f", {out.first_error_mrad:.2f} -> {out.final_error_mrad:.2f} mrad in {out.iterations} placements")
+        self.event("visit_end", f"{hid} off {target_id}: {out.status} ({out.reason}){errs}", hid, target_id,
+                   time_s=now, data={"outcome": out.status, "iterations": out.iterations,
+                                     "first_error_mrad": out.first_error_mrad, "final_error_mrad": out.final_error_mrad})
+        if verdict.accepted and not was:
+            self.ops.accepted_again(hid, now)
+        if verdict.accepted != was:
+            rms = "" if verdict.rms_mrad is None else f", acceptance error {verdict.rms_mrad:.2f} mrad"
+            text = "accepted" if verdict.accepted else f"no longer accepted: {(verdict.reasons or ('',))[0]}"
+            self.event("verdict", f"{hid} {text} ({verdict.n_points} points{rms})", hid, time_s=now,
+                       data={"accepted": verdict.accepted, "n_points": verdict.n_points, "rms_mrad": verdict.rms_mrad})
+
+    # ------------------------------------------------------------------ the visits' host (visit.VisitHost)
+    def _served(self, fn, *args, **kw):
+        """A host call for a visit; a failure is counted if it is the storage's, and raised into the visit."""
+        try:
+            return fn(*args, **kw)
+        except Exception as err:  # noqa: BLE001 - the visit decides; it must still leave the board
+            self.journal.storage_fault(err)
+            raise
+
+    def record(self, ctx: VisitContext, observation, frames: dict) -> int:
+        return self._served(self.journal.record, observation, **frames)
+
+    def save_frame(self, ctx: VisitContext, data: bytes, iteration: int, capture_time_s: float, kind: str) -> str:
+        return self._served(self.devices.store.save_frame, data, campaign_id=self.campaign_id,
+                            heliostat_id=ctx.heliostat_id, visit_id=ctx.visit_id, iteration=iteration,
+                            capture_time_s=capture_time_s, kind=kind)
+
+    def refit(self, ctx: VisitContext, observation) -> HeliostatModel:
+        return self._served(self._refit, ctx.heliostat_id, observation)
+
+    def corrections(self, ctx: VisitContext, model: HeliostatModel, stopping: bool):
+        hid = ctx.heliostat_id
+        if stopping:  # a stopped visit leaves with the corrections last written
+            return self.state.corrections[hid]
+        return self._served(lambda: self.tracking.corrections_for(hid, model, self.now()))
+
+    def _refit(self, hid: str, obs) -> HeliostatModel:
+        st = self.state
+        st.book.add(obs)
+        if st.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
+            return st.models[hid]
+        model, fit = policy.refit(st.nominal_of(hid), st.book.points(hid), st.models[hid],
+                                  prior_mean=self.ops.prior_mean(hid), tilt_rate=self.ops.tilt_rate_of(hid),
+                                  earlier=st.book.h[hid].earlier)
+        st.models[hid] = model
+        if fit is not None:
+            st.book.h[hid].fit = fit
+            self.devices.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
+                                          **policy.fit_record(fit))
+        return model
+
+    # ------------------------------------------------------------------ stopping
+    def shutdown(self, now: float) -> list[str]:
+        """Stop every visit under way; each heliostat leaves its board as a finished visit does:
+        the beam to the board's standby point first (never across the receiver), then back to
+        tracking with the corrections last written (the visits' legs run side by side on the
+        clock; each move is bounded by ``settle_timeout_s``). Then every return to tracking not yet
+        confirmed is checked once. Returns the heliostats left off tracking: each has an
+        ``off_tracking`` event, and the next run on this database retries them first."""
+        st, clock = self.state, self.devices.clock
+        leaving = []
+        for hid in list(st.active):
+            v = st.active.pop(hid)
+            v.gen.close()
+            ctx, tid = v.ctx, v.target_id
+            try:  # a database that cannot be written (the reason of some stops) must not keep a beam on a board
+                self.devices.store.end_visit(ctx.visit_id, ended_s=now, outcome="aborted", reason="campaign stopped")
+            except Exception as err:  # noqa: BLE001
+                if not self.journal.storage_fault(err):
+                    raise
+            self.event("visit_end", f"{hid} off {tid}: aborted (campaign stopped), leaving via standby", hid, tid,
+                       data={"outcome": "aborted"})
+            leaving.append([now, hid, ctx, leave_board(ctx, stopping=True)])
+        while leaving:
+            leaving.sort(key=lambda item: item[0])
+            wake, hid, ctx, leg = leaving.pop(0)
+            try:  # (after a clock jump, the controller's own clock: the beams still leave via standby)
+                t = self.now()
+                if wake > t:
+                    clock.sleep(wake - t)
+                    t = self.now()
+                leaving.append([t + float(leg.send(None)), hid, ctx, leg])
+            except StopIteration as done:
+                if ctx.board is not None:
+                    ctx.board.leave(hid)
+                self.tracking.after_leaving(hid, done.value, self.safe_now()[0])
+            except HelicalibError as err:  # no clock: straight back to tracking, as before a stop
+                for _w, h, _c, g in [[wake, hid, ctx, leg], *leaving]:
+                    g.close()
+                    self.tracking.send_back(h, st.corrections[h], self.safe_now()[0],
+                                            why=f"stopping without a clock: {err}")
+                leaving = []
+        return self.tracking.confirm_returns_once()
+
+    def snapshot(self, now: float) -> Snapshot:
+        """The campaign's state at plant time ``now`` (read-only; call it where no tick runs)."""
+        return self.field.snapshot(now, self.devices.clock.rate)

@@ -1,0 +1,193 @@
+"""Back to tracking: the corrections a heliostat leaves with, the returns the plant confirms, and
+the periodic rewrite of every calibrated heliostat's tracking corrections.
+
+A heliostat sent back to tracking stays in :attr:`.state.CampaignState.returning` until the plant
+reports state 1 (tracking) or a stow of its own; a return the plant did not take is retried, the
+wait doubling up to 10 min, and said once (``off_tracking``), its confirmation once
+(``back_to_tracking``). The plant's nominal tracking plus a constant offset follows a calibrated
+model only near the sun position the offset was computed for, so the corrections are recomputed
+for the whole field every :data:`~helicalib.campaign.policy.TRACKING_REFRESH_S` (one array write
+on a plant that declares :class:`~helicalib.devices.protocols.BulkTracking`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from helicalib.campaign import policy
+from helicalib.campaign.journal import Journal
+from helicalib.campaign.state import RETURN_CHECK_S, RETURN_RETRY_S, CampaignDevices, CampaignState, Returning
+from helicalib.campaign.visit import APPROACH_LEAD_S, Left
+from helicalib.devices.protocols import FieldStowedError
+from helicalib.devices.registers import HeliostatState
+from helicalib.errors import PlantError
+from helicalib.geometry.heliostat import HeliostatModel
+
+
+class Tracking:
+    """The campaign's side of tracking (module docstring)."""
+
+    def __init__(self, state: CampaignState, devices: CampaignDevices, journal: Journal):
+        self.state, self.devices, self.journal = state, devices, journal
+
+    def sun(self, t_s: float):
+        return self.state.sun_table.position(t_s)
+
+    # ------------------------------------------------------------------ a visit's end
+    def corrections_for(self, hid: str, model: HeliostatModel, now: float) -> np.ndarray | None:
+        """Tracking corrections to write as the visit ends; None keeps what the plant has."""
+        st = self.state
+        if st.recheck or not st.book.points(hid):
+            return st.corrections[hid]  # a re-check, or no fitted model yet: the plant keeps what it has
+        sun_ahead = self.sun(now + policy.TRACKING_REFRESH_S / 2)[0]
+        sun_later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
+        corr = policy.tracking_corrections(st.cfg, st.nominal_of(hid), model, sun_ahead, sun_later)[0]
+        if not np.all(np.isfinite(corr)):
+            return st.corrections[hid]
+        return corr  # recorded (and kept) once the plant has taken it: see after_leaving
+
+    def after_leaving(self, hid: str, left: Left | None, now: float) -> None:
+        """What a heliostat's leaving the board did, recorded after the fact: the corrections the
+        plant took (an event), or a failed return to tracking (retried until the plant confirms)."""
+        st = self.state
+        if left is None:
+            self.send_back(hid, st.corrections[hid], now, why="the visit ended without leaving the board")
+        elif left.error is not None:  # the retry sends the corrections the plant did not take
+            st.returning[hid] = st.returning.get(hid) or Returning(since_s=now, next_check_s=now + RETURN_RETRY_S)
+            ret = st.returning[hid]
+            ret.failed, ret.last_error = True, left.error
+            ret.corrections_mm = left.corrections_mm if left.corrections_mm is not None else st.corrections[hid]
+            ret.next_check_s = ret.retry_at(now)
+            self.journal.event("off_tracking", f"{hid}: {left.error}; retrying until the plant confirms it tracks", hid)
+        else:
+            self.written(hid, left.corrections_mm)
+            st.returning[hid] = Returning(since_s=now, next_check_s=now + RETURN_CHECK_S,
+                                          corrections_mm=st.corrections[hid])
+
+    def written(self, hid: str, corrections) -> None:
+        """The plant took ``corrections`` with a track command: keep them, and say so when they are new."""
+        st = self.state
+        if corrections is None or (st.corrections[hid] is not None and np.array_equal(corrections, st.corrections[hid])):
+            return
+        st.corrections[hid] = np.asarray(corrections, dtype=float)
+        c = st.corrections[hid]
+        self.journal.event("tracking_written", f"{hid}: tracking corrections {c[0]:+.2f}, {c[1]:+.2f} mm", hid)
+
+    # ------------------------------------------------------------------ returns the plant confirms
+    def send_back(self, hid: str, corrections, now: float, why: str) -> None:
+        """Send ``hid`` back to tracking and keep it in ``returning`` until the plant confirms."""
+        st = self.state
+        ret = st.returning.get(hid) or Returning(since_s=now, next_check_s=now)
+        ret.corrections_mm = corrections
+        try:
+            self.devices.plant.track(st.cfg.heliostat_index(hid), corrections)
+        except PlantError as err:
+            ret.failed = True
+            ret.last_error = str(err)
+            ret.next_check_s = ret.retry_at(now)
+            st.returning[hid] = ret
+            if ret.attempts == 1:
+                self.journal.event("off_tracking", f"{hid}: not back to tracking ({why}): {err}; retrying until the "
+                                                   "plant confirms", hid)
+            return
+        self.written(hid, corrections)
+        # the first command is checked soon; a repeated one (the plant took it but did not track: a
+        # faulted or offline heliostat) waits longer each time, so no heliostat is commanded every 10 s
+        ret.next_check_s = now + RETURN_CHECK_S if ret.attempts <= 1 else ret.retry_at(now)
+        st.returning[hid] = ret
+
+    def check_returns(self, now: float) -> None:
+        """Confirm or retry every return to tracking that is due (state 1 read from the plant)."""
+        st = self.state
+        if st.stowed:  # the field's resume brings every heliostat back; no track command into a stow
+            return
+        busy = st.active
+        for hid in [h for h, r in st.returning.items() if r.next_check_s <= now and h not in busy]:
+            ret = st.returning[hid]
+            try:
+                state = self.devices.plant.status(st.cfg.heliostat_index(hid)).state
+            except PlantError as err:
+                ret.last_error, ret.next_check_s = str(err), ret.retry_at(now)
+                continue
+            if state in (HeliostatState.TRACKING, HeliostatState.STOWED):
+                # stowed: the plant's own protection (wind, night) holds it safely; it tracks with the field
+                del st.returning[hid]
+                if ret.failed or hid in st.flagged:
+                    how = ("tracking again" if state == HeliostatState.TRACKING else
+                           "stowed by the plant's own logic (safe; it tracks again with the field)")
+                    self.journal.event("back_to_tracking", f"{hid}: {how} (confirmed by the plant after "
+                                                           f"{ret.attempts} attempt(s), {now - ret.since_s:.0f} s)", hid)
+                continue
+            if state == HeliostatState.MOVING:
+                ret.next_check_s = now + RETURN_CHECK_S
+                continue
+            ret.attempts += 1
+            if not ret.failed:
+                ret.failed = True
+                self.journal.event("off_tracking", f"{hid}: the plant reports state {state.name.lower()} after a "
+                                                   "return to tracking; sending it again until it tracks", hid)
+            self.send_back(hid, ret.corrections_mm, now, why=f"state {state.name.lower()}")
+
+    def confirm_returns_once(self) -> list[str]:
+        """At a stop: read each unconfirmed return once; a heliostat neither tracking nor on its way
+        is recorded ``off_tracking`` (the next run retries it). Returns those heliostats."""
+        st = self.state
+        if not st.armed:
+            return []
+        stranded = []
+        for hid, ret in sorted(st.returning.items()):
+            try:
+                state = self.devices.plant.status(st.cfg.heliostat_index(hid)).state
+            except PlantError as err:
+                state, ret.last_error = None, str(err)
+            if state in (HeliostatState.TRACKING, HeliostatState.MOVING) or (
+                    state == HeliostatState.STOWED and st.stowed):
+                continue
+            stranded.append(hid)
+            what = ret.last_error if state is None else f"state {state.name.lower()}"
+            self.journal.event("off_tracking", f"{hid}: not confirmed back to tracking when the controller stopped "
+                                               f"({what}); the next run retries it first", hid)
+        st.returning.clear()
+        return stranded
+
+    # ------------------------------------------------------------------ the field's corrections
+    def refresh(self, now: float) -> None:
+        """Rewrite the tracking corrections of every calibrated heliostat not in a visit, for the sun
+        half a refresh period ahead (module docstring). Not armed, stowed, at night or in a
+        re-check: nothing is written."""
+        st = self.state
+        st.last_refresh_s = now
+        vec, _az, el, _r = self.sun(now + policy.TRACKING_REFRESH_S / 2)
+        if not st.armed or st.recheck or st.stowed or el < st.cfg.acceptance.low_band_deg[0]:
+            return
+        ids = [hid for hid in st.ids if hid not in st.active and st.book.points(hid)]
+        if not ids:
+            return
+        rows = [st.index[hid] for hid in ids]
+        calibrated = st.nominal.subset(rows).with_params(np.vstack([st.models[h].params for h in ids]))
+        later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
+        corr = policy.tracking_corrections(st.cfg, st.nominal.subset(rows), calibrated, vec, later)
+        failed = []
+        plant = self.devices.plant
+        if self.devices.abilities.bulk_tracking:  # the in-process simulated plant: one array write
+            ok = np.flatnonzero(np.all(np.isfinite(corr), axis=1))
+            plant.track_many(st.plant_index[np.asarray(rows, dtype=np.int64)[ok]], corr[ok])
+            for k in ok:
+                st.corrections[ids[k]] = corr[k]
+            ids, corr = [], corr[:0]
+        for hid, c in zip(ids, corr):
+            if st.stowed:  # the weather job stowed the field meanwhile (the plant client refuses the rest)
+                break
+            if not np.all(np.isfinite(c)):
+                continue
+            try:
+                plant.track(st.cfg.heliostat_index(hid), c)
+                st.corrections[hid] = c
+            except FieldStowedError:
+                break
+            except PlantError as err:
+                failed.append((hid, err))
+        if failed:  # one line for a dead plant, not one per heliostat
+            names = ", ".join(h for h, _e in failed[:5]) + (f" and {len(failed) - 5} more" if len(failed) > 5 else "")
+            self.journal.event("fault", f"tracking corrections not written for {len(failed)} heliostat(s) ({names}): "
+                                        f"{failed[0][1]}", failed[0][0] if len(failed) == 1 else None)
