@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from helicalib.campaign import policy
+from helicalib.campaign import choice
 from helicalib.campaign.book import Book, PlanTable
 from helicalib.campaign.choice import choose_next
 from helicalib.campaign.verdict import verdict
@@ -33,7 +33,7 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
         cfg, tmp_path, hours=5.5, seed=3, ids=ids, camera=lambda cam, sim, target: FastSensor(sim, target.id, model, 3))
     rng = np.random.default_rng(7)
     compared = {"n": 0, "chosen": 0, "guest_refusals": 0, "states": set()}
-    real = policy.choose_next_vectorised
+    real = choice.choose_next_vectorised
 
     def checked(cfg_, book, target_id, now, cleanliness, **kw):
         choice = real(cfg_, book, target_id, now, cleanliness, **kw)
@@ -66,11 +66,11 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
         compared["states"].update(book.table.need.tolist())
         return choice
 
-    policy.choose_next_vectorised = checked
+    choice.choose_next_vectorised = checked
     try:
         runner.run_until(runner.clock.now_s() + 1.1 * 86400.0)
     finally:
-        policy.choose_next_vectorised = real
+        choice.choose_next_vectorised = real
         store.close()
     # the comparison saw real variety: many decisions, verdicts of several kinds, guests refused
     assert compared["chosen"] >= 100 and compared["n"] >= 500

@@ -14,7 +14,8 @@ import sys
 import pytest
 
 from campaign_helpers import inprocess_campaign
-from helicalib.campaign.operation.crew import OperatorDesk, check_request, replay
+from helicalib.campaign.operation.crew import OperatorDesk, check_request
+from helicalib.store.history import replay
 from helicalib.config import load_field_config
 from helicalib.console.server import parse_address
 from helicalib.errors import ConfigError

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from helicalib.campaign import gating as gating_mod
-from helicalib.campaign import policy
+from helicalib.campaign import choice as choices
 from helicalib.campaign.events import BoardState, Snapshot
 from helicalib.campaign.journal import Journal, duration_text
 from helicalib.campaign.state import CampaignDevices, CampaignState
@@ -134,7 +134,7 @@ class Field:
         """The field's gate from the newest weather reading, the sun and the plant's state (no event)."""
         st = self.state
         _vec, _az, el, _rising = self.sun(now)
-        gate = policy.field_gate(st.cfg, st.last_weather, el, now, self.sun, stowed=st.stowed,
+        gate = choices.field_gate(st.cfg, st.last_weather, el, now, self.sun, stowed=st.stowed,
                                  elevations=st.sun_table.position_elevations_deg)
         lost = st.faults.plant_unreachable_since_s is not None
         if gate.open and lost:  # (plant_lost said it: no gated line of its own)

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from helicalib.campaign import policy
+from helicalib.campaign import book as books
+from helicalib.campaign import choice as choices
+from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.events import BoardState, Snapshot
 from helicalib.campaign.field import CLEANLINESS_MAX_AGE_S, WEATHER_MAX_AGE_S, WEATHER_POLL_S, Field  # noqa: F401
 from helicalib.campaign.journal import STORAGE_RETRIES, Journal  # noqa: F401
@@ -108,7 +110,7 @@ class CampaignRunner(RunnerShell):
             field.abort_visits(now, "field stowed for wind")
         if now - st.last_poll_s >= WEATHER_POLL_S:
             field.poll_weather(now)
-        if now - st.last_refresh_s >= policy.TRACKING_REFRESH_S and st.faults.plant_unreachable_since_s is None:
+        if now - st.last_refresh_s >= verdicts.TRACKING_REFRESH_S and st.faults.plant_unreachable_since_s is None:
             self.tracking.refresh(now)  # (not into a plant that does not answer: once it answers again)
         if st.retention is not None:
             field.nightly_retention(now)
@@ -167,7 +169,7 @@ class CampaignRunner(RunnerShell):
         busy = list(st.active)
         spreads = None
         if st.refine:
-            spreads = policy.model_spreads(cfg, st.book, st.models, st.nominal_rows,
+            spreads = choices.model_spreads(cfg, st.book, st.models, st.nominal_rows,
                                            [h for h in cands if h not in busy], self.sun(now)[0], now)
         usable = lambda hid: self.reaches(hid, target_id, now)  # noqa: E731
         # operator actions (campaign/operation/crew.py): a queued re-check goes before the planner's choice
@@ -178,7 +180,7 @@ class CampaignRunner(RunnerShell):
             check = choice is not None
         if choice is None and st.planner_kind == "gaps":
             # a board is lent only to heliostats whose own board is busy (a free own board takes them)
-            choice = policy.choose_next_vectorised(
+            choice = choices.choose_next_vectorised(
                 cfg, st.book, target_id, now, lambda rows: self.field.cleanliness_of_rows(rows, now),
                 recheck=st.recheck, busy_heliostats=busy, refine=st.refine, spreads=spreads,
                 active_targets=self._busy_targets(), usable=usable)
@@ -190,7 +192,7 @@ class CampaignRunner(RunnerShell):
             guests = {h: r for h, r in st.guests.get(target_id, {}).items()
                       if cfg.heliostat(h).target in busy_boards}
             cleanliness = {hid: self.field.cleanliness(hid, now) for hid in [*cands, *guests]}
-            choice = policy.choose_next(cfg, st.book, cands, now, cleanliness, planner=st.planner_kind,
+            choice = choices.choose_next(cfg, st.book, cands, now, cleanliness, planner=st.planner_kind,
                                         recheck=st.recheck, busy_heliostats=busy, target_id=target_id,
                                         guests=guests, usable=usable)
         return choice, check
@@ -208,7 +210,7 @@ class CampaignRunner(RunnerShell):
         if not st.armed:
             self.event("note", f"not armed: would send {hid} to {target_id}", hid, target_id, time_s=now)
             st.book.visiting(hid, now)
-            st.book.h[hid].cooldown_until_s = now + policy.COOLDOWN_VALID_S
+            st.book.h[hid].cooldown_until_s = now + books.COOLDOWN_VALID_S
             return False
         visit_id = self.devices.store.begin_visit(self.campaign_id, hid, target_id, now)
         shared = not board.empty
@@ -291,7 +293,7 @@ class CampaignRunner(RunnerShell):
         st.book.visited(hid, now, out)
         was = st.book.accepted(hid)
         self.ops.finished(hid, target_id, ctx.visit_id, first, was, now)
-        verdict = policy.verdict(self.cfg, st.book, hid, st.nominal_of(hid), now, st.models[hid])
+        verdict = verdicts.verdict(self.cfg, st.book, hid, st.nominal_of(hid), now, st.models[hid])
         store.record_verdict(campaign_id=self.campaign_id, heliostat_id=hid, time_s=now,
                              accepted=verdict.accepted, n_points=verdict.n_points, rms_mrad=verdict.rms_mrad,
                              reasons=list(verdict.reasons),
@@ -343,14 +345,14 @@ class CampaignRunner(RunnerShell):
         st.book.add(obs)
         if st.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
             return st.models[hid]
-        model, fit = policy.refit(st.nominal_of(hid), st.book.points(hid), st.models[hid],
+        model, fit = verdicts.refit(st.nominal_of(hid), st.book.points(hid), st.models[hid],
                                   prior_mean=self.ops.prior_mean(hid), tilt_rate=self.ops.tilt_rate_of(hid),
                                   earlier=st.book.h[hid].earlier)
         st.models[hid] = model
         if fit is not None:
             st.book.h[hid].fit = fit
             self.devices.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
-                                          **policy.fit_record(fit))
+                                          **verdicts.fit_record(fit))
         return model
 
     # ------------------------------------------------------------------ stopping

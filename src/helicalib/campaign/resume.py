@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import math
 
-from helicalib.campaign import policy
+from helicalib.campaign import book as books
+from helicalib.store import history
+from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.state import Returning
 from helicalib.store.records import off_tracking
 
@@ -20,7 +22,7 @@ def resume_from_store(runner) -> None:
     st, store, cid, ops = runner.state, runner.devices.store, runner.campaign_id, runner.ops
     now = runner.devices.clock.now_s()
     epochs = ops.load_drifts()
-    stored = policy.stored_epochs(store, cid) if epochs else {}
+    stored = history.stored_epochs(store, cid) if epochs else {}
     for hid in st.ids:
         b = st.book.h[hid]
         b.drifted = hid in epochs  # its book under the cap after a drift
@@ -29,21 +31,21 @@ def resume_from_store(runner) -> None:
             if obs.capture_time_s >= epochs.get(hid, -math.inf):
                 st.book.add(obs)
         if hid in epochs:  # the points before its drifts (after its newest repair), for the fits
-            ep = stored.get(hid, policy.NO_EPOCH)
-            b.earlier = policy.earlier_points(observations, ep.floor_s, ep.boundaries)
+            ep = stored.get(hid, history.NO_EPOCH)
+            b.earlier = books.earlier_points(observations, ep.floor_s, ep.boundaries)
         visits = store.visits(campaign_id=cid, heliostat_id=hid)
         b.visits = len(visits)
         if visits:
             b.last_visit_s = max(v.started_s for v in visits)
         fit = store.latest_fit(hid, campaign_id=cid) or store.latest_fit(hid)
         if fit is not None:
-            st.models[hid] = policy.model_from_fit(st.models[hid], fit)
+            st.models[hid] = verdicts.model_from_fit(st.models[hid], fit)
         if st.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
-            _model, b.fit = policy.refit(st.nominal_of(hid), st.book.points(hid), st.models[hid],
+            _model, b.fit = verdicts.refit(st.nominal_of(hid), st.book.points(hid), st.models[hid],
                                          prior_mean=ops.prior_mean(hid), tilt_rate=ops.tilt_rate_of(hid),
                                          earlier=b.earlier)
         if visits:
-            st.book.set_verdict(hid, policy.verdict(st.cfg, st.book, hid, st.nominal_of(hid), now, st.models[hid]))
+            st.book.set_verdict(hid, verdicts.verdict(st.cfg, st.book, hid, st.nominal_of(hid), now, st.models[hid]))
     # stowed by THIS campaign for wind (its newest stow/resume event is a stow): stay stowed until
     # the wind allows; a plant stowed by its own logic (night, its own wind protection) is left alone
     marks = [e.kind for e in store.events(campaign_id=cid) if e.kind in ("stow", "resume")]

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from helicalib.campaign import policy
+from helicalib.campaign import book as books
+from helicalib.campaign import choice as choices
 from helicalib.campaign.board import AUTO_SPOTS, Board
 from helicalib.campaign.events import BoardState, RunEvent
 from helicalib.campaign.operation import rules as op_rules
@@ -186,7 +187,7 @@ class CampaignState:
     home: dict[str, list[str]]
     """Target id → the campaign's heliostats whose own board it is."""
     guests: dict
-    """Target id → heliostats that may borrow it (:func:`.policy.shared_targets`)."""
+    """Target id → heliostats that may borrow it (:func:`.choice.shared_targets`)."""
     options: CampaignOptions
     planner_kind: str
     refine: bool
@@ -197,7 +198,7 @@ class CampaignState:
     sun_table: SunTable
     nominal: HeliostatModel
     models: dict[str, HeliostatModel]
-    book: policy.Book
+    book: books.Book
     boards: dict[str, Board]
     corrections: dict[str, np.ndarray | None]
     spots_per_board: int | str
@@ -265,10 +266,10 @@ def build_state(cfg, campaign_id: int, heliostat_ids, options: CampaignOptions, 
     ids = list(heliostat_ids) if heliostat_ids else [h.id for h in cfg.heliostats]
     planner = options.planner
     share = bool(cfg.calibration.share_targets) and planner in ("gaps", "round-robin-shared")
-    guests = policy.shared_targets(cfg, ids, [t for t in board_ids if cfg.cameras_for(t)]) if share else {}
+    guests = choices.shared_targets(cfg, ids, [t for t in board_ids if cfg.cameras_for(t)]) if share else {}
     settings = VisitSettings.from_config(cfg)
     base = options.model if options.model is not None else HeliostatModel.from_config(cfg, ids)
-    book = policy.Book(cfg, ids)
+    book = books.Book(cfg, ids)
     book.table.set_guests(guests)
     spots = "auto" if options.spots_per_board in (None, "auto") else int(options.spots_per_board)
     # several visits per board with the gaps planner (the round robins are the paper's baselines)

@@ -6,7 +6,7 @@ reports state 1 (tracking) or a stow of its own; a return the plant did not take
 wait doubling up to 10 min, and said once (``off_tracking``), its confirmation once
 (``back_to_tracking``). The plant's nominal tracking plus a constant offset follows a calibrated
 model only near the sun position the offset was computed for, so the corrections are recomputed
-for the whole field every :data:`~helicalib.campaign.policy.TRACKING_REFRESH_S` (one array write
+for the whole field every :data:`~helicalib.campaign.verdict.TRACKING_REFRESH_S` (one array write
 on a plant that declares :class:`~helicalib.devices.protocols.BulkTracking`).
 """
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from helicalib.campaign import policy
+from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.journal import Journal
 from helicalib.campaign.state import RETURN_CHECK_S, RETURN_RETRY_S, CampaignDevices, CampaignState, Returning
 from helicalib.campaign.visit import APPROACH_LEAD_S, Left
@@ -39,9 +39,9 @@ class Tracking:
         st = self.state
         if st.recheck or not st.book.points(hid):
             return st.corrections[hid]  # a re-check, or no fitted model yet: the plant keeps what it has
-        sun_ahead = self.sun(now + policy.TRACKING_REFRESH_S / 2)[0]
-        sun_later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
-        corr = policy.tracking_corrections(st.cfg, st.nominal_of(hid), model, sun_ahead, sun_later)[0]
+        sun_ahead = self.sun(now + verdicts.TRACKING_REFRESH_S / 2)[0]
+        sun_later = self.sun(now + verdicts.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
+        corr = verdicts.tracking_corrections(st.cfg, st.nominal_of(hid), model, sun_ahead, sun_later)[0]
         if not np.all(np.isfinite(corr)):
             return st.corrections[hid]
         return corr  # recorded (and kept) once the plant has taken it: see after_leaving
@@ -157,7 +157,7 @@ class Tracking:
         re-check: nothing is written."""
         st = self.state
         st.last_refresh_s = now
-        vec, _az, el, _r = self.sun(now + policy.TRACKING_REFRESH_S / 2)
+        vec, _az, el, _r = self.sun(now + verdicts.TRACKING_REFRESH_S / 2)
         if not st.armed or st.recheck or st.stowed or el < st.cfg.acceptance.low_band_deg[0]:
             return
         ids = [hid for hid in st.ids if hid not in st.active and st.book.points(hid)]
@@ -165,8 +165,8 @@ class Tracking:
             return
         rows = [st.index[hid] for hid in ids]
         calibrated = st.nominal.subset(rows).with_params(np.vstack([st.models[h].params for h in ids]))
-        later = self.sun(now + policy.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
-        corr = policy.tracking_corrections(st.cfg, st.nominal.subset(rows), calibrated, vec, later)
+        later = self.sun(now + verdicts.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
+        corr = verdicts.tracking_corrections(st.cfg, st.nominal.subset(rows), calibrated, vec, later)
         failed = []
         plant = self.devices.plant
         if self.devices.abilities.bulk_tracking:  # the in-process simulated plant: one array write

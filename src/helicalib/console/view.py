@@ -362,7 +362,7 @@ def locate_damage(store, campaign_id: int | None) -> str | None:
 
 def read_view(src: Sources, snapshot=None) -> dict:
     """Everything the page shows (see the module's docstring); ``snapshot``: the controller's newest."""
-    from helicalib.campaign.operation.crew import replay
+    from helicalib.store.history import replay
 
     store, cfg, cid = src.store, src.cfg, src.campaign_id
     campaign = store.campaign(cid)

@@ -43,7 +43,7 @@ STROKE_MARGIN_MM = 25.0
 """Room left at both ends of each stroke range for corrections and between the sampled sun positions."""
 MAX_BOARD_INCIDENCE_DEG = 70.0
 """Largest angle between a board's normal and the direction to a heliostat it serves (the planner's
-``campaign.policy.MAX_SHARE_INCIDENCE_DEG`` for a board it lends)."""
+``campaign.choice.MAX_SHARE_INCIDENCE_DEG`` for a board it lends)."""
 CHUNK_PAIRS = 1 << 16
 """Heliostat × sun-position pairs per block of :func:`feasible_all_year` (0.5 MB per array)."""
 FIRST_PASS_EVERY = 8

@@ -20,7 +20,10 @@ from typing import Protocol
 import numpy as np
 
 from helicalib.campaign.operation import rules as op_rules
-from helicalib.campaign import policy
+from helicalib.campaign import book as books
+from helicalib.campaign import choice as choices
+from helicalib.store import history
+from helicalib.campaign import verdict as verdicts
 from helicalib.geometry.heliostat import HeliostatModel
 
 SPREAD_KEEP_S = 600.0
@@ -120,7 +123,7 @@ class OperationChecks:
     def load_drifts(self) -> dict[str, float]:
         """Confirmed drifts of this campaign (its ``drift`` events): each heliostat's book counts from
         its newest one (the points before it join the fits in epochs of their own,
-        :data:`.policy.EPOCHS_AFTER_DRIFT`; with those off the fit is centred on the model from before
+        :data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT`; with those off the fit is centred on the model from before
         it). Returns the epochs (plant time from which the book's points count) by heliostat."""
         epochs: dict[str, float] = {}
         for e in self.host.store.events(campaign_id=self.state.campaign_id, kind="drift"):
@@ -147,7 +150,7 @@ class OperationChecks:
     def prior_mean(self, hid: str) -> np.ndarray | None:
         """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
         heliostat, also after a confirmed drift whose fits carry the points from before it
-        (:data:`.policy.EPOCHS_AFTER_DRIFT`), else after a drift the model from before it (:mod:`.operation`)."""
+        (:data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT`), else after a drift the model from before it (:mod:`.operation`)."""
         return None if self.state.book.h[hid].earlier is not None else self._prior.get(hid)
 
     # ------------------------------------------------------------------ choosing a check
@@ -196,7 +199,7 @@ class OperationChecks:
             if fitted and times.size:
                 spread = np.full((times.size, len(fitted)), np.nan)
                 for k, t in enumerate(times):
-                    got = policy.model_spreads(self.state.cfg, self.state.book, self.state.models, self.state.nominal_rows, fitted,
+                    got = choices.model_spreads(self.state.cfg, self.state.book, self.state.models, self.state.nominal_rows, fitted,
                                                self.state.sun_table.vector_enu(t), math.inf)
                     spread[k] = [got.get(h, np.nan) for h in fitted]
                 for j, h in enumerate(fitted):
@@ -215,7 +218,7 @@ class OperationChecks:
             else:
                 todo.append(h)
         if todo:
-            fresh = policy.model_spreads(self.state.cfg, self.state.book, self.state.models, self.state.nominal_rows, todo,
+            fresh = choices.model_spreads(self.state.cfg, self.state.book, self.state.models, self.state.nominal_rows, todo,
                                          self.host.sun(now)[0], now)
             for h in todo:
                 out[h] = fresh.get(h, math.nan)
@@ -305,17 +308,17 @@ class OperationChecks:
         b = self.state.book.h[hid]
         earlier = [p for p in b.points if p.capture_time_s < since]
         nominal = self.state.nominal_of(hid)
-        prior_model = (policy.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
+        prior_model = (verdicts.refit(nominal, earlier, started_with, prior_mean=self.prior_mean(hid),
                                     tilt_rate=self.tilt_rate_of(hid, earlier), earlier=b.earlier)[0]
                        if earlier else started_with)
         # the points since, from the store: as a resumed runner and the report rebuild them (a point the
         # cap thinned away while the earlier points filled the book comes back); and those before it, in
-        # epochs of their own (policy.EPOCHS_AFTER_DRIFT), from the newest repair on
+        # epochs of their own (books.EPOCHS_AFTER_DRIFT), from the newest repair on
         stored = self.host.store.observations(campaign_id=self.state.campaign_id, heliostat_id=hid)
-        ep = policy.stored_epochs(self.host.store, self.state.campaign_id).get(hid, policy.NO_EPOCH)
-        b.drifted = True  # the smaller cap from now on (policy.MAX_VISIT_POINTS_AFTER_DRIFT)
-        b.points = policy.book_points(stored, since, policy.visit_cap(True))
-        b.earlier = policy.earlier_points(stored, ep.floor_s, ep.boundaries + (since,))
+        ep = history.stored_epochs(self.host.store, self.state.campaign_id).get(hid, history.NO_EPOCH)
+        b.drifted = True  # the smaller cap from now on (books.MAX_VISIT_POINTS_AFTER_DRIFT)
+        b.points = books.book_points(stored, since, books.visit_cap(True))
+        b.earlier = books.earlier_points(stored, ep.floor_s, ep.boundaries + (since,))
         self._prior[hid] = np.asarray(prior_model.params, dtype=float)[0].copy()
         kept_before = 0 if b.earlier is None else len(b.earlier.points)
         record = {"since_s": since, "confirmed_s": now, "checks": op_rules.CONFIRM_CHECKS, "evidence": evidence,
@@ -323,7 +326,7 @@ class OperationChecks:
                   "points_before_kept": kept_before,
                   "prior_params": [float(x) for x in np.asarray(prior_model.params)[0]]}
         self.drifts.append(dict(record, heliostat_id=hid))  # before the refit: its tilt rate counts from now
-        self.state.models[hid], fit = policy.refit(nominal, b.points, prior_model, prior_mean=self.prior_mean(hid),
+        self.state.models[hid], fit = verdicts.refit(nominal, b.points, prior_model, prior_mean=self.prior_mean(hid),
                                              tilt_rate=self.tilt_rate_of(hid), earlier=b.earlier)
         b.fit = fit
         kept = (f"{len(earlier)} earlier points left out" if b.earlier is None else
@@ -331,4 +334,4 @@ class OperationChecks:
         self.host.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
                    f"({kept}, {len(b.points)} since)", hid, data=record, time_s=now)
         if fit is not None:
-            self.host.store.record_fit(campaign_id=self.state.campaign_id, heliostat_id=hid, time_s=now, **policy.fit_record(fit))
+            self.host.store.record_fit(campaign_id=self.state.campaign_id, heliostat_id=hid, time_s=now, **verdicts.fit_record(fit))

@@ -17,7 +17,7 @@ did, and logs it as an ``operator`` event with its reason. The kinds:
 =================  ====================================================================
 
 The state the actions leave (paused, out of service, repairs) lasts across restarts:
-:func:`replay` rebuilds it from the applied rows, and :meth:`OperatorDesk.restore` re-applies it
+:func:`helicalib.store.history.replay` rebuilds it from the applied rows, and :meth:`OperatorDesk.restore` re-applies it
 to a runner that was just built from the store. The desk works through the campaign's public
 names only (:class:`CrewHost`).
 """
@@ -25,10 +25,11 @@ names only (:class:`CrewHost`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Protocol
 
 from helicalib.errors import ConfigError
+from helicalib.store.history import Standing, replay
+
 
 class CrewHost(Protocol):
     """What the crew's desk reads and changes of a campaign (:class:`~helicalib.campaign.loop.CampaignRunner`)."""
@@ -84,33 +85,6 @@ def check_request(kind: str, heliostat_ids, known, who: str) -> tuple[str, ...]:
     return ids
 
 
-@dataclass
-class Standing:
-    """What the applied actions leave: paused or not, heliostats out of service, repair times."""
-
-    paused: bool = False
-    out_of_service: set[str] = field(default_factory=set)
-    repaired_s: dict[str, float] = field(default_factory=dict)
-    """Heliostat id → plant time of its newest repair (points before it no longer count)."""
-
-
-def replay(actions) -> Standing:
-    """The standing state after the applied ``actions`` (store rows, oldest first)."""
-    st = Standing()
-    for a in actions:
-        if a.done_s is None:
-            continue
-        if a.kind in ("pause", "resume"):
-            st.paused = a.kind == "pause"
-        elif a.kind == "out_of_service":
-            st.out_of_service.update(a.heliostat_ids)
-        elif a.kind == "in_service":
-            st.out_of_service.difference_update(a.heliostat_ids)
-        elif a.kind == "repaired":
-            st.repaired_s.update({h: float(a.done_s) for h in a.heliostat_ids})
-    return st
-
-
 class OperatorDesk:
     """The runner's side of the console's actions (one per runner; called from the tick only)."""
 
@@ -129,7 +103,8 @@ class OperatorDesk:
         """Re-apply what earlier actions left to a runner just built from the store: paused, out of
         service, and each repaired heliostat's points before its repair dropped (model refitted on
         the rest, or nominal)."""
-        from helicalib.campaign import policy
+        from helicalib.campaign import verdict as verdicts
+        from helicalib.campaign.basis import stored_basis
 
         applied = self.store.actions(self.campaign_id, pending=False)
         self.standing = replay(applied)
@@ -143,14 +118,14 @@ class OperatorDesk:
             b.drifted = b.drifted and not forgot
             runner.ops.forget(hid, prior_too=forgot)
             # those after the repair (and, after a drift since, those between the repair and the drift)
-            b.points, _prior, b.earlier = policy.stored_basis(runner.store, runner.campaign_id, hid)
+            b.points, _prior, b.earlier = stored_basis(runner.store, runner.campaign_id, hid)
             b.fit, b.last_first_error_mrad = None, None
             runner.models[hid] = runner.nominal_of(hid)
             if b.points:
-                runner.models[hid], b.fit = policy.refit(runner.nominal_of(hid), b.points, runner.models[hid],
+                runner.models[hid], b.fit = verdicts.refit(runner.nominal_of(hid), b.points, runner.models[hid],
                                                          prior_mean=runner.prior_mean(hid),
                                                          tilt_rate=runner.ops.tilt_rate_of(hid), earlier=b.earlier)
-                b.verdict = policy.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
+                b.verdict = verdicts.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
                                            runner.models[hid])
             else:
                 b.verdict = None

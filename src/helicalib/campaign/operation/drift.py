@@ -15,7 +15,8 @@ import numpy as np
 
 from helicalib.calibration.fit import SIGMA_MRAD
 from helicalib.calibration.uncertainty import check_against_fit, unexplained_mrad
-from helicalib.campaign import policy
+from helicalib.campaign import book as books
+from helicalib.campaign import verdict as verdicts
 
 DRIFT_ALPHA = 1e-3
 """p-value below which a re-check is evidence of drift (1 check in 1000 of an unchanged heliostat)."""
@@ -30,11 +31,11 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     ----------
     nominal : HeliostatModel of the heliostat (one row, nominal geometry)
     model : HeliostatModel, one row: the model the check placed it with (its newest fit)
-    points : the fit's observations (:func:`.policy.stored_basis`)
+    points : the fit's observations (:func:`helicalib.campaign.basis.stored_basis`)
     check : the check's observation (strokes, sun, spot, approach)
     prior_mean : (P,), optional, the fits' prior centre (after a confirmed drift: the model before it)
-    tilt_rate : the fit has a pedestal tilt rate, as the model's own fit (:func:`.policy.refit`)
-    earlier : :class:`.policy.Earlier`, optional, the points from before a confirmed drift, in
+    tilt_rate : the fit has a pedestal tilt rate, as the model's own fit (:func:`helicalib.campaign.verdict.refit`)
+    earlier : :class:`helicalib.campaign.book.Earlier`, optional, the points from before a confirmed drift, in
         epochs of their own (as the model's own fit)
 
     Returns
@@ -44,16 +45,16 @@ def drift_evidence(nominal, model, points: list, check, *, sigma_mrad: float = S
     """
     if not points or check.spot_enu_m is None:
         return None
-    _model, fit = policy.refit(nominal, points, model, prior_mean=prior_mean, tilt_rate=tilt_rate, earlier=earlier)
+    _model, fit = verdicts.refit(nominal, points, model, prior_mean=prior_mean, tilt_rate=tilt_rate, earlier=earlier)
     if fit is None:
         return None
-    strokes, sun, spot = policy._arrays([check])
-    test = check_against_fit(model, fit.covariance, strokes, sun, spot, approach=policy._approaches([check]),
+    strokes, sun, spot = verdicts.point_arrays([check])
+    test = check_against_fit(model, fit.covariance, strokes, sun, spot, approach=verdicts.point_approaches([check]),
                              sigma_mrad=sigma_mrad, unexplained_mrad=unexplained_mrad(fit.rms_mrad, sigma_mrad),
                              alpha=alpha)
     return {"residual_mrad": round(float(np.linalg.norm(test.residual_mrad[0])), 3),
             "band_mrad": round(float(test.band_mrad[0]), 3), "p_value": float(f"{test.p_value[0]:.3g}"),
-            "drift": bool(test.outside[0]), "fit_points": policy.fit_size(points, earlier),
+            "drift": bool(test.outside[0]), "fit_points": books.fit_size(points, earlier),
             "whitened": [round(float(x), 4) for x in test.whitened[0]]}
 
 
