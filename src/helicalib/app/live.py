@@ -118,11 +118,11 @@ def _weather_job(runner: CampaignRunner, lock: threading.Lock) -> None:
     if lock.acquire(timeout=WEATHER_WAIT_S):
         try:
             if not runner.stopping:
-                _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s()))
+                _guarded(runner, "weather", lambda: runner.field.poll_weather(runner.clock.now_s()))
         finally:
             lock.release()
     else:  # a tick waits on a slow device: read the weather and stow without it
-        _guarded(runner, "weather", lambda: runner._poll_weather(runner.clock.now_s(), preempt=True))
+        _guarded(runner, "weather", lambda: runner.field.poll_weather(runner.clock.now_s(), preempt=True))
 
 
 def _daylight_job(runner: CampaignRunner, scheduler, lock: threading.Lock) -> None:

@@ -120,7 +120,7 @@ def not_visited_because(cfg, runner) -> tuple[str, float | None]:
                 "check again then"), rise
     if runner.stowed:
         return "the field is stowed for wind: check again once the wind allows", None
-    gate = runner._last_gate
+    gate = runner.state.last_gate
     if gate is not None and not gate.open:
         return f"calibration gated: {gate.reason}", None
     return "no board time for it before the check's end (--hours)", None
