@@ -6,8 +6,9 @@
 * The server runs in a daemon thread of the controller's process (its own event loop); it reads
   the database through a read-only connection of its own and the runner's snapshots through a
   :class:`~helicalib.console.feed.LiveFeed`, so the control loop never waits on a page.
-* :func:`attach_console` is the one line a controller command (``run``, ``check``, and later
-  ``operate``) adds after building its runner.
+* :func:`attach_console` is the one line a live session (``run``, ``operate``, ``check``:
+  :mod:`helicalib.app.session`) adds after building its runner, with the :class:`ConsoleOptions`
+  read from its arguments.
 """
 
 from __future__ import annotations
