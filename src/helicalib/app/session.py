@@ -12,8 +12,8 @@ runner and what the crew sees (:mod:`.terminal`, the web console). The campaign'
 * a campaign is resumed only on a plant clock consistent with it
   (:func:`~helicalib.app.resume.check_plant_clock`) unless ``--accept-clock-jump``.
 
-Exit status (``docs/running.md``): 0 done; 1 an error (one line); :data:`EXIT_NOT_MEASURED`,
-:data:`EXIT_STORAGE`, :data:`EXIT_CLOCK_JUMP`.
+Exit status (``docs/running.md``): 0 done; 1 an error (one line);
+:data:`~helicalib.app.summary.EXIT_NOT_MEASURED`, :data:`EXIT_STORAGE`, :data:`EXIT_CLOCK_JUMP`.
 """
 
 from __future__ import annotations
@@ -26,13 +26,11 @@ from pathlib import Path
 
 from helicalib.app.resume import last_written_wall_s, open_campaign
 from helicalib.app.settings import LiveSettings
-from helicalib.app.summary import print_summary, session_summary
+from helicalib.app.summary import EXIT_NOT_MEASURED, print_summary, session_summary
 from helicalib.errors import ConfigError, HelicalibError, StorageError
 
 RUN_KINDS = ("live", "dry-run")
 
-EXIT_NOT_MEASURED = 3
-"""``check``: a heliostat could not be measured (night, gated, not armed, no visit in time)."""
 EXIT_STORAGE = 4
 """The database could not be written during the run (full disk, read-only): after
 :data:`~helicalib.campaign.runner.STORAGE_RETRIES` attempts every beam went back to tracking."""

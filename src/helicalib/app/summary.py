@@ -13,6 +13,9 @@ import sys
 
 from helicalib.app.resume import Opened, plural
 
+EXIT_NOT_MEASURED = 3
+"""``check``: a heliostat could not be measured (night, gated, not armed, no visit in time)."""
+
 
 def session_summary(store, cfg, runner, opened: Opened, result, mode: str) -> dict:
     """The session's summary (``--json``'s last line): how it ended, what this run did, what the campaign holds."""
@@ -139,8 +142,6 @@ def next_sun_above(sun, now_s: float, level_deg: float, step_s: float = 300.0, d
 
 def print_summary(s: dict, mode: str) -> None:
     """:func:`session_summary` in sentences on stdout (the run's warnings on stderr)."""
-    from helicalib.app.session import EXIT_NOT_MEASURED
-
     if mode == "check":
         for r in s["rechecks"]:
             if r["present_error_mrad"] is None:
