@@ -127,7 +127,7 @@ def test_faults_make_visits_invalid_and_the_campaign_goes_on(demo_field_path, tm
 
 def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
     from helicalib.campaign.loop import WEATHER_POLL_S
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
     from helicalib.devices.registers import FieldState
 
     cfg = load_field_config(demo_field_path)
@@ -137,8 +137,8 @@ def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
                                            "events": [{"start": iso(start), "end": iso(start + 3600), "wind_ms": 12.0},
                                                       {"start": iso(start + 3600), "end": iso(start + 7200),
                                                        "wind_ms": 16.0}]}})
-    res = simulate_campaign(cfg, tmp_path, days=2.5 / 24, seed=1, scenario=scenario, start_s=start,
-                            heliostat_ids=IDS)
+    res = simulate_campaign(cfg, tmp_path, SimulationOptions(days=2.5 / 24, seed=1, scenario=scenario, start_s=start,
+                                                             heliostat_ids=IDS))
     store = Store.open(res.database)
     visits = store.visits()
     # 12 m/s (above wind_max 10): no visit starts in the first hour
@@ -160,11 +160,11 @@ def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
 def test_campaign_measures_mirror_cleanliness_from_the_spot(demo_field_path, tmp_path):
     """Issue 9: each valid visit records the cleanliness measured from the spot's power; the
     simulated plant's soiling records (the register) are the independent truth."""
-    from helicalib.app.simulated import simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, simulate_campaign
 
     cfg = load_field_config(demo_field_path)
     start = default_start_s(cfg) + MORNING_S + 3 * 3600
-    res = simulate_campaign(cfg, tmp_path, days=2.0 / 24, seed=2, start_s=start, heliostat_ids=IDS)
+    res = simulate_campaign(cfg, tmp_path, SimulationOptions(days=2.0 / 24, seed=2, start_s=start, heliostat_ids=IDS))
     store = Store.open(res.database)
     valid = [o for o in store.observations(valid=True)]
     store.close()
