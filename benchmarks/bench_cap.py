@@ -58,9 +58,9 @@ def main(argv=None) -> int:
                                                         args.drift_share, work)
     s, runner = result.summary, result.runner
     ids = [h.id for h in cfg.heliostats]
-    params = np.array([runner.models[h].params[0] for h in ids])
+    params = np.array([runner.state.models[h].params[0] for h in ids])
     truth = TrueField(cfg, scenario.model_copy(update={"seed": args.seed}), start_s)
-    t_end = runner.clock.now_s()
+    t_end = runner.devices.clock.now_s()
 
     def sky(rows_params: np.ndarray) -> np.ndarray:
         ev = evaluate_model(truth, rows_params, backlash="tracking", t_eval_s=t_end)
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
             points, centre, _earlier = basis.stored_basis(store, runner.campaign_id, e.heliostat_id)
             row = {"heliostat": e.heliostat_id, "kind": e.kind, "start_day": day(e.start_s), "end_day": day(e.end_s),
                    "sky_mrad": round(float(per[i]), 3), "book_visits": len({p.visit_id for p in points}),
-                   "confirmed": [[day(d["since_s"]), day(d["confirmed_s"])] for d in runner.drifts
+                   "confirmed": [[day(d["since_s"]), day(d["confirmed_s"])] for d in runner.ops.drifts
                                  if d["heliostat_id"] == e.heliostat_id],
                    "after_end_sky_mrad": None}
             after = [p for p in points if p.capture_time_s >= e.end_s + 86400.0]
@@ -123,7 +123,7 @@ def _epochs_sky(store, runner, nominal, hid: str, cap: int, sky_of) -> float | N
     from helicalib.calibration.fit import FitOptions, FitPoints, fit_error_model
     from helicalib.campaign import book, verdict
 
-    sinces = sorted(float(d["since_s"]) for d in runner.drifts if d["heliostat_id"] == hid)
+    sinces = sorted(float(d["since_s"]) for d in runner.ops.drifts if d["heliostat_id"] == hid)
     points = book.book_points(store.observations(campaign_id=runner.campaign_id, heliostat_id=hid), -math.inf, cap)
     if not sinces or not points:
         return None

@@ -116,7 +116,7 @@ def run_one(cfg, field: str, days: float, seed: int, ids: list[str], fidelity: s
     wall = time.perf_counter() - t0
     print(f"  campaign {wall:.0f} s; {res.summary['accepted']} accepted; evaluating ...", flush=True)
     runner = res.runner
-    sim = runner.plant
+    sim = runner.devices.plant
     end_s = sim.truth.start_s + days * 86400.0
     figures = evaluate(cfg, runner, sim.truth, end_s)
     return {"seed": seed, "campaign_wall_s": round(wall, 1), "accepted": res.summary["accepted"], **figures}
@@ -130,11 +130,11 @@ def evaluate(cfg, runner, truth, end_s: float) -> dict:
     from helicalib.geometry.sun import year_sun_times
     from helicalib.sim.evaluate import evaluate_model
 
-    hids = [h for h in runner.ids if runner.book.h[h].fit is not None]
-    fits = [runner.book.h[h].fit for h in hids]
+    hids = [h for h in runner.state.ids if runner.state.book.h[h].fit is not None]
+    fits = [runner.state.book.h[h].fit for h in hids]
     rows = np.array([cfg.heliostat_index(h) for h in hids])
     params = np.zeros((truth.n, em.P))
-    params[[cfg.heliostat_index(h) for h in runner.ids]] = runner.calibrated_model().params
+    params[[cfg.heliostat_index(h) for h in runner.state.ids]] = runner.calibrated_model().params
     model = truth.nominal.subset(rows).with_params(params[rows])
     year = int(np.datetime64(int(truth.start_s), "s").astype("datetime64[Y]").astype(int) + 1970)
     times, sun = year_sun_times(cfg.site, year, step_days=14.0, step_min=60.0)

@@ -67,7 +67,7 @@ class Recording:
 
 def record(field: Path, days: float, seed: int, scenario_path: str | None, rows: list, start_s: float | None = None,
            heliostats: int | None = None) -> None:
-    from helicalib.campaign.runner import CampaignRunner
+    from helicalib.campaign.loop import CampaignRunner
     from helicalib.campaign.sensor import camera_sensors
     from helicalib.app.simulated import default_start_s
     from helicalib.config import load_field_config

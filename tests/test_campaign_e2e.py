@@ -126,7 +126,7 @@ def test_faults_make_visits_invalid_and_the_campaign_goes_on(demo_field_path, tm
 
 
 def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
-    from helicalib.campaign.loop import WEATHER_POLL_S
+    from helicalib.campaign.field import WEATHER_POLL_S
     from helicalib.app.simulated import SimulationOptions, simulate_campaign
     from helicalib.devices.registers import FieldState
 
@@ -153,8 +153,8 @@ def test_wind_gates_and_stows_within_one_poll(demo_field_path, tmp_path):
     resumes = store.events(kind="resume")
     assert resumes and start + 7200 <= resumes[0].time_s <= start + 7200 + WEATHER_POLL_S + 1e-6
     store.close()
-    assert not res.runner.stowed
-    assert res.runner.plant.field_state() == FieldState.TRACKING
+    assert not res.runner.state.stowed
+    assert res.runner.devices.plant.field_state() == FieldState.TRACKING
 
 
 def test_campaign_measures_mirror_cleanliness_from_the_spot(demo_field_path, tmp_path):

@@ -93,12 +93,12 @@ def test_visits_overlap_but_one_beam_at_a_time_lights_the_board(cfg, tmp_path):
         return watch[target.id]
 
     runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 8, 5, ids, camera=camera, spots_per_board="auto")
-    assert runner.boards["T1"].cap == 3
+    assert runner.state.boards["T1"].cap == 3
     runner.run_until(sim.t_s + 3 * 3600)
     visits = store.visits(campaign_id=cid)
     obs = [o for o in store.observations(campaign_id=cid) if o.valid]
     store.close()
-    assert runner.stats.peak_on_board == 3 and runner.stats.shared_visits >= 10
+    assert runner.state.stats.peak_on_board == 3 and runner.state.stats.shared_visits >= 10
     overlapping = sum(1 for a in visits for b in visits if a.id < b.id and a.target_id == b.target_id
                       and a.ended_s is not None and b.started_s < a.ended_s)
     assert overlapping >= 10
@@ -144,9 +144,9 @@ def test_a_fault_on_one_heliostat_parks_it_and_the_others_go_on_measuring(cfg, t
     p = holder["p"]
     for _ in range(4000):  # until the victim is in a visit beside others on its board
         runner.run_until(sim.t_s + 5)
-        if ids[0] in runner.boards["T1"].visitors and len(runner.boards["T1"].visitors) >= 2:
+        if ids[0] in runner.state.boards["T1"].visitors and len(runner.state.boards["T1"].visitors) >= 2:
             break
-    assert ids[0] in runner.boards["T1"].visitors and len(runner.boards["T1"].visitors) >= 2
+    assert ids[0] in runner.state.boards["T1"].visitors and len(runner.state.boards["T1"].visitors) >= 2
     p.armed_fault = True
     runner.run_until(sim.t_s + 3600)
     visits = store.visits(campaign_id=cid)
@@ -158,8 +158,8 @@ def test_a_fault_on_one_heliostat_parks_it_and_the_others_go_on_measuring(cfg, t
              and v.outcome == "converged"]
     assert len(later) >= 3  # the board went on serving the others
     # parked: back to tracking (its standby move failed, the track command did not), its turn given on
-    assert sim.state[cfg.heliostat_index(ids[0])] == HeliostatState.TRACKING or ids[0] in runner.active
-    assert runner.boards["T1"].lock_holder != ids[0] or ids[0] in runner.active
+    assert sim.state[cfg.heliostat_index(ids[0])] == HeliostatState.TRACKING or ids[0] in runner.state.active
+    assert runner.state.boards["T1"].lock_holder != ids[0] or ids[0] in runner.state.active
 
 
 def test_one_spot_per_board_is_one_visit_at_a_time(cfg, tmp_path):
@@ -169,7 +169,7 @@ def test_one_spot_per_board_is_one_visit_at_a_time(cfg, tmp_path):
     runner.run_until(sim.t_s + 2 * 3600)
     visits = sorted(store.visits(campaign_id=cid), key=lambda v: v.started_s)
     store.close()
-    assert runner.stats.peak_on_board == 1 and runner.stats.shared_visits == 0
+    assert runner.state.stats.peak_on_board == 1 and runner.state.stats.shared_visits == 0
     assert len(visits) >= 6
     for board in {v.target_id for v in visits}:  # (T1's heliostats may borrow T2)
         on = [v for v in visits if v.target_id == board]

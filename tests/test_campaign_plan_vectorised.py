@@ -18,9 +18,9 @@ from campaign_helpers import inprocess_campaign
 
 def _reference(runner, target_id, now, busy, active, cleanliness, recheck, refine, spreads, usable):
     cfg = runner.cfg
-    guests = {h: r for h, r in runner._guests.get(target_id, {}).items() if cfg.heliostat(h).target in active}
-    cands = runner._home[target_id]
-    return choose_next(cfg, runner.book, cands, now, {h: cleanliness.get(h) for h in [*cands, *guests]},
+    guests = {h: r for h, r in runner.state.guests.get(target_id, {}).items() if cfg.heliostat(h).target in active}
+    cands = runner.state.home[target_id]
+    return choose_next(cfg, runner.state.book, cands, now, {h: cleanliness.get(h) for h in [*cands, *guests]},
                        planner="gaps", recheck=recheck, busy_heliostats=busy, refine=refine, spreads=spreads,
                        target_id=target_id, guests=guests, usable=usable)
 
@@ -37,8 +37,8 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
 
     def checked(cfg_, book, target_id, now, cleanliness, **kw):
         choice = real(cfg_, book, target_id, now, cleanliness, **kw)
-        rows = np.arange(len(runner.ids))
-        plant = dict(zip(runner.ids, cleanliness(rows)))
+        rows = np.arange(len(runner.state.ids))
+        plant = dict(zip(runner.state.ids, cleanliness(rows)))
         plant = {h: (None if not np.isfinite(v) else float(v)) for h, v in plant.items()}
         ref = _reference(runner, target_id, now, kw["busy_heliostats"], kw["active_targets"], plant,
                          kw["recheck"], kw["refine"], kw["spreads"], kw["usable"])
@@ -47,11 +47,11 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
         # a re-check, guests that cannot reach the board
         for _ in range(int(rng.random() < 0.25)):
             active = [t.id for t in cfg.targets if rng.random() < 0.6 and t.id != target_id]
-            busy = list(rng.choice(runner.ids, size=3, replace=False))
+            busy = list(rng.choice(runner.state.ids, size=3, replace=False))
             dirty = {h: (None if rng.random() < 0.1 else (0.5 if rng.random() < 0.1 else v)) for h, v in plant.items()}
-            rows_clean = np.array([np.nan if dirty[h] is None else dirty[h] for h in runner.ids])
+            rows_clean = np.array([np.nan if dirty[h] is None else dirty[h] for h in runner.state.ids])
             recheck = bool(rng.random() < 0.2)
-            refuse = set(rng.choice(runner.ids, size=len(runner.ids) // 2, replace=False))
+            refuse = set(rng.choice(runner.state.ids, size=len(runner.state.ids) // 2, replace=False))
 
             def usable(h):
                 compared["guest_refusals"] += h in refuse
@@ -68,7 +68,7 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
 
     choice.choose_next_vectorised = checked
     try:
-        runner.run_until(runner.clock.now_s() + 1.1 * 86400.0)
+        runner.run_until(runner.devices.clock.now_s() + 1.1 * 86400.0)
     finally:
         choice.choose_next_vectorised = real
         store.close()
@@ -76,7 +76,7 @@ def test_vectorised_gaps_planner_chooses_as_the_reference_on_a_real_campaign(dem
     assert compared["chosen"] >= 100 and compared["n"] >= 500
     assert len(compared["states"]) >= 4 and PlanTable.BLANK in compared["states"]
     assert compared["guest_refusals"] > 0
-    assert sum(runner.book.accepted(h) for h in ids) > 0
+    assert sum(runner.state.book.accepted(h) for h in ids) > 0
 
 
 def test_the_plan_table_follows_every_write_to_the_book(demo_field_path):

@@ -45,7 +45,7 @@ def test_beams_that_miss_are_searched_for_within_the_budget(cfg, tmp_path):
     store = Store.open(res.database)
     visits, obs = store.visits(), store.observations()
     store.close()
-    budget = 1 + res.runner.settings.search_steps + res.runner.settings.max_iterations
+    budget = 1 + res.runner.state.settings.search_steps + res.runner.state.settings.max_iterations
     found_after_search = 0
     for v in visits:
         mine = [o for o in obs if o.visit_id == v.id and o.iteration >= 0]
@@ -111,7 +111,7 @@ def test_measurements_see_the_backlash_as_tracking_does(cfg, tmp_path, approach_
     cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"approach_mm": approach_mm})})
     runner, sim, store, _cid, spies = inprocess_campaign(cfg, tmp_path, 8, 5, ["H0001", "H0012", "H0025", "H0038"],
                                                 camera=_ApproachSpy)
-    assert runner.settings.approach_mm == approach_mm
+    assert runner.state.settings.approach_mm == approach_mm
     runner.run_until(sim.t_s + 2 * 3600)
     store.close()
     seen = [(a, d) for spy in spies.values() for a, d, moving in spy.seen if np.all(moving > 0.05)]
@@ -204,10 +204,10 @@ def test_refinement_keeps_boards_busy_and_survives_a_restart(cfg, tmp_path):
     n_plain, n_refine = len(store_p.visits(campaign_id=cid_p)), len(store.visits(campaign_id=cid))
     store_p.close()
     assert n_refine >= 1.3 * n_plain, (n_plain, n_refine)  # measured: 30 and 45 visits
-    again = CampaignRunner(cfg, sim, cams, runner.clock, store, cid, heliostat_ids=ids, refine=True)
+    again = CampaignRunner(cfg, sim, cams, runner.devices.clock, store, cid, heliostat_ids=ids, refine=True)
     for hid in ids:
-        if runner.book.points(hid):
-            np.testing.assert_allclose(again.book.h[hid].fit.covariance, runner.book.h[hid].fit.covariance,
+        if runner.state.book.points(hid):
+            np.testing.assert_allclose(again.state.book.h[hid].fit.covariance, runner.state.book.h[hid].fit.covariance,
                                        rtol=0.05, atol=1e-9)
     store.close()
 
@@ -283,11 +283,11 @@ def test_resume_while_stowed_keeps_the_field_stowed_until_calm(cfg, tmp_path):
                                heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
     first = CampaignRunner(cfg, sim, cams, clock, store, cid, heliostat_ids=ids)
     first.run_until(start + 1800)  # stowed at 17 m/s; then the process "dies" (no shutdown)
-    assert first.stowed
+    assert first.state.stowed
     second = CampaignRunner(cfg, sim, cams, clock, store, cid, heliostat_ids=ids)
-    assert second.stowed, "a resumed campaign forgot that it had stowed the field"
+    assert second.state.stowed, "a resumed campaign forgot that it had stowed the field"
     second.run_until(start + 5400)  # 12 m/s: above wind_max, below stow: stays stowed
-    assert second.stowed and not store.events(campaign_id=cid, kind="resume")
+    assert second.state.stowed and not store.events(campaign_id=cid, kind="resume")
     second.run_until(start + 7800)  # calm again: resumed within one poll
     resumes = store.events(campaign_id=cid, kind="resume")
     store.close()
@@ -383,7 +383,7 @@ def test_the_jitter_limit_of_several_after_frames_is_an_angle(cfg, tmp_path, max
     windy = {"weather": {"wind": {"mean_ms": 8.0, "diurnal_amplitude_ms": 0.0, "variability_ms": 0.3}}}
     runner, sim, store, cid, _ = inprocess_campaign(field, tmp_path, 10, 6, ["H0001", "H0012", "H0025", "H0038"],
                                            scenario=windy)
-    assert runner.settings.max_jitter_mrad == max_jitter_mrad
+    assert runner.state.settings.max_jitter_mrad == max_jitter_mrad
     runner.run_until(sim.t_s + 1.0 * 3600)
     obs = [o for o in store.observations(campaign_id=cid) if o.iteration >= 0]
     store.close()
@@ -404,7 +404,7 @@ def test_a_campaign_stop_takes_each_beam_to_standby_before_tracking(cfg, tmp_pat
     for _ in range(400):  # until some visit holds its beam on the board
         runner.run_until(sim.t_s + 4.0)
         _uv, _hit, on = sim.truth.spots(sim.true_beams(jitter=False), sim.targets)
-        on_board = {hid: v.ctx for hid, v in runner.active.items()
+        on_board = {hid: v.ctx for hid, v in runner.state.active.items()
                     if sim.state[v.ctx.index] == HeliostatState.HOLDING and on[v.ctx.index]}
         if on_board:
             break
@@ -423,7 +423,7 @@ def test_a_campaign_stop_takes_each_beam_to_standby_before_tracking(cfg, tmp_pat
 
     sim.move_to, sim.track = spy_move, spy_track
     runner.shutdown(sim.t_s)
-    assert not runner.active
+    assert not runner.state.active
     for hid, ctx in on_board.items():
         mine = [c for c in calls if c[1] == ctx.index]
         assert [c[0] for c in mine] == ["move", "track"], mine
@@ -441,7 +441,7 @@ def test_a_heliostat_goes_to_its_own_board_when_that_is_free(cfg, tmp_path):
     """Both boards free, one heliostat of T2 (an operator's re-check, say): T1 comes first in the
     planner's round of free boards, but lends itself only while T2 is busy, so T2 takes it."""
     runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 10, 4, ["H0001"], recheck=True)
-    assert cfg.heliostat("H0001").target == "T2" and "H0001" in runner._guests["T1"]
+    assert cfg.heliostat("H0001").target == "T2" and "H0001" in runner.state.guests["T1"]
     runner.run_until(sim.t_s + 600.0)
     visits = store.visits(campaign_id=cid)
     store.close()

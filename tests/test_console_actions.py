@@ -37,14 +37,14 @@ def _fast(cam, sim, target):
 
 def _runner(cfg, tmp_path, **kw):
     runner, sim, store, cid, _c = inprocess_campaign(cfg, tmp_path, 9, 3, IDS, camera=_fast, **kw)
-    runner.operator = OperatorDesk(store, cid)
-    runner.operator.restore(runner)
+    runner.state.operator = OperatorDesk(store, cid)
+    runner.state.operator.restore(runner)
     return runner, sim, store, cid
 
 
 def _ask(runner, kind, ids=(), who="crew lead (127.0.0.1)"):
-    return runner.store.request_action(campaign_id=runner.campaign_id, kind=kind, heliostat_ids=ids, who=who,
-                                       requested_wall_s=0.0, requested_s=runner.clock.now_s())
+    return runner.devices.store.request_action(campaign_id=runner.campaign_id, kind=kind, heliostat_ids=ids, who=who,
+                                               requested_wall_s=0.0, requested_s=runner.devices.clock.now_s())
 
 
 def _visits_since(store, cid, t):
@@ -60,7 +60,7 @@ def test_pause_stops_new_visits_until_resume_and_each_is_logged(cfg, tmp_path):
     runner.run_until(sim.t_s + 1800)
     paused = _visits_since(store, cid, t_pause + 1e-6)
     assert paused == [], [(v.heliostat_id, v.started_s) for v in paused]
-    assert not runner.active  # the visits under way ended as usual
+    assert not runner.state.active  # the visits under way ended as usual
     _ask(runner, "resume", who="night shift (10.0.0.7)")
     t_resume = sim.t_s
     runner.run_until(sim.t_s + 900)
@@ -83,7 +83,7 @@ def test_out_of_service_is_never_planned_and_lasts_across_a_restart(cfg, tmp_pat
     store.close()
     # a restart of the controller: the standing actions are re-applied from the store
     runner, sim, store, cid = _runner(cfg, tmp_path, campaign_id=cid)
-    assert runner.operator.standing.out_of_service == {"H0002", "H0022"}
+    assert runner.state.operator.standing.out_of_service == {"H0002", "H0022"}
     _ask(runner, "in_service", ["H0022"])
     t1 = sim.t_s
     runner.run_until(sim.t_s + 3 * 3600)
@@ -112,22 +112,22 @@ def test_a_recheck_goes_next_on_its_board(cfg, tmp_path):
 def test_repaired_resets_the_model_and_its_points_stay_dropped_after_a_restart(cfg, tmp_path):
     runner, sim, store, cid = _runner(cfg, tmp_path)
     runner.run_until(sim.t_s + 2 * 3600)
-    assert runner.book.points("H0021")
-    assert not runner.models["H0021"].params.tolist() == runner.nominal_of("H0021").params.tolist()
+    assert runner.state.book.points("H0021")
+    assert not runner.state.models["H0021"].params.tolist() == runner.state.nominal_of("H0021").params.tolist()
     _ask(runner, "repaired", ["H0021"])
-    while "H0021" in runner.active:
+    while "H0021" in runner.state.active:
         runner.run_until(sim.t_s + 60)  # a repair waits for a visit under way to end
     runner.tick(sim.t_s)
     t_fix = store.actions(cid)[0].done_s
-    assert t_fix is not None and runner.book.points("H0021") == []
-    assert runner.models["H0021"].params.tolist() == runner.nominal_of("H0021").params.tolist()
+    assert t_fix is not None and runner.state.book.points("H0021") == []
+    assert runner.state.models["H0021"].params.tolist() == runner.state.nominal_of("H0021").params.tolist()
     verdict = store.latest_verdicts(cid)["H0021"]
     assert not verdict.accepted and verdict.n_points == 0 and "repaired" in verdict.reasons[0]
     runner.run_until(sim.t_s + 1800)
-    after = [p.capture_time_s for p in runner.book.points("H0021")]
+    after = [p.capture_time_s for p in runner.state.book.points("H0021")]
     store.close()
     runner, sim, store, cid = _runner(cfg, tmp_path, campaign_id=cid)
-    kept = [p.capture_time_s for p in runner.book.points("H0021")]
+    kept = [p.capture_time_s for p in runner.state.book.points("H0021")]
     assert kept == after and all(t > t_fix for t in kept)  # the points before the repair no longer count
     assert replay(store.actions(cid)).repaired_s == {"H0021": t_fix}
     store.close()
@@ -207,11 +207,11 @@ def test_a_restart_requeues_only_the_rechecks_not_started_and_none_out_of_servic
     waiting = [h for h in asked if h not in started]
     _ask(runner, "out_of_service", [waiting[1]])
     runner.run_until(sim.t_s + 10)
-    assert [h for h, _a in runner.operator.queue] == [waiting[0]]
+    assert [h for h, _a in runner.state.operator.queue] == [waiting[0]]
     store.close()
     # a restart: the re-check that started is not repeated, the one out of service is not sent
     runner, sim, store, cid = _runner(cfg, tmp_path, campaign_id=cid)
-    assert [h for h, _a in runner.operator.queue] == [waiting[0]]
+    assert [h for h, _a in runner.state.operator.queue] == [waiting[0]]
     store.close()
 
 
@@ -220,13 +220,13 @@ def test_in_operation_a_crews_recheck_goes_before_the_services_own_checks(cfg, t
     service's choosing; a crew's re-check still goes next on its board, before any of them."""
     runner, sim, store, cid = _runner(cfg, tmp_path, operation="ranked")
     end = sim.t_s + 3 * 86400
-    while sim.t_s < end and not runner.checks:  # until the service has started checking accepted heliostats
+    while sim.t_s < end and not runner.ops.checks:  # until the service has started checking accepted heliostats
         runner.run_until(sim.t_s + 1800)
-    assert runner.checks, "no operation check in three plant days"
+    assert runner.ops.checks, "no operation check in three plant days"
     target = cfg.heliostat("H0023").target
-    while any(v.target_id == target for v in runner.active.values()):  # the board free, so the next visit on it is a new choice
+    while any(v.target_id == target for v in runner.state.active.values()):  # the board free, so the next visit on it is a new choice
         runner.run_until(sim.t_s + 60)
-    runner.book.h["H0023"].cooldown_until_s = 0.0
+    runner.state.book.h["H0023"].cooldown_until_s = 0.0
     _ask(runner, "recheck", ["H0023"])
     t0 = sim.t_s
     runner.run_until(sim.t_s + 1800)

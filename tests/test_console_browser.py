@@ -11,7 +11,6 @@ chromedriver are Debian's (``make test`` installs them); a missing browser fails
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import shutil
@@ -30,7 +29,7 @@ from conftest import DEMO_FIELD
 from helicalib.app import live
 from helicalib.app.terminal import LineLog
 from helicalib.config import load_field_config
-from helicalib.console.server import attach_console
+from helicalib.console.server import ConsoleOptions, attach_console
 from helicalib.store.sqlite import Store
 
 CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
@@ -106,7 +105,7 @@ def campaign(tmp_path_factory):
                                    config_path=str(field))
         output = LineLog(dt_utc(), log)
         runner = CampaignRunner(cfg, plant, cameras, clock, store, cid, heliostat_ids=IDS, listeners=[output.on_event])
-        args = argparse.Namespace(console="127.0.0.1:0", console_public=False, json=False)
+        args = ConsoleOptions(console="127.0.0.1:0")
         output = attach_console(args, runner, output)
         thread = threading.Thread(target=live.run_live, args=(runner, clock.now_s() + 86400.0),
                                   kwargs={"stop_event": stop, "output": output}, daemon=True)
@@ -175,7 +174,7 @@ def test_the_page_follows_the_campaign_without_a_reload(campaign, browser):
 
     def shows_current():
         """the page shows the heliostat the runner has on board T1"""
-        on_t1 = [h for h, v in list(runner.active.items()) if v.target_id == "T1"]
+        on_t1 = [h for h, v in list(runner.state.active.items()) if v.target_id == "T1"]
         shown = _board(browser, "T1")
         return shown in on_t1 and shown
 

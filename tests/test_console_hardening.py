@@ -8,7 +8,6 @@ HTTP on loopback.
 
 from __future__ import annotations
 
-import argparse
 import http.client
 import io
 import json
@@ -20,7 +19,7 @@ import pytest
 from campaign_helpers import inprocess_campaign
 from helicalib.app.terminal import LineLog
 from helicalib.config import load_field_config
-from helicalib.console.server import attach_console
+from helicalib.console.server import ConsoleOptions, attach_console
 
 IDS = ["H0001", "H0021", "H0002"]
 
@@ -35,7 +34,7 @@ def armed(demo_field_path, tmp_path_factory):
     runner, sim, store, cid, _c = inprocess_campaign(cfg, tmp, 9, 3, IDS, armed=True)
     runner.run_until(sim.t_s + 1200)
     output = LineLog(dt.timezone.utc, io.StringIO())
-    output = attach_console(argparse.Namespace(console="127.0.0.1:0", console_public=False, json=False), runner,
+    output = attach_console(ConsoleOptions(console="127.0.0.1:0"), runner,
                             output)
     output.on_snapshot(runner.snapshot(sim.t_s))
     try:
@@ -149,7 +148,7 @@ def test_beyond_loopback_every_route_needs_the_token(armed, tmp_path):
     from helicalib.store.sqlite import Store
 
     runner = armed["runner"]
-    reader = Store.open(runner.store.path, runner.store.images_dir, readonly=True)
+    reader = Store.open(runner.devices.store.path, runner.devices.store.images_dir, readonly=True)
     console = Console(Sources(store=reader, cfg=runner.cfg, campaign_id=armed["cid"], site=site_time(runner.cfg)),
                       token="s3cret-token")
     server = ConsoleServer(create_app(console), "127.0.0.1", 0)

@@ -9,7 +9,6 @@ attaches it, and ``helicalib console DB`` as a subprocess, over real HTTP on loo
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import html
 import io
@@ -25,7 +24,7 @@ import pytest
 from campaign_helpers import inprocess_campaign
 from helicalib.app.terminal import LineLog
 from helicalib.config import load_field_config
-from helicalib.console.server import attach_console
+from helicalib.console.server import ConsoleOptions, attach_console
 from helicalib.store.sqlite import Store
 
 IDS = ["H0001", "H0021", "H0002", "H0003", "H0022"]
@@ -63,13 +62,13 @@ def live(demo_field_path, tmp_path_factory):
     first_on_t1 = None
     for _ in range(4000):
         runner.run_until(sim.t_s + 2)
-        on_t1 = [h for h, v in runner.active.items() if v.target_id == "T1"]
+        on_t1 = [h for h, v in runner.state.active.items() if v.target_id == "T1"]
         framed = store.latest_by_target(cid, with_frames=True).get("T1")
         if on_t1 and framed is not None and framed.heliostat_id not in on_t1:
             first_on_t1 = on_t1[0]
             break
     assert first_on_t1, "no new visit on T1 after an earlier one's frames"
-    output = attach_console(argparse.Namespace(console="127.0.0.1:0", console_public=False, json=False), runner,
+    output = attach_console(ConsoleOptions(console="127.0.0.1:0"), runner,
                             LineLog(dt.timezone.utc, io.StringIO()))
     snap = runner.snapshot(sim.t_s)
     output.on_snapshot(snap)

@@ -56,7 +56,7 @@ def test_fast_and_rendered_measurements_agree_within_the_modelled_spread(cfg, tm
 
     runner, sim, store, _cid, _ = inprocess_campaign(cfg, tmp_path, 8, 5, ["H0001", "H0012", "H0025", "H0038"],
                                                      camera=lambda cam, s, t: sensor(cam, s, t))
-    assert all(isinstance(c, SimCamera) for c in [p.camera.camera for p in runner.sensors.values()])
+    assert all(isinstance(c, SimCamera) for c in [p.camera.camera for p in runner.devices.sensors.values()])
     runner.run_until(sim.t_s + 4 * 3600)
     store.close()
     both = [(r, f, s) for r, f, s in pairs if r.valid and f.valid]

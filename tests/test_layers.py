@@ -6,6 +6,7 @@
   arguments and runs no scheduler (those are the app's);
 * devices know nothing of vision, flux, the campaign or the simulator;
 * the report, the store and flux know nothing of the simulator, console, commands or app;
+* the web console knows nothing of the app that attaches it;
 * no two modules of helicalib import each other, directly or round a longer circle;
 * the campaign never sniffs a plant's abilities with ``hasattr``/``getattr`` (a plant declares them,
   ``devices.protocols.abilities_of``).
@@ -35,6 +36,8 @@ DEVICES_FORBIDDEN = ("helicalib.vision", "helicalib.flux", "helicalib.campaign",
 LIBRARY_PACKAGES = ("report", "store", "flux")
 """Packages below the edge that are not the pure core: they read and write files, and know no edge."""
 LIBRARY_FORBIDDEN = ("helicalib.sim", "helicalib.console", "helicalib.app", "helicalib.commands")
+CONSOLE_FORBIDDEN = ("helicalib.app",)
+"""The web console is attached by the app (:mod:`helicalib.app.session`) and reaches no higher."""
 
 
 def _module_name(path: Path, root: Path, package: str) -> str:
@@ -126,6 +129,13 @@ def test_report_store_and_flux_import_no_sim_console_app_or_commands(package):
     files = _files(package)
     assert files
     bad = {str(f.relative_to(SRC)): _hits(_imports(f), LIBRARY_FORBIDDEN) for f in files}
+    assert not {k: v for k, v in bad.items() if v}, bad
+
+
+def test_the_web_console_imports_nothing_of_the_app():
+    files = _files("console")
+    assert files
+    bad = {str(f.relative_to(SRC)): _hits(_imports(f), CONSOLE_FORBIDDEN) for f in files}
     assert not {k: v for k, v in bad.items() if v}, bad
 
 

@@ -38,16 +38,16 @@ def test_a_clock_that_jumps_back_during_a_run_is_one_line_and_the_beams_go_back(
                                heliostats=[(h, cfg.heliostat_index(h), cfg.heliostat(h).target) for h in ids])
     runner = CampaignRunner(cfg, plant, cameras, clock, store, cid, heliostat_ids=ids)
     lines, state = [], {}
-    runner.listeners.append(lines.append)
+    runner.journal.listeners.append(lines.append)
     real_time = plant.plant_time
     sent = _record_commands(plant, clock)
 
     def watch():
-        while not runner.active:
+        while not runner.state.active:
             time.sleep(0.05)
         time.sleep(0.3)
         # the plant restarted at an earlier date: its time now reads a day back
-        state["on_board"] = {hid: v.target_id for hid, v in list(runner.active.items())}
+        state["on_board"] = {hid: v.target_id for hid, v in list(runner.state.active.items())}
         state["n"] = len(sent)
         plant.plant_time = lambda: (real_time()[0] - 86400.0, real_time()[1])
         clock.resync_s = 0.0
@@ -108,8 +108,8 @@ def _assert_left_via_standby(runner, cfg, hid, target_id, sent):
     target = cfg.target(target_id)
     standby = target.uvw_to_enu(np.asarray(target.standby_uvw_m))
     sun = runner.sun(t)[0]
-    at_standby = runner.models[hid].strokes_for_aim(sun, standby).strokes_mm[0]
-    at_centre = runner.models[hid].strokes_for_aim(sun, np.asarray(target.center_enu_m)).strokes_mm[0]
+    at_standby = runner.state.models[hid].strokes_for_aim(sun, standby).strokes_mm[0]
+    at_centre = runner.state.models[hid].strokes_for_aim(sun, np.asarray(target.center_enu_m)).strokes_mm[0]
     off = float(np.max(np.abs(strokes - at_standby)))
     assert off < 0.2 * float(np.max(np.abs(at_centre - at_standby))), (hid, strokes, at_standby, at_centre)
 

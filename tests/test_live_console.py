@@ -23,9 +23,9 @@ def moving(demo_field_path, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("console")
     runner, sim, store, _cid, _c = inprocess_campaign(cfg, tmp, 9, 3, ["H0001", "H0021", "H0002"])
     events = []
-    runner.listeners.append(events.append)
+    runner.journal.listeners.append(events.append)
     runner.run_until(sim.t_s + 1200)
-    while not runner.active:
+    while not runner.state.active:
         runner.run_until(sim.t_s + 10)
     snap = runner.snapshot(sim.t_s)
     store.close()

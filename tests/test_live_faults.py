@@ -21,7 +21,7 @@ import pytest
 
 from campaign_helpers import inprocess_campaign
 from helicalib.app import live
-from helicalib.campaign.loop import Returning
+from helicalib.campaign.state import Returning
 from helicalib.cli import main
 from helicalib.config import load_field_config
 from helicalib.devices.protocols import PlantUnreachableError
@@ -218,10 +218,10 @@ def test_a_blackout_mid_visit_does_not_leave_a_heliostat_off_tracking(cfg, tmp_p
                                                         plant=lambda s: proxy.setdefault("p", _Outage(s)))
     outage, idx = proxy["p"], cfg.heliostat_index("H0001")
     end = sim.t_s + 3600
-    while not runner.active and sim.t_s < end:  # until the first visit (no fitted model yet) is under way
+    while not runner.state.active and sim.t_s < end:  # until the first visit (no fitted model yet) is under way
         runner.run_until(sim.t_s + 2.0)
     runner.run_until(sim.t_s + 30.0)
-    assert runner.active and sim.state[idx] in (HeliostatState.HOLDING, HeliostatState.MOVING)
+    assert runner.state.active and sim.state[idx] in (HeliostatState.HOLDING, HeliostatState.MOVING)
     outage.t0, outage.t1 = sim.t_s, sim.t_s + 25.0  # 25 s with no answer, mid-visit
     runner.run_until(outage.t1 + 600.0)
     events = store.events(campaign_id=cid)
@@ -277,7 +277,7 @@ def test_a_restart_sends_back_what_any_campaign_left_off_tracking_but_never_into
     assert [v.outcome for v in visits] == ["interrupted"]  # closed, although another campaign resumed
     idx = {cfg.heliostat_index("H0001"), cfg.heliostat_index("H0002")}
     if stowed:
-        assert rec["p"].tracked == [] and set(runner.returning) == {"H0001", "H0002"}
+        assert rec["p"].tracked == [] and set(runner.state.returning) == {"H0001", "H0002"}
     else:
         assert set(rec["p"].tracked) == idx
 
@@ -350,7 +350,7 @@ def test_a_stop_while_the_plant_is_down_ends_within_seconds(cfg, tmp_path, serve
     state = {}
 
     def watch():
-        while not runner.active:
+        while not runner.state.active:
             time.sleep(0.05)
         time.sleep(0.5)
         _kill_plant(served)
@@ -358,7 +358,7 @@ def test_a_stop_while_the_plant_is_down_ends_within_seconds(cfg, tmp_path, serve
         stop.set()
 
     threading.Thread(target=watch, daemon=True).start()
-    result = live.run_live(runner, runner.clock.now_s() + 86400.0, stop_event=stop)
+    result = live.run_live(runner, runner.devices.clock.now_s() + 86400.0, stop_event=stop)
     took = time.monotonic() - state["t"]
     events = store.events(campaign_id=cid)
     store.close()
@@ -385,16 +385,16 @@ def test_a_view_that_fails_never_stops_the_beams_leaving(cfg, tmp_path, served):
     stop = threading.Event()
 
     def watch():
-        while not runner.active:
+        while not runner.state.active:
             time.sleep(0.05)
         time.sleep(0.5)
         stop.set()
 
     threading.Thread(target=watch, daemon=True).start()
-    result = live.run_live(runner, runner.clock.now_s() + 86400.0, stop_event=stop, output=_BrokenOutput())
+    result = live.run_live(runner, runner.devices.clock.now_s() + 86400.0, stop_event=stop, output=_BrokenOutput())
     visits = store.visits(campaign_id=cid)
     store.close()
-    assert result.reason == "stopped" and result.off_tracking == [] and not runner.active
+    assert result.reason == "stopped" and result.off_tracking == [] and not runner.state.active
     assert visits and all(v.outcome != "running" for v in visits)
     for hid in ("H0001", "H0021"):  # every beam left its board and the plant tracks again
         assert sim.state[cfg.heliostat_index(hid)] in (HeliostatState.TRACKING, HeliostatState.MOVING)
@@ -412,20 +412,20 @@ def test_a_heliostat_that_never_tracks_is_not_commanded_every_few_seconds(cfg, t
     rec = {}
     runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 9, 3, ["H0002"],
                                                     plant=lambda s: rec.setdefault("p", _Faulted(s)))
-    runner._send_back("H0001", None, sim.t_s, why="test")
+    runner.tracking.send_back("H0001", None, sim.t_s, why="test")
     runner.run_until(sim.t_s + 3 * 3600)
     off = [e for e in store.events(campaign_id=cid, kind="off_tracking") if e.heliostat_id == "H0001"]
     store.close()
     sent = rec["p"].tracked.count(0)
     # 3 h with back-off 10 s, 30 s, 60 s, ... up to 10 min: about 20 commands, not ~1000; one event
     assert 5 <= sent <= 30, sent
-    assert len(off) == 1 and "H0001" in runner.returning
+    assert len(off) == 1 and "H0001" in runner.state.returning
 
 
 def test_a_stowed_field_with_returns_pending_does_not_stall_the_clock(cfg, tmp_path):
     runner, sim, store, cid, _ = inprocess_campaign(cfg, tmp_path, 9, 3, ["H0002"])
-    runner.returning["H0001"] = Returning(since_s=sim.t_s, next_check_s=sim.t_s)
-    runner.stowed = True
+    runner.state.returning["H0001"] = Returning(since_s=sim.t_s, next_check_s=sim.t_s)
+    runner.state.stowed = True
     ticks = []
     runner.run_until(sim.t_s + 600.0, progress=ticks.append)
     store.close()

@@ -22,15 +22,15 @@ def test_the_snapshot_gate_follows_the_weather_shown_while_every_board_is_busy(c
     try:
         for _ in range(60):  # until every board holds a visit
             runner.run_until(sim.t_s + 20.0)
-            if len(runner.active) >= len(cfg.targets):
+            if len(runner.state.active) >= len(cfg.targets):
                 break
-        assert len(runner.active) >= len(cfg.targets), "the boards never all held a visit"
+        assert len(runner.state.active) >= len(cfg.targets), "the boards never all held a visit"
         now = sim.t_s
         first = runner.snapshot(now)
         assert first.gate_open is True and f"{first.dni_wm2:.0f}" in first.gate_reason, first.gate_reason
         # the next reading, taken while the boards are busy: DNI under the minimum
-        dim = dataclasses.replace(runner.last_weather, dni_wm2=cfg.gating.dni_min_wm2 - 5.0)
-        runner.last_weather, runner.weather_time_s = dim, now
+        dim = dataclasses.replace(runner.state.last_weather, dni_wm2=cfg.gating.dni_min_wm2 - 5.0)
+        runner.state.last_weather, runner.state.weather_time_s = dim, now
         shown = runner.snapshot(now)
         assert shown.dni_wm2 == dim.dni_wm2
         assert shown.gate_open is False and f"{dim.dni_wm2:.0f}" in shown.gate_reason, shown.gate_reason

@@ -36,7 +36,7 @@ def test_an_scs_down_with_the_weather_answering_is_one_lost_line_not_a_flap(cfg,
     plant.scs.port, plant.scs.retries, plant.scs.down_s = _closed_port(), 0, 0.0  # the SCS is down
     lock = threading.Lock()
     for _ in range(4):  # four plant minutes of jobs: the weather poll answers, the clock's resync does not
-        runner.last_poll_s = -1e18
+        runner.state.last_poll_s = -1e18
         clock.resync_s = 1e9  # the weather job on the clock's extrapolation
         live._weather_job(runner, lock)
         clock.resync_s = 0.0  # the tick when the clock's resync is due: over the SCS
@@ -45,7 +45,7 @@ def test_an_scs_down_with_the_weather_answering_is_one_lost_line_not_a_flap(cfg,
     store.close()
     kinds = [e.kind for e in events if e.kind in ("plant_lost", "plant_back")]
     assert kinds == ["plant_lost"], [(e.kind, e.reason) for e in events]
-    assert runner.plant_unreachable_since_s is not None
+    assert runner.state.faults.plant_unreachable_since_s is not None
     assert len([e for e in events if e.kind == "fault"]) <= 2  # the tick's and the weather job's, once each
 
 
@@ -59,14 +59,14 @@ def test_the_scs_answering_again_ends_the_loss_in_one_line(cfg, tmp_path, served
     clock.resync_s = 0.0
     lock = threading.Lock()
     live._tick_job(runner, lock)
-    assert runner.plant_unreachable_since_s is not None
+    assert runner.state.faults.plant_unreachable_since_s is not None
     plant.scs.close()
     plant.scs.port = port  # the SCS answers again
     live._tick_job(runner, lock)
     events = store.events(campaign_id=cid)
     store.close()
     assert [e.kind for e in events if e.kind in ("plant_lost", "plant_back")] == ["plant_lost", "plant_back"]
-    assert runner.plant_unreachable_since_s is None
+    assert runner.state.faults.plant_unreachable_since_s is None
 
 
 def test_a_refusal_is_an_answer_not_an_unreachable_plant(cfg, tmp_path, served):
@@ -79,13 +79,13 @@ def test_a_refusal_is_an_answer_not_an_unreachable_plant(cfg, tmp_path, served):
         raise PlantError("plant 127.0.0.1:5020 unit 1: read of weather block refused: Modbus exception 4 "
                          "(device failure)")
 
-    runner.plant.weather = refuse
+    runner.devices.plant.weather = refuse
     for _ in range(3):
-        runner.last_poll_s = -1e18
+        runner.state.last_poll_s = -1e18
         live._weather_job(runner, lock)
     events = store.events(campaign_id=cid)
     store.close()
-    assert runner.plant_unreachable_since_s is None
+    assert runner.state.faults.plant_unreachable_since_s is None
     assert not [e for e in events if e.kind == "plant_lost"]
     faults = [e.reason for e in events if e.kind == "fault"]
     assert len(faults) == 1 and "Modbus exception 4" in faults[0], faults  # one line, not one per poll
@@ -104,7 +104,7 @@ def test_two_jobs_losing_the_plant_at_once_say_it_once(cfg, tmp_path, served):
         return estimate()
 
     clock.estimate_s = slow_estimate
-    jobs = [threading.Thread(target=runner.plant_failed, args=(f"{job}: no answer",)) for job in ("tick", "weather")]
+    jobs = [threading.Thread(target=runner.journal.plant_failed, args=(f"{job}: no answer",)) for job in ("tick", "weather")]
     for job in jobs:
         job.start()
     for job in jobs:

@@ -37,7 +37,7 @@ def test_a_lost_plant_is_one_line_each_way_and_no_visit_starts_meanwhile(cfg, tm
                                                     plant=lambda s: proxy.setdefault("p", _Blackout(s)))
     runner.run_until(sim.t_s + 1800.0)  # a calibrating field, both boards busy
     assert runner.snapshot(sim.t_s).gate_open is True
-    assert runner.weather_time_s is not None and sim.t_s - runner.weather_time_s <= 60.0
+    assert runner.state.weather_time_s is not None and sim.t_s - runner.state.weather_time_s <= 60.0
     blackout = proxy["p"]
     blackout.t0, blackout.t1 = sim.t_s, sim.t_s + 1200.0  # 20 plant minutes without an answer
     runner.run_until(sim.t_s + 600.0)
@@ -94,17 +94,17 @@ def test_a_stalled_camera_does_not_stop_weather_reads_nor_the_stow(cfg, tmp_path
         try:
             assert trickle.first.wait(60.0)  # the tick now waits on the camera (the visit's before frame)
             time.sleep(0.5)
-            seen["weather_before"] = runner.weather_time_s
+            seen["weather_before"] = runner.state.weather_time_s
             calm = sim.weather()
             sim.weather = lambda: Weather(25.0, calm.wind_direction_deg, calm.dni_wm2, calm.temperature_c,
                                           calm.pressure_hpa)  # a gust front: the field must stow now
             t_wind = time.monotonic()
-            while not runner.stowed and time.monotonic() - t_wind < deadline:
+            while not runner.state.stowed and time.monotonic() - t_wind < deadline:
                 time.sleep(0.05)
             seen["stow_after_s"] = time.monotonic() - t_wind
-            seen["stowed"] = runner.stowed
+            seen["stowed"] = runner.state.stowed
             seen["camera_still_stalled"] = trickle.open > 0
-            seen["weather_during"] = runner.weather_time_s
+            seen["weather_during"] = runner.state.weather_time_s
         finally:
             seen["stop_t"] = time.monotonic()
             stop.set()

@@ -197,8 +197,8 @@ def test_a_storage_failure_whose_fault_line_cannot_be_written_counts_once(cfg, t
 
     store.record_event = refuse  # the disk is full: the fault line's own write fails too
     lines = []
-    runner.listeners.append(lines.append)
-    runner.storage_failed(full)
+    runner.journal.listeners.append(lines.append)
+    runner.journal.storage_failed(full)
     store.close()
-    assert runner.storage_errors == 1
+    assert runner.state.faults.storage_errors == 1
     assert [e.kind for e in lines] == ["fault"]  # still said once, to the listeners

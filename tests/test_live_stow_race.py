@@ -23,7 +23,7 @@ def test_no_track_or_move_is_accepted_after_a_gust_stows_the_field_mid_refresh(c
     ids = [h.id for h in cfg.heliostats[:12]]
     runner, store, cid = _network_runner(cfg, tmp_path, served, ids)
     plant, _cams, clock, sim, _server = served
-    runner.book.points = lambda hid: [hid]  # every heliostat calibrated: the refresh writes each one's corrections
+    runner.state.book.points = lambda hid: [hid]  # every heliostat calibrated: the refresh writes each one's corrections
     wire, busy = [], threading.Event()
     write, weather = plant.scs.write, plant.weather
 
@@ -39,7 +39,7 @@ def test_no_track_or_move_is_accepted_after_a_gust_stows_the_field_mid_refresh(c
 
     def tick():  # the tick's thread, holding the jobs' lock while it refreshes on the slow plant
         with lock:
-            runner._refresh_tracking(clock.now_s())
+            runner.tracking.refresh(clock.now_s())
 
     ticking = threading.Thread(target=tick)
     ticking.start()
@@ -49,7 +49,7 @@ def test_no_track_or_move_is_accepted_after_a_gust_stows_the_field_mid_refresh(c
     ticking.join(30.0)
     events = store.events(campaign_id=cid)
     store.close()
-    assert runner.stowed and [e.kind for e in events if e.kind == "stow"] == ["stow"]
+    assert runner.state.stowed and [e.kind for e in events if e.kind == "stow"] == ["stow"]
     stow_at = next(k for k, (addr, _w) in enumerate(wire) if addr == R.REG_FIELD_COMMAND)
     assert 0 < stow_at, "the gust came before the refresh wrote anything"
     assert wire[stow_at + 1:] == []  # no heliostat's command went out after the stow

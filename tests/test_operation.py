@@ -98,27 +98,27 @@ def test_injected_drift_is_confirmed_by_checks_and_the_calibration_reopened(drif
     assert s["drift_false_alarms"] == 0
     runner = result.runner
     truth = {e["heliostat_id"]: e["start_s"] for e in s["drift_events"]}
-    for d in runner.drifts:
+    for d in runner.ops.drifts:
         hid = d["heliostat_id"]
         # suspected on a check after the drift began, confirmed by the next, far outside the band
         assert truth[hid] <= d["since_s"] < d["confirmed_s"]
         assert d["evidence"]["p_value"] < op.CONFIRM_ALPHA
         # the book (acceptance, drift tests) holds the points since the first suspicious check only;
         # the fits also carry those from before it, in an epoch of their own (book.EPOCHS_AFTER_DRIFT)
-        assert all(p.capture_time_s >= d["since_s"] for p in runner.book.points(hid))
-        b = runner.book.h[hid]
+        assert all(p.capture_time_s >= d["since_s"] for p in runner.state.book.points(hid))
+        b = runner.state.book.h[hid]
         assert d["points_dropped"] == 0 and d["points_before_kept"] == len(b.earlier.points) > 0
         assert all(p.capture_time_s < d["since_s"] for p in b.earlier.points)
         assert set(b.earlier.epoch.tolist()) == {1}  # one drift each: one earlier epoch
         assert len(b.fit.residual_mrad) == len(b.points) + len(b.earlier.points)
         assert b.fit.epoch_offsets is not None and b.fit.epoch_offsets.shape[0] == 2
-        assert runner.prior_mean(hid) is None  # centred on the nominal: the earlier points carry the rest
+        assert runner.ops.prior_mean(hid) is None  # centred on the nominal: the earlier points carry the rest
     assert s["checks"] > 0
     # operation's fits model a settling pedestal (a tilt rate); with the earlier epochs in the fits
     # the rate stays after a drift (their months pin it)
     assert runner.ops.tilt_rate
     for hid in IDS:
-        b = runner.book.h[hid]
+        b = runner.state.book.h[hid]
         assert b.drifted and runner.ops.tilt_rate_of(hid)
         assert b.fit.tilt_rate_mrad_per_day is not None
     assert 0.0 < s["board_time_share_after_commissioning"] < 0.5
@@ -142,9 +142,9 @@ def test_a_drifted_heliostat_is_accepted_again_on_points_after_the_drift(drifted
     assert len(fixed) == len(IDS), s["drift_days_to_fix"]  # every settling accepted again before the end
     # within the 3.6 days the run has left after the drifts (2.4-2.6 days in)
     assert s["drift_median_days_to_fix"] is not None and s["drift_median_days_to_fix"] <= 3.6
-    for d in result.runner.drifts:
+    for d in result.runner.ops.drifts:
         if d.get("fixed_s") is not None:
-            assert result.runner.book.accepted(d["heliostat_id"])
+            assert result.runner.state.book.accepted(d["heliostat_id"])
 
 
 def test_a_restarted_runner_keeps_the_reopened_calibration(drifted_run):
@@ -158,20 +158,20 @@ def test_a_restarted_runner_keeps_the_reopened_calibration(drifted_run):
     store = Store.open(result.database, "images")
     try:
         cid = store.campaigns()[-1].id
-        t = first.clock.now_s()
+        t = first.devices.clock.now_s()
         sim = SimulatedPlant(cfg, parse_scenario({"seed": 4}), start_s=t)
         again = CampaignRunner(cfg, sim, {}, VirtualClock(t), store, cid, heliostat_ids=IDS, operation="ranked")
-        for d in first.drifts:
+        for d in first.ops.drifts:
             hid = d["heliostat_id"]
-            kept = again.book.points(hid)
+            kept = again.state.book.points(hid)
             assert kept and all(p.capture_time_s >= d["since_s"] for p in kept)
-            assert len(kept) == len(first.book.points(hid))
+            assert len(kept) == len(first.state.book.points(hid))
             # and the points from before the drift, with their epochs
-            assert [p.id for p in again.book.h[hid].earlier.points] == [p.id for p in first.book.h[hid].earlier.points]
-            np.testing.assert_array_equal(again.book.h[hid].earlier.epoch, first.book.h[hid].earlier.epoch)
-            assert again.prior_mean(hid) is None and d["prior_params"] is not None
-            np.testing.assert_allclose(again.models[hid].params, first.models[hid].params, atol=1e-9)
-            assert again.book.accepted(hid) == first.book.accepted(hid)
+            assert [p.id for p in again.state.book.h[hid].earlier.points] == [p.id for p in first.state.book.h[hid].earlier.points]
+            np.testing.assert_array_equal(again.state.book.h[hid].earlier.epoch, first.state.book.h[hid].earlier.epoch)
+            assert again.ops.prior_mean(hid) is None and d["prior_params"] is not None
+            np.testing.assert_allclose(again.state.models[hid].params, first.state.models[hid].params, atol=1e-9)
+            assert again.state.book.accepted(hid) == first.state.book.accepted(hid)
     finally:
         store.close()
 
@@ -267,7 +267,7 @@ def test_the_report_fits_an_operated_campaign_as_operation_does(drifted_run, dem
     assert set(fits) == set(IDS)
     for hid, (params, fit) in fits.items():
         assert (fit.tilt_rate_mrad_per_day is not None) == result.runner.ops.tilt_rate_of(hid), hid
-        assert np.all(np.abs(params - result.runner.models[hid].params[0]) <= 1e-4 * fit.sigma), hid
+        assert np.all(np.abs(params - result.runner.state.models[hid].params[0]) <= 1e-4 * fit.sigma), hid
     yp = year_predictions(data)
     assert set(yp["heliostats"]) == set(IDS)
     median = float(np.median([p["expected_rms_mrad"] for p in yp["heliostats"].values()]))
@@ -328,24 +328,24 @@ def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_
                                                                 fidelity="fast", operation="ranked",
                                                                 monthly_tracking=False))
     runner = result.runner
-    assert len(runner.drifts) == len(IDS), "drifts not confirmed: the test shows little of the epochs"
+    assert len(runner.ops.drifts) == len(IDS), "drifts not confirmed: the test shows little of the epochs"
     store = Store.open(result.database, "images", readonly=True)
     try:
         cid = runner.campaign_id
         thinned = 0
         for hid in IDS:
-            live = runner.book.points(hid)
-            assert runner.book.h[hid].drifted
+            live = runner.state.book.points(hid)
+            assert runner.state.book.h[hid].drifted
             assert len({p.visit_id for p in live}) <= 6
             located = [o for o in store.observations(campaign_id=cid, heliostat_id=hid) if book.located(o)]
             thinned += len({o.visit_id for o in located}) > len({p.visit_id for p in live})
             points, centre, earlier = stored_basis(store, cid, hid)
             assert [p.id for p in points] == [p.id for p in live], hid
-            live_earlier = runner.book.h[hid].earlier
+            live_earlier = runner.state.book.h[hid].earlier
             assert [p.id for p in earlier.points] == [p.id for p in live_earlier.points], hid
             np.testing.assert_array_equal(earlier.epoch, live_earlier.epoch)
             assert len({p.visit_id for p in earlier.points}) <= 8 - 6  # the cap less the cap after a drift
-            prior = runner.prior_mean(hid)
+            prior = runner.ops.prior_mean(hid)
             assert (centre is None) == (prior is None) and (prior is None or np.allclose(centre, prior)), hid
             latest = store.latest_fit(hid, campaign_id=cid)
             assert book.fit_size(*stored_basis(store, cid, hid, latest.time_s)[::2]) == latest.n_points, hid
@@ -355,4 +355,4 @@ def test_the_visit_cap_is_replayed_alike_by_the_runner_the_report_and_check(tmp_
     data = load_campaign(result.database, field_config=demo_field_path)
     fits = stored_fits(data, sorted(IDS), HeliostatModel.from_config(data.cfg, sorted(IDS)))
     for hid, (params, fit) in fits.items():
-        assert np.all(np.abs(params - runner.models[hid].params[0]) <= 1e-4 * fit.sigma), hid
+        assert np.all(np.abs(params - runner.state.models[hid].params[0]) <= 1e-4 * fit.sigma), hid

@@ -89,9 +89,9 @@ def late_stamped(demo_field_path, tmp_path_factory):
     runner, sim, store, _cid, _c = inprocess_campaign(cfg, tmp_path_factory.mktemp("late"), 9, 3,
                                                       ["H0001", "H0021", "H0002"],
                                                       plant=lambda s: _SlowPlant(s, lambda: box.get("clock")))
-    box["clock"] = runner.clock
+    box["clock"] = runner.devices.clock
     events = []
-    runner.listeners.append(events.append)
+    runner.journal.listeners.append(events.append)
     runner.run_until(sim.t_s + 1500)
     store.close()
     assert any(b.time_s < a.time_s for a, b in zip(events, events[1:]))  # as on the independent plant

@@ -2,7 +2,7 @@
 
 Three jobs run in a background scheduler (UTC, module-level callables, fixed ids):
 
-* ``helicalib-weather``: weather poll every :data:`~helicalib.campaign.runner.WEATHER_POLL_S`
+* ``helicalib-weather``: weather poll every :data:`~helicalib.campaign.field.WEATHER_POLL_S`
   plant seconds (stow within one poll). It never waits behind a tick held up by a slow device: when
   the tick keeps the lock beyond :data:`WEATHER_WAIT_S`, it reads the weather and stows the field
   on its own (the visits' commands are then refused, and the tick ends the visits when it is back);
@@ -17,7 +17,7 @@ stops the jobs and hands every heliostat still in a visit back to tracking. A ru
 itself, the field made safe the same way, when the plant's clock jumps (backwards, or forwards
 beyond where it can be)
 (``reason="clock_jump"``) or the database cannot be written
-(:data:`~helicalib.campaign.runner.STORAGE_RETRIES` writes in a row, ``reason="storage"``).
+(:data:`~helicalib.campaign.journal.STORAGE_RETRIES` writes in a row, ``reason="storage"``).
 """
 
 from __future__ import annotations
@@ -29,10 +29,11 @@ import threading
 import traceback
 from dataclasses import dataclass, field
 
-from helicalib.campaign.loop import WEATHER_POLL_S, CampaignRunner
+from helicalib.campaign.field import WEATHER_POLL_S
+from helicalib.campaign.loop import CampaignRunner
 from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.modbus import quiet_pymodbus
-from helicalib.devices.protocols import PlantUnreachableError, abilities_of
+from helicalib.devices.protocols import Clock, PlantUnreachableError
 from helicalib.errors import HelicalibError
 
 TICK_PLANT_S = 2.0
@@ -43,11 +44,9 @@ WEATHER_WAIT_S = 0.5
 without it (a tick may wait up to a camera's fetch deadline on a slow device)."""
 
 
-def _rate(clock) -> float:
-    rate = getattr(clock, "rate", None)
-    if callable(rate):
-        rate = rate()
-    return float(rate) if rate else 1.0
+def _rate(clock: Clock) -> float:
+    """Plant seconds per real second of ``clock`` (a clock that reports 0 counts as real time)."""
+    return float(clock.rate) or 1.0
 
 
 def _guarded(runner: CampaignRunner, what: str, fn) -> None:
@@ -60,14 +59,14 @@ def _guarded(runner: CampaignRunner, what: str, fn) -> None:
     try:
         fn()
     except ClockJumpError as err:  # one line; the run stops (run_live)
-        runner.clock_jumped(err)
+        runner.journal.clock_jumped(err)
     except Exception as err:  # noqa: BLE001 - a job must never die, nor print a traceback each retry
-        if runner.storage_fault(err):  # a full disk, a read-only database: counted, one line (the run stops after a few)
+        if runner.journal.storage_fault(err):  # a full disk, a read-only database: counted (the run stops after a few)
             return
         if isinstance(err, HelicalibError):
             _said(runner, what, err)
             return
-        log = runner.store.path.with_name(runner.store.path.name + ".errors.log")
+        log = runner.devices.store.path.with_name(runner.devices.store.path.name + ".errors.log")
         try:
             with open(log, "a", encoding="utf-8") as fh:
                 fh.write(f"--- {dt.datetime.now(dt.timezone.utc).isoformat()} {what}\n{traceback.format_exc()}\n")
@@ -75,19 +74,19 @@ def _guarded(runner: CampaignRunner, what: str, fn) -> None:
             pass
         _fault(runner, f"{what}: internal error {type(err).__name__}: {err} (traceback in {log})")
     else:  # the job's next refusal is news again
-        if runner.job_fault:
-            runner.job_fault.pop(what, None)
+        if runner.state.faults.job_fault:
+            runner.state.faults.job_fault.pop(what, None)
 
 
 def _said(runner: CampaignRunner, what: str, err: HelicalibError) -> None:
     """The plant or a device said no: a plant that does not answer is one line per job and loss; a
     refusal one line while its reason stays."""
     if isinstance(err, PlantUnreachableError):
-        runner.plant_failed(f"{what}: {err}")
-        if not runner.said_once(what):
+        runner.journal.plant_failed(f"{what}: {err}")
+        if not runner.journal.said_once(what):
             _fault(runner, f"{what}: {err}")
     else:
-        _recorded(lambda: runner.job_failed(what, f"{what}: {err}"), f"{what}: {err}")
+        _recorded(lambda: runner.journal.job_failed(what, f"{what}: {err}"), f"{what}: {err}")
 
 
 def _fault(runner: CampaignRunner, reason: str) -> None:
@@ -106,34 +105,34 @@ def _tick_job(runner: CampaignRunner, lock: threading.Lock) -> None:
     if not lock.acquire(blocking=False):
         return
     try:
-        if not runner.stopping:
-            _guarded(runner, "tick", lambda: runner.tick(runner.clock.now_s()))
+        if not runner.state.stopping:
+            _guarded(runner, "tick", lambda: runner.tick(runner.devices.clock.now_s()))
     finally:
         lock.release()
 
 
 def _weather_job(runner: CampaignRunner, lock: threading.Lock) -> None:
-    if runner.stopping:
+    if runner.state.stopping:
         return
     if lock.acquire(timeout=WEATHER_WAIT_S):
         try:
-            if not runner.stopping:
-                _guarded(runner, "weather", lambda: runner.field.poll_weather(runner.clock.now_s()))
+            if not runner.state.stopping:
+                _guarded(runner, "weather", lambda: runner.field.poll_weather(runner.devices.clock.now_s()))
         finally:
             lock.release()
     else:  # a tick waits on a slow device: read the weather and stow without it
-        _guarded(runner, "weather", lambda: runner.field.poll_weather(runner.clock.now_s(), preempt=True))
+        _guarded(runner, "weather", lambda: runner.field.poll_weather(runner.devices.clock.now_s(), preempt=True))
 
 
 def _daylight_job(runner: CampaignRunner, scheduler, lock: threading.Lock) -> None:
     def job():
-        now = runner.clock.now_s()
+        now = runner.devices.clock.now_s()
         _vec, _az, el, rising = runner.sun(now)
         runner.event("note", f"sun at {el:.1f}° ({'rising' if rising else 'setting'}): day "
                              f"{'opens' if rising else 'closes'}", time_s=now)
 
     with lock:
-        if runner.stopping:
+        if runner.state.stopping:
             return
         _guarded(runner, "daylight", job)
     _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
@@ -141,7 +140,7 @@ def _daylight_job(runner: CampaignRunner, scheduler, lock: threading.Lock) -> No
 
 def schedule_daylight(runner: CampaignRunner, scheduler, lock) -> None:
     """Schedule the next crossing of the low band's lower edge (either way)."""
-    now = runner.clock.now_s()
+    now = runner.devices.clock.now_s()
     level = runner.cfg.acceptance.low_band_deg[0]
     above = runner.sun(now)[2] >= level
     t = now
@@ -149,7 +148,7 @@ def schedule_daylight(runner: CampaignRunner, scheduler, lock) -> None:
         t += 300.0
         if (runner.sun(t)[2] >= level) != above:
             break
-    real_s = max(0.0, (t - now) / _rate(runner.clock))
+    real_s = max(0.0, (t - now) / _rate(runner.devices.clock))
     when = dt.datetime.now(dt.timezone.utc) + dt.timedelta(seconds=real_s)
     scheduler.add_job(_daylight_job, "date", run_date=when, args=[runner, scheduler, lock],
                       id="helicalib-daylight", replace_existing=True, misfire_grace_time=None)
@@ -183,10 +182,10 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     quiet_pymodbus()
     stop = stop_event or threading.Event()
     lock = threading.Lock()
-    hurries = abilities_of(runner.plant).hurries  # a stop asks such a plant to drop its retries
-    if output is not None and output.on_event not in runner.listeners:
-        runner.listeners.append(output.on_event)
-    rate = _rate(runner.clock)
+    hurries = runner.devices.abilities.hurries  # a stop asks such a plant to drop its retries
+    if output is not None and output.on_event not in runner.journal.listeners:
+        runner.journal.listeners.append(output.on_event)
+    rate = _rate(runner.devices.clock)
     scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
     common = dict(replace_existing=True, coalesce=True, max_instances=1, misfire_grace_time=None)
     scheduler.add_job(_weather_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, WEATHER_POLL_S / rate),
@@ -213,7 +212,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     def plant_now() -> float | None:
         """Plant time, or None while the plant does not answer (the jobs retry; nothing stops)."""
         try:
-            return runner.clock.now_s()
+            return runner.devices.clock.now_s()
         except HelicalibError:
             return None
 
@@ -222,7 +221,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
             return
         held = lock.acquire(timeout=0.2)  # not held: a tick waits on a slow device; the view goes on
         try:  # the controller's own clock: a view must not wait on a plant that does not answer
-            output.on_snapshot(runner.snapshot(runner.clock.estimate_s()))
+            output.on_snapshot(runner.snapshot(runner.devices.clock.estimate_s()))
         except Exception:  # noqa: BLE001 - a view must never stop the campaign (nor a read racing a tick)
             pass
         finally:
@@ -236,8 +235,8 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
             if done is not None and done():
                 result.reason = "done"
                 break
-            if runner.clock_jump is not None or runner.storage_lost is not None:
-                result.reason = "clock_jump" if runner.clock_jump is not None else "storage"
+            if runner.state.faults.clock_jump is not None or runner.state.faults.storage_lost is not None:
+                result.reason = "clock_jump" if runner.state.faults.clock_jump is not None else "storage"
                 break
             now = plant_now()
             if now is not None and now >= until_s:
@@ -254,7 +253,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                 _say(output, f"stopping{why}: finishing the step in progress, then every beam on a board leaves via "
                              "its standby point and goes back to tracking (Ctrl-C again to leave at once)")
                 if hurries:
-                    runner.plant.hurry()
+                    runner.devices.plant.hurry()
             scheduler.shutdown(wait=False)
             waited = 0
             while not lock.acquire(timeout=1.0):
@@ -263,10 +262,10 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                     _say(output, f"stopping: still waiting for the step in progress ({waited} s; a plant or camera "
                                  "request)")
             try:
-                runner.stopping = True  # jobs still queued behind the lock do nothing more
-                if runner.active:
-                    _say(output, f"stopping: {len(runner.active)} heliostat(s) leaving their boards via standby")
-                result.off_tracking = runner.shutdown(runner.safe_now()[0])
+                runner.state.stopping = True  # jobs still queued behind the lock do nothing more
+                if runner.state.active:
+                    _say(output, f"stopping: {len(runner.state.active)} heliostat(s) leaving their boards via standby")
+                result.off_tracking = runner.shutdown(runner.journal.safe_now()[0])
             finally:
                 lock.release()
             show()
@@ -275,8 +274,8 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                 _quietly(output.stop)
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-            if output is not None and output.on_event in runner.listeners:
-                runner.listeners.remove(output.on_event)
+            if output is not None and output.on_event in runner.journal.listeners:
+                runner.journal.listeners.remove(output.on_event)
     return result
 
 

@@ -29,11 +29,9 @@ from helicalib.app.settings import LiveSettings
 from helicalib.app.summary import EXIT_NOT_MEASURED, print_summary, session_summary
 from helicalib.errors import ConfigError, HelicalibError, StorageError
 
-RUN_KINDS = ("live", "dry-run")
-
 EXIT_STORAGE = 4
 """The database could not be written during the run (full disk, read-only): after
-:data:`~helicalib.campaign.runner.STORAGE_RETRIES` attempts every beam went back to tracking."""
+:data:`~helicalib.campaign.journal.STORAGE_RETRIES` attempts every beam went back to tracking."""
 EXIT_CLOCK_JUMP = 5
 """The plant's clock jumped (backwards, or forwards beyond where it can be) during the run: every
 beam went back to tracking."""
@@ -123,9 +121,10 @@ def run_session(settings: LiveSettings) -> int:
                                 operation=operation, rota_days=settings.rota_days,
                                 spots_per_board=settings.spots_per_board)
         if mode == "check":  # check resumes nothing: no --accept-clock-jump to suggest
-            runner.clock_jump_hint = ""
+            runner.state.faults.clock_jump_hint = ""
         if operation and settings.keep_frames is not None:
-            runner.retention = (int(settings.keep_frames), True)  # every night: frames of the newest N and the rejected
+            # every night: the frames of all but the newest N observations, and the rejected ones
+            runner.state.retention = (int(settings.keep_frames), True)
         output = attach_console(settings.console, runner, output)  # operator actions; the crew console with --console
         with storage_errors(cfg.database_path):
             orphans = store.remove_orphan_frames(opened.campaign_id)
@@ -133,7 +132,7 @@ def run_session(settings: LiveSettings) -> int:
             output.message(f"removed {orphans} frame file(s) no observation points to (a visit the previous "
                            "process was killed in)")
         result = run_live(runner, until_s, done=(runner.rechecked if settings.recheck else None), output=output)
-        end_s = runner.safe_now()[0]
+        end_s = runner.journal.safe_now()[0]
         if result.reason != "storage":
             with storage_errors(cfg.database_path):
                 store.finish_campaign(opened.campaign_id, end_s,
@@ -157,11 +156,12 @@ def run_session(settings: LiveSettings) -> int:
 def exit_status(summary: dict, result, runner, command: str) -> int:
     """0, or a documented status with its one line on stderr (the run's stop, a check that measured nothing)."""
     if result.reason == "storage":
-        print(f"helicalib {command}: error: {runner.storage_lost}; every beam went back to tracking "
+        print(f"helicalib {command}: error: {runner.state.faults.storage_lost}; every beam went back to tracking "
               f"(exit status {EXIT_STORAGE})", file=sys.stderr)
         return EXIT_STORAGE
     if result.reason == "clock_jump":
-        print(f"helicalib {command}: error: {runner.clock_jump} (exit status {EXIT_CLOCK_JUMP})", file=sys.stderr)
+        print(f"helicalib {command}: error: {runner.state.faults.clock_jump} (exit status {EXIT_CLOCK_JUMP})",
+              file=sys.stderr)
         return EXIT_CLOCK_JUMP
     if result.reason == "stopped":  # a clean stop (Ctrl-C, SIGTERM) is 0, whatever it measured
         return 0
@@ -174,7 +174,7 @@ def exit_status(summary: dict, result, runner, command: str) -> int:
 def storage_errors(path):
     """SQLite's and the system's errors of a database that cannot be written (read-only file or
     folder, full disk) become one :class:`StorageError` line naming the file."""
-    from helicalib.campaign.loop import storage_error
+    from helicalib.campaign.state import storage_error
 
     try:
         yield

@@ -29,19 +29,19 @@ class MonthlyTracking:
 
     def __init__(self, cfg, sim, runner: CampaignRunner, start_s: float):
         self.cfg, self.sim, self.runner, self.start_s = cfg, sim, runner, start_s
-        self.rows = [cfg.heliostat_index(h) for h in runner.ids]
+        self.rows = [cfg.heliostat_index(h) for h in runner.state.ids]
         drifting = {e.heliostat_id for e in sim.truth.drift_events}
-        self.steady = np.array([h not in drifting for h in runner.ids])  # of rows: no injected drift
+        self.steady = np.array([h not in drifting for h in runner.state.ids])  # of rows: no injected drift
         self.sq: dict[int, list[float]] = {}  # month -> [sum of squares, count]
         self.sq_steady: dict[int, list[float]] = {}
 
     def sample(self, t0_s: float, t1_s: float) -> None:
         if t1_s <= t0_s:
             return
-        params = np.zeros((len(self.cfg.heliostats), self.runner.nominal.params.shape[1]))
+        params = np.zeros((len(self.cfg.heliostats), self.runner.state.nominal.params.shape[1]))
         params[self.rows] = self.runner.calibrated_model().params
-        errs = plant_tracking_errors(self.cfg, self.sim.truth, params, self.rows, t0_s, t1_s, self.runner.sun_table,
-                                     step_s=MONTHLY_STEP_S)
+        errs = plant_tracking_errors(self.cfg, self.sim.truth, params, self.rows, t0_s, t1_s,
+                                     self.runner.state.sun_table, step_s=MONTHLY_STEP_S)
         month = int((t0_s - self.start_s) // (MONTH_DAYS * 86400.0))
         steady = np.tile(self.steady, errs.size // max(len(self.rows), 1))
         for sq, e in ((self.sq, errs), (self.sq_steady, errs[steady] if steady.size == errs.size else errs[:0])):
@@ -75,21 +75,21 @@ def operation_summary(cfg, runner: CampaignRunner, sim, store: Store, campaign_i
     """
     from helicalib.campaign.operation import rules as op_rules
 
-    ids = set(runner.ids)
+    ids = set(runner.state.ids)
     truth = {e.heliostat_id: e for e in sim.truth.drift_events if e.start_s < end_s and e.heliostat_id in ids}
     detected, false_alarms, days = set(), 0, []
-    for d in runner.drifts:
+    for d in runner.ops.drifts:
         e = truth.get(d["heliostat_id"])
         if e is not None and d["confirmed_s"] >= e.start_s:
             detected.add(d["heliostat_id"])
         else:
             false_alarms += 1
     for hid, e in truth.items():
-        fixed = [d.get("fixed_s") for d in runner.drifts
+        fixed = [d.get("fixed_s") for d in runner.ops.drifts
                  if d["heliostat_id"] == hid and d["confirmed_s"] >= e.start_s and d.get("fixed_s") is not None]
         days.append(op_rules.days_to_fix(e.start_s, min(fixed) if fixed else None))
     median = float(np.median(days)) if days else None
-    commissioned = commissioning_time(store, campaign_id, len(runner.ids))
+    commissioned = commissioning_time(store, campaign_id, len(runner.state.ids))
     share = None
     if commissioned is not None and commissioned < end_s:
         busy = sum(min(v.ended_s if v.ended_s is not None else end_s, end_s) - max(v.started_s, commissioned)
@@ -101,7 +101,7 @@ def operation_summary(cfg, runner: CampaignRunner, sim, store: Store, campaign_i
             "drift_median_days_to_fix": None if median is None or not math.isfinite(median) else round(median, 2),
             "drift_days_to_fix": [None if not math.isfinite(x) else round(x, 2) for x in days],
             "commissioned_day": None if commissioned is None else round((commissioned - start_s) / 86400.0, 3),
-            "board_time_share_after_commissioning": share, "checks": runner.checks}
+            "board_time_share_after_commissioning": share, "checks": runner.ops.checks}
 
 
 COMMISSIONED_SHARE = 0.95
@@ -127,8 +127,8 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
     over a year of sun positions, against the true geometry at ``end_s`` (after any drift)."""
     from helicalib.sim.evaluate import evaluate_model
 
-    stats = runner.stats
-    ids = runner.ids
+    stats = runner.state.stats
+    ids = runner.state.ids
     accepted = runner.accepted()
     hours = _operating_hours(cfg, start_s, end_s) - stats.stowed_s / 3600.0
     # first placements of the last 24 h of visits, by heliostats that already had a fitted model
@@ -137,7 +137,7 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
     last_day = [e for e, m in window if m]
     rms = lambda x: round(float(np.sqrt(np.mean(np.square(x)))), 3) if x else None  # noqa: E731
     all_ids = [h.id for h in cfg.heliostats]
-    params = np.zeros((len(all_ids), runner.nominal.params.shape[1]))
+    params = np.zeros((len(all_ids), runner.state.nominal.params.shape[1]))
     rows = [cfg.heliostat_index(hid) for hid in ids]
     params[rows] = runner.calibrated_model().params
 
@@ -171,9 +171,9 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
     sky, geometry = sky_of("tracking"), sky_of("none")
     predicted = predicted_against_truth(cfg, runner, sim, params, evaluations["tracking"])
     day0 = max(start_s, end_s - 86400.0)
-    tracking = plant_tracking_truth(cfg, sim.truth, params, rows, day0, day0 + 86400.0, runner.sun_table)
+    tracking = plant_tracking_truth(cfg, sim.truth, params, rows, day0, day0 + 86400.0, runner.state.sun_table)
     untracked = plant_tracking_truth(cfg, sim.truth, np.zeros_like(params), rows, day0, day0 + 86400.0,
-                                     runner.sun_table)
+                                     runner.state.sun_table)
     return {
         "heliostats": len(ids),
         "accepted": len(accepted),
@@ -181,7 +181,7 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
         "visits": stats.visits,
         "valid_visits": stats.valid_visits,
         "visits_per_target_hour": round(stats.visits / max(hours * len(cfg.targets), 1e-9), 3),
-        "spots_per_board": runner.spots_per_board, "shared_visits": stats.shared_visits,
+        "spots_per_board": runner.state.spots_per_board, "shared_visits": stats.shared_visits,
         "peak_visits_on_a_board": stats.peak_on_board,
         "mean_iterations": round(float(np.mean(stats.iterations)), 3) if stats.iterations else None,
         "first_shot_rms_mrad": rms(last_day),
@@ -226,7 +226,7 @@ def predicted_against_truth(cfg, runner: CampaignRunner, sim, params: np.ndarray
     from helicalib.calibration.uncertainty import unexplained_mrad, year_prediction
     from helicalib.geometry.sun import year_sun_times
 
-    fitted = [hid for hid in runner.ids if runner.book.h[hid].fit is not None]
+    fitted = [hid for hid in runner.state.ids if runner.state.book.h[hid].fit is not None]
     keys = ("predicted_year_rms_median_mrad", "predicted_interval_coverage", "predicted_exceed_share",
             "true_exceed_share", "predicted_heliostats")
     if not fitted:
@@ -234,7 +234,7 @@ def predicted_against_truth(cfg, runner: CampaignRunner, sim, params: np.ndarray
     pick = np.unique(np.linspace(0, len(fitted) - 1, min(len(fitted), PREDICTION_SAMPLE)).round().astype(int))
     hids = [fitted[i] for i in pick]
     rows = np.array([cfg.heliostat_index(h) for h in hids])
-    fits = [runner.book.h[h].fit for h in hids]
+    fits = [runner.state.book.h[h].fit for h in hids]
     model = sim.truth.nominal.subset(rows).with_params(params[rows])
     year = int(np.datetime64(int(sim.truth.start_s), "s").astype("datetime64[Y]").astype(int) + 1970)
     _t, sun = year_sun_times(cfg.site, year, step_days=14.0, step_min=60.0)

@@ -156,7 +156,7 @@ def _simulate(store, cfg, out_dir: Path, db_path: Path, o: SimulationOptions, pr
                                 planner=o.planner, refine=o.refine, operation=operation, rota_days=o.rota_days,
                                 spots_per_board=o.spots_per_board, flux=simulated_flux(cfg, scenario))
         if o.keep_frames is not None:
-            runner.retention = (int(o.keep_frames), True)
+            runner.state.retention = (int(o.keep_frames), True)
         store.remove_orphan_frames(campaign_id)  # after the runner closed the interrupted visits
         wall0 = time.perf_counter()
         monthly = MonthlyTracking(cfg, sim, runner, start_s) if o.monthly_tracking else None

@@ -25,17 +25,17 @@ def session_summary(store, cfg, runner, opened: Opened, result, mode: str) -> di
            "ended_because": {"until": "its end time came", "done": "every heliostat re-checked",
                              "stopped": "Ctrl-C or SIGTERM", "clock_jump": "the plant's clock jumped",
                              "storage": "the database cannot be written"}[result.reason],
-           "stopped_by": result.reason, "armed": runner.armed, "heliostats": len(runner.ids),
+           "stopped_by": result.reason, "armed": runner.state.armed, "heliostats": len(runner.state.ids),
            "accepted": len(runner.accepted()),
-           "visits_this_run": runner.stats.visits, "valid_visits_this_run": runner.stats.valid_visits,
-           "outcomes_this_run": dict(runner.stats.outcomes),
+           "visits_this_run": runner.state.stats.visits, "valid_visits_this_run": runner.state.stats.valid_visits,
+           "outcomes_this_run": dict(runner.state.stats.outcomes),
            "observations": store.count_observations(opened.campaign_id),
            "valid_observations": store.count_observations(opened.campaign_id, valid=True),
            "off_tracking": list(result.off_tracking), "database": str(cfg.database_path)}
-    if runner.operation is not None:
-        out.update(operation=runner.operation, checks_this_run=runner.checks,
+    if runner.state.operation is not None:
+        out.update(operation=runner.state.operation, checks_this_run=runner.ops.checks,
                    drifts=[{k: d.get(k) for k in ("heliostat_id", "since_s", "confirmed_s", "fixed_s", "evidence")}
-                           for d in runner.drifts])
+                           for d in runner.ops.drifts])
     if mode == "check":
         out["rechecks"] = recheck_rows(cfg, runner)
     return out
@@ -61,31 +61,32 @@ def recheck_rows(cfg, runner) -> list[dict]:
     limit = float(cfg.acceptance.max_rms_mrad)
     rows = []
     operated: dict[int, bool] = {}  # campaign id -> went into operation (one store read per campaign)
-    for hid in runner.ids:
-        first = next((p for p in runner.book.points(hid) if p.iteration == 0), None)
-        latest = runner.store.latest_fit(hid)
-        row = {"heliostat": hid, "visits": runner.book.h[hid].visits, "limit_mrad": limit,
+    for hid in runner.state.ids:
+        first = next((p for p in runner.state.book.points(hid) if p.iteration == 0), None)
+        latest = runner.devices.store.latest_fit(hid)
+        row = {"heliostat": hid, "visits": runner.state.book.h[hid].visits, "limit_mrad": limit,
                "present_error_mrad": None, "formula1_error_mrad": None, "calibrated": latest is not None,
                "drift": None, "next_chance": None}
         if first is None:
-            visits = runner.store.visits(campaign_id=runner.campaign_id, heliostat_id=hid)
+            visits = runner.devices.store.visits(campaign_id=runner.campaign_id, heliostat_id=hid)
             why, next_s = (visits[-1].reason, None) if visits else not_visited_because(cfg, runner)
             row["verdict"] = f"not measured: {why}"
             row["next_chance"] = None if next_s is None else iso_utc(next_s)
         else:
-            err = prediction_error_mrad(runner.models[hid], first, cfg.target(first.target_id))
+            err = prediction_error_mrad(runner.state.models[hid], first, cfg.target(first.target_id))
             if latest is not None:
                 # the points the stored fit stood on (its campaign's book then: since a drift or repair,
                 # thinned to the visit cap), or no evidence
-                epochs = stored_epochs(runner.store, latest.campaign_id, latest.time_s)
-                points, centre, earlier = stored_basis(runner.store, latest.campaign_id, hid, latest.time_s, epochs)
+                epochs = stored_epochs(runner.devices.store, latest.campaign_id, latest.time_s)
+                points, centre, earlier = stored_basis(runner.devices.store, latest.campaign_id, hid, latest.time_s,
+                                                       epochs)
                 if fit_size(points, earlier) == latest.n_points:
                     # fitted as that fit was (an operated campaign's fits model a settling pedestal)
                     if latest.campaign_id not in operated:
-                        operated[latest.campaign_id] = was_operated(runner.store, latest.campaign_id)
+                        operated[latest.campaign_id] = was_operated(runner.devices.store, latest.campaign_id)
                     ep = epochs.get(hid, NO_EPOCH)
                     newest = max(p.capture_time_s for p in points) if points else -math.inf
-                    row["drift"] = drift_evidence(runner.nominal_of(hid), runner.models[hid], points, first,
+                    row["drift"] = drift_evidence(runner.state.nominal_of(hid), runner.state.models[hid], points, first,
                                                   prior_mean=centre, earlier=earlier,
                                                   tilt_rate=op_rules.fits_tilt_rate(operated[latest.campaign_id],
                                                                                     ep.drifted, newest, ep.confirmed_s,
@@ -108,20 +109,21 @@ def not_visited_because(cfg, runner) -> tuple[str, float | None]:
     (which reason); or no board time within ``--hours``."""
     from helicalib.campaign.events import iso_utc
 
-    now = runner.safe_now()[0]
+    now = runner.journal.safe_now()[0]
     lo = float(cfg.acceptance.low_band_deg[0])
     el = float(runner.sun(now)[2])
-    if not runner.armed:
+    if not runner.state.armed:
         return "not armed: a check without --arm writes nothing to the plant, so no heliostat goes onto a board " \
                "(add --arm)", None
-    if runner.plant_unreachable_since_s is not None:
-        return f"the plant did not answer (unreachable since {iso_utc(runner.plant_unreachable_since_s)})", None
+    if runner.state.faults.plant_unreachable_since_s is not None:
+        since_s = runner.state.faults.plant_unreachable_since_s
+        return f"the plant did not answer (unreachable since {iso_utc(since_s)})", None
     if el < lo:
         rise = next_sun_above(runner.sun, now, lo)
         when = "not within 2 days" if rise is None else f"at {iso_utc(rise)} (in {(rise - now) / 3600.0:.1f} h)"
         return (f"night: the sun is at {el:.1f}°, below the low band's {lo:g}°; it rises past {lo:g}° {when}: "
                 "check again then"), rise
-    if runner.stowed:
+    if runner.state.stowed:
         return "the field is stowed for wind: check again once the wind allows", None
     gate = runner.state.last_gate
     if gate is not None and not gate.open:

@@ -28,6 +28,7 @@ import time
 from typing import Any
 
 from helicalib.campaign.events import RunEvent, Snapshot, iso_utc
+from helicalib.campaign.words import clock_text, duration, gate_text, unreachable_text, weather_age_text
 from helicalib.geometry.sitetime import site_time
 
 
@@ -37,26 +38,8 @@ def site_timezone(cfg) -> dt.tzinfo:
     return site_time(cfg).zone
 
 
-def _clock(t_s: float, tz: dt.tzinfo) -> str:
-    utc = dt.datetime.fromtimestamp(t_s, tz=dt.timezone.utc)
-    local = dt.datetime.fromtimestamp(t_s, tz=tz)
-    return f"{utc:%Y-%m-%d %H:%M:%S} UTC ({local:%H:%M} site, UTC{local:%z})"
-
-
 def _fmt(x: float | None, unit: str = "", nd: int = 1) -> str:
     return "—" if x is None else f"{x:.{nd}f}{unit}"
-
-
-def duration(seconds: float) -> str:
-    """A span of time in a few characters: ``"45 s"``, ``"4.0 min"``, ``"3.1 h"``, ``"2.0 d"``."""
-    seconds = max(0.0, float(seconds))
-    if seconds < 90.0:
-        return f"{seconds:.0f} s"
-    if seconds < 5400.0:
-        return f"{seconds / 60.0:.1f} min"
-    if seconds < 2 * 86400.0:
-        return f"{seconds / 3600.0:.1f} h"
-    return f"{seconds / 86400.0:.1f} d"
 
 
 CLOCK_JUMP_S = 1800.0
@@ -90,38 +73,6 @@ class PlantOrder:
         self.newest_s = t_s
         return 0.0, (f"the lines below are stamped {duration(behind)} before those above (the plant's clock went "
                      "back, or a step ran that late)")
-
-
-def gate_text(s: Snapshot) -> str:
-    """The gate in words: why calibration runs or waits (only "last known" while the plant is unreachable)."""
-    if s.stowed:
-        text = f"STOWED for wind ({s.gate_reason or 'wind above the stow limit'})"
-    elif s.gate_open is None:
-        text = f"night: {s.gate_reason}" if s.night and s.gate_reason else "not judged yet"
-    elif s.night:
-        text = f"night: {s.gate_reason}"
-    else:
-        text = ("open: " if s.gate_open else "paused: ") + s.gate_reason
-    if s.plant_unreachable_since_s is None:
-        return text
-    return f"unknown, plant unreachable (last known: {text})"
-
-
-def unreachable_text(s: Snapshot, tz: dt.tzinfo | None = None) -> str | None:
-    """``plant unreachable since <time> (<how long>)…`` while the plant does not answer, else None."""
-    since = s.plant_unreachable_since_s
-    if since is None:
-        return None
-    when = _clock(since, tz) if tz is not None else iso_utc(since).replace("+00:00", "Z")
-    return (f"plant unreachable since {when} ({duration(s.time_s - since)}): no visit starts; the readings "
-            "shown are as of when it last answered")
-
-
-def weather_age_text(s: Snapshot) -> str:
-    """How old the weather reading behind wind, DNI and the gate is."""
-    if s.weather_time_s is None:
-        return "no weather reading yet" if s.wind_ms is None and s.dni_wm2 is None else "weather reading of unknown age"
-    return f"weather read {duration(s.time_s - s.weather_time_s)} ago"
 
 
 class _Lines:
@@ -300,7 +251,7 @@ class TerminalView:
         lost = unreachable_text(s, self.tz)
         if lost is not None:  # first, and loud: everything below is as of when the plant last answered
             head.add_row(Text("UNREACHABLE", style="bold white on red"), Text(lost, style="bold red"))
-        head.add_row("plant time", f"{_clock(s.time_s, self.tz)}"
+        head.add_row("plant time", f"{clock_text(s.time_s, self.tz)}"
                                    f"{'' if lost is None else ' (the controller’s estimate)'}   rate {s.rate:g}x "
                                    f"(seen {rate:.0f}x)   sun {s.sun_elevation_deg:.1f}°")
         head.add_row("mode", Text("ARMED", style="green") + Text(": calibrating") if s.armed else
@@ -355,5 +306,4 @@ def make_output(kind: str, tz: dt.tzinfo, title: str):
     return TerminalView(tz, title)
 
 
-__all__ = ["JsonLines", "LineLog", "PlantOrder", "TerminalView", "duration", "make_output", "site_timezone",
-           "gate_text", "unreachable_text", "weather_age_text"]
+__all__ = ["JsonLines", "LineLog", "PlantOrder", "TerminalView", "duration", "make_output", "site_timezone"]

@@ -24,18 +24,15 @@ import numpy as np
 from helicalib.campaign import book as books
 from helicalib.campaign import choice as choices
 from helicalib.campaign import verdict as verdicts
-from helicalib.campaign.events import BoardState, Snapshot
-from helicalib.campaign.field import CLEANLINESS_MAX_AGE_S, WEATHER_MAX_AGE_S, WEATHER_POLL_S, Field  # noqa: F401
-from helicalib.campaign.journal import STORAGE_RETRIES, Journal  # noqa: F401
+from helicalib.campaign.events import BoardState, RunEvent, Snapshot
+from helicalib.campaign.field import WEATHER_POLL_S, Field
+from helicalib.campaign.journal import Journal
 from helicalib.campaign.operation.checks import OperationChecks
 from helicalib.campaign.resume import resume_from_store
 from helicalib.campaign.sensor import camera_sensors
-from helicalib.campaign.shell import RunnerShell
-from helicalib.campaign.state import (  # noqa: F401 - names other modules import from here
-    RETURN_CHECK_S, RETURN_RETRY_MAX_S, RETURN_RETRY_S, CampaignDevices, CampaignOptions, Returning, RunningVisit,
-    build_state, storage_error)
+from helicalib.campaign.state import CampaignDevices, CampaignOptions, RunningVisit, build_state
 from helicalib.campaign.tracking import Tracking
-from helicalib.campaign.visit import APPROACH_LEAD_S, VisitContext, VisitOutcome, leave_board, run_visit  # noqa: F401
+from helicalib.campaign.visit import VisitContext, VisitOutcome, leave_board, run_visit
 from helicalib.devices.protocols import SpotSensor, abilities_of
 from helicalib.errors import HelicalibError
 from helicalib.geometry.heliostat import HeliostatModel
@@ -48,7 +45,7 @@ STEADY_TICK_S = 300.0
 """Plant seconds between planner ticks in operation while every heliostat is accepted (checks only)."""
 
 
-class CampaignRunner(RunnerShell):
+class CampaignRunner:
     """Run a calibration campaign on a plant.
 
     Parameters
@@ -67,6 +64,24 @@ class CampaignRunner(RunnerShell):
     **options
         The fields of :class:`~.state.CampaignOptions` (planner, recheck, model, armed, refine,
         listeners, operation, rota_days, spots_per_board, flux).
+
+    Attributes
+    ----------
+    state : CampaignState
+        Everything the campaign knows and holds (book, models, boards, visits under way, faults).
+    devices : CampaignDevices
+        Plant (and its declared abilities), spot sensors, clock, store.
+    journal, field, tracking, ops
+        The parts over the state: events, writes and faults (:mod:`.journal`); weather, stow,
+        gate, cleanliness (:mod:`.field`); corrections and returns (:mod:`.tracking`);
+        operation's checks and drifts (:mod:`.operation.checks`).
+
+    Its public methods: :meth:`run_until`, :meth:`tick`, :meth:`shutdown`, :meth:`snapshot`,
+    :meth:`now`, :meth:`sun`, :meth:`event`, :meth:`reaches`, :meth:`accepted`,
+    :meth:`calibrated_model`, :meth:`rechecked`; it is the host of its visits
+    (:class:`~.visit_types.VisitHost`), of operation's checks
+    (:class:`~.operation.checks.CheckHost`) and of the crew's desk
+    (:class:`~.operation.crew.CrewHost`).
     """
 
     def __init__(self, cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=None, **options):
@@ -83,6 +98,20 @@ class CampaignRunner(RunnerShell):
         self.ops = OperationChecks(st, self, st.operation, opts.rota_days)
         """Operation's checks and drift detection (:mod:`.operation.checks`)."""
         resume_from_store(self)
+
+    # ------------------------------------------------------------------ time, sun, events
+    def now(self) -> float:
+        """Plant time now [s] (the controller's estimate while the plant does not answer)."""
+        return self.journal.now()
+
+    def sun(self, t_s: float):
+        """(vector_enu, azimuth_deg, elevation_deg, rising) at plant time ``t_s`` (SPA, tabulated)."""
+        return self.state.sun_table.position(t_s)
+
+    def event(self, kind: str, reason: str, heliostat_id: str | None = None, target_id: str | None = None,
+              data: dict | None = None, time_s: float | None = None) -> RunEvent:
+        """Record an event and tell the listeners (:meth:`.journal.Journal.event`)."""
+        return self.journal.event(kind, reason, heliostat_id, target_id, data=data, time_s=time_s)
 
     # ------------------------------------------------------------------ the loop
     def run_until(self, end_s: float, progress=None) -> None:
@@ -355,6 +384,23 @@ class CampaignRunner(RunnerShell):
                                           **verdicts.fit_record(fit))
         return model
 
+    # ------------------------------------------------------------------ summary
+    def rechecked(self) -> bool:
+        """Re-check mode: every heliostat has been visited and no visit is under way."""
+        st = self.state
+        return not st.active and all(st.book.h[hid].visits > 0 for hid in st.ids)
+
+    def accepted(self) -> list[str]:
+        """The campaign's heliostats whose verdict is accepted, in the campaign's order."""
+        st = self.state
+        return [hid for hid in st.ids if st.book.accepted(hid)]
+
+    def calibrated_model(self) -> HeliostatModel:
+        """The campaign's heliostats' present models, one row each in the campaign's order."""
+        st = self.state
+        params = np.vstack([st.models[hid].params for hid in st.ids])
+        return st.nominal.with_params(params)
+
     # ------------------------------------------------------------------ stopping
     def shutdown(self, now: float) -> list[str]:
         """Stop every visit under way; each heliostat leaves its board as a finished visit does:
@@ -389,11 +435,11 @@ class CampaignRunner(RunnerShell):
             except StopIteration as done:
                 if ctx.board is not None:
                     ctx.board.leave(hid)
-                self.tracking.after_leaving(hid, done.value, self.safe_now()[0])
+                self.tracking.after_leaving(hid, done.value, self.journal.safe_now()[0])
             except HelicalibError as err:  # no clock: straight back to tracking, as before a stop
                 for _w, h, _c, g in [[wake, hid, ctx, leg], *leaving]:
                     g.close()
-                    self.tracking.send_back(h, st.corrections[h], self.safe_now()[0],
+                    self.tracking.send_back(h, st.corrections[h], self.journal.safe_now()[0],
                                             why=f"stopping without a clock: {err}")
                 leaving = []
         return self.tracking.confirm_returns_once()

@@ -162,41 +162,41 @@ def attach_console(options: ConsoleOptions, runner, output):
     from helicalib.geometry.sitetime import site_time
     from helicalib.store.sqlite import Store
 
-    if runner.armed:
-        runner.operator = OperatorDesk(runner.store, runner.campaign_id)
-        runner.operator.restore(runner)
+    if runner.state.armed:
+        runner.state.operator = OperatorDesk(runner.devices.store, runner.campaign_id)
+        runner.state.operator.restore(runner)
     address = options.console
     if not address:
         return output
     public = bool(options.console_public)
     host, port = parse_address(address, public)
     token = secrets.token_urlsafe(18) if public else None
-    reader = Store.open(runner.store.path, runner.store.images_dir, readonly=True)
+    reader = Store.open(runner.devices.store.path, runner.devices.store.images_dir, readonly=True)
     feed = LiveFeed()
     sources = Sources(store=reader, cfg=runner.cfg, campaign_id=runner.campaign_id, site=site_time(runner.cfg),
-                      armed_actions=runner.armed, images_dir=runner.store.images_dir)
+                      armed_actions=runner.state.armed, images_dir=runner.devices.store.images_dir)
 
     def act(kind, ids, who):
         from helicalib.campaign.operation.crew import check_request
 
-        ids = check_request(kind, ids, set(runner.ids), who)
+        ids = check_request(kind, ids, set(runner.state.ids), who)
         try:
-            plant_s = runner.clock.estimate_s()
+            plant_s = runner.devices.clock.estimate_s()
         except Exception:  # noqa: BLE001 - the wall clock is recorded anyway
             plant_s = None
-        action_id = runner.store.request_action(campaign_id=runner.campaign_id, kind=kind, heliostat_ids=ids,
+        action_id = runner.devices.store.request_action(campaign_id=runner.campaign_id, kind=kind, heliostat_ids=ids,
                                                 who=who, requested_wall_s=time.time(), requested_s=plant_s)
         feed.bump()
         return action_id
 
-    console = Console(sources, feed=feed, act=act if runner.armed else None, token=token,
+    console = Console(sources, feed=feed, act=act if runner.state.armed else None, token=token,
                       title=f"helicalib · {runner.cfg.site.name}")
     server = ConsoleServer(create_app(console), host, port)
     server.bind()
     server.start()
     output.message(f"console: {url(host, server.port, token)}"
                    + (" (the token is required on every request)" if token else " (this machine only)")
-                   + ("" if runner.armed else "; read-only: actions need --arm"))
+                   + ("" if runner.state.armed else "; read-only: actions need --arm"))
     if options.json and hasattr(output, "emit"):
         output.emit({"event": "console", "url": url(host, server.port, token), "token": token})
 
@@ -207,6 +207,6 @@ def attach_console(options: ConsoleOptions, runner, output):
         console.remove_cache()
 
     tee = Tee(output, feed, on_stop=stop)
-    runner.listeners[:] = [tee.on_event if fn == output.on_event else fn for fn in runner.listeners]
+    runner.journal.listeners[:] = [tee.on_event if fn == output.on_event else fn for fn in runner.journal.listeners]
     tee.server, tee.console = server, console
     return tee

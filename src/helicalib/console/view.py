@@ -148,7 +148,7 @@ def _gate(cfg, snapshot, events, last_obs, standing, now_s) -> dict:
     age; the plant unreachable since when (the snapshot's, else the newest plant_lost/plant_back)."""
     from types import SimpleNamespace
 
-    from helicalib.app.terminal import gate_text
+    from helicalib.campaign.words import gate_text
 
     g = cfg.gating if cfg is not None else None
     limits = None if g is None else {"wind_max_ms": g.wind_max_ms, "stow_wind_ms": g.stow_wind_ms,

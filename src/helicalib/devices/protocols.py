@@ -64,9 +64,11 @@ class Clock(Protocol):
     """Plant time. ``sleep`` waits for plant seconds (a virtual clock just advances).
 
     ``estimate_s`` never asks the plant (the controller's own extrapolation, for records made
-    while the plant does not answer); ``uncertainty_s`` is how far ``now_s`` may be off [plant s]."""
+    while the plant does not answer); ``uncertainty_s`` is how far ``now_s`` may be off [plant s];
+    ``rate`` is plant seconds per real second (0: a virtual clock that runs as fast as it can)."""
 
     uncertainty_s: float
+    rate: float
 
     def now_s(self) -> float: ...
 

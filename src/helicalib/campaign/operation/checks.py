@@ -24,6 +24,9 @@ from helicalib.campaign import book as books
 from helicalib.campaign import choice as choices
 from helicalib.store import history
 from helicalib.campaign import verdict as verdicts
+from helicalib.campaign.events import RunEvent
+from helicalib.campaign.field import Field
+from helicalib.campaign.state import CampaignDevices, CampaignState
 from helicalib.geometry.heliostat import HeliostatModel
 
 SPREAD_KEEP_S = 600.0
@@ -31,21 +34,22 @@ SPREAD_KEEP_S = 600.0
 
 
 class CheckHost(Protocol):
-    """What operation's checks ask of the campaign besides its state."""
+    """What operation's checks ask of the campaign besides its state (the campaign loop,
+    :class:`~helicalib.campaign.loop.CampaignRunner`, implements it)."""
 
-    store: object
+    devices: CampaignDevices
+    """Its ``store``: the stored drifts and observations are read, a reopened fit is written."""
+    field: Field
+    """The field's side: the plant's cleanliness of heliostats by row (:meth:`.Field.cleanliness_of_rows`)."""
 
     def reaches(self, hid: str, target_id: str, now: float) -> bool:
         """Whether ``hid``'s model reaches board ``target_id`` (standby and centre) now and a while later."""
 
-    def cleanliness_of_rows(self, rows: np.ndarray, now: float) -> np.ndarray:
-        """The plant's cleanliness of the heliostats at ``rows`` of the state's ids (NaN: none)."""
-
-    def sun(self, t_s: float):
+    def sun(self, t_s: float) -> tuple[np.ndarray, float, float, bool]:
         """(vector_enu, azimuth_deg, elevation_deg, rising) at plant time ``t_s``."""
 
     def event(self, kind: str, reason: str, heliostat_id: str | None = None, target_id: str | None = None,
-              data: dict | None = None, time_s: float | None = None):
+              data: dict | None = None, time_s: float | None = None) -> RunEvent:
         """Record an event (:meth:`helicalib.campaign.journal.Journal.event`)."""
 
 
@@ -63,7 +67,7 @@ class OperationChecks:
         ``rota``: days between checks of each heliostat.
     """
 
-    def __init__(self, state, host: CheckHost, mode: str | None, rota_days: float = 14.0):
+    def __init__(self, state: CampaignState, host: CheckHost, mode: str | None, rota_days: float = 14.0):
         self.state, self.host = state, host
         self.mode = mode
         self.rota_days = float(rota_days)
@@ -126,7 +130,7 @@ class OperationChecks:
         :data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT`; with those off the fit is centred on the model from before
         it). Returns the epochs (plant time from which the book's points count) by heliostat."""
         epochs: dict[str, float] = {}
-        for e in self.host.store.events(campaign_id=self.state.campaign_id, kind="drift"):
+        for e in self.host.devices.store.events(campaign_id=self.state.campaign_id, kind="drift"):
             hid = e.heliostat_id
             if hid not in self.state.index or "since_s" not in e.data:
                 continue
@@ -165,7 +169,7 @@ class OperationChecks:
                 and self.state.book.h[h].fit is not None]
         if not free:
             return []
-        plant = self.host.cleanliness_of_rows(np.array([self.state.index[h] for h in free], dtype=np.int64), now)
+        plant = self.host.field.cleanliness_of_rows(np.array([self.state.index[h] for h in free], dtype=np.int64), now)
         out = []
         for hid, c in zip(free, plant):
             if not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
@@ -314,8 +318,8 @@ class OperationChecks:
         # the points since, from the store: as a resumed runner and the report rebuild them (a point the
         # cap thinned away while the earlier points filled the book comes back); and those before it, in
         # epochs of their own (books.EPOCHS_AFTER_DRIFT), from the newest repair on
-        stored = self.host.store.observations(campaign_id=self.state.campaign_id, heliostat_id=hid)
-        ep = history.stored_epochs(self.host.store, self.state.campaign_id).get(hid, history.NO_EPOCH)
+        stored = self.host.devices.store.observations(campaign_id=self.state.campaign_id, heliostat_id=hid)
+        ep = history.stored_epochs(self.host.devices.store, self.state.campaign_id).get(hid, history.NO_EPOCH)
         b.drifted = True  # the smaller cap from now on (books.MAX_VISIT_POINTS_AFTER_DRIFT)
         b.points = books.book_points(stored, since, books.visit_cap(True))
         b.earlier = books.earlier_points(stored, ep.floor_s, ep.boundaries + (since,))
@@ -334,4 +338,5 @@ class OperationChecks:
         self.host.event("drift", text + f"; drift confirmed by {op_rules.CONFIRM_CHECKS} checks: calibration reopened "
                    f"({kept}, {len(b.points)} since)", hid, data=record, time_s=now)
         if fit is not None:
-            self.host.store.record_fit(campaign_id=self.state.campaign_id, heliostat_id=hid, time_s=now, **verdicts.fit_record(fit))
+            self.host.devices.store.record_fit(campaign_id=self.state.campaign_id, heliostat_id=hid, time_s=now,
+                                               **verdicts.fit_record(fit))

@@ -27,30 +27,30 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
+from helicalib.campaign.events import RunEvent
+from helicalib.campaign.operation.checks import OperationChecks
+from helicalib.campaign.state import CampaignDevices, CampaignState
 from helicalib.errors import ConfigError
 from helicalib.store.history import Standing, replay
 
 
 class CrewHost(Protocol):
-    """What the crew's desk reads and changes of a campaign (:class:`~helicalib.campaign.loop.CampaignRunner`)."""
+    """What the crew's desk reads and changes of a campaign (the campaign loop,
+    :class:`~helicalib.campaign.loop.CampaignRunner`, implements it)."""
 
-    cfg: object
-    campaign_id: int
-    store: object
-    clock: object
-    book: object
-    models: dict
-    active: dict
-    ops: object
-    drifts: list
+    state: CampaignState
+    """Its book (points, cool-downs, verdicts), models, nominal models and visits under way."""
+    devices: CampaignDevices
+    """Its clock (plant time at a restore) and store (stored basis, verdict rows)."""
+    ops: OperationChecks
+    """Operation's checks: confirmed drifts, the fits' prior and tilt rate, forgetting a heliostat."""
 
-    def nominal_of(self, hid: str): ...
+    def reaches(self, hid: str, target_id: str, now: float) -> bool:
+        """Whether ``hid``'s model reaches board ``target_id`` (standby and centre) now and a while later."""
 
-    def prior_mean(self, hid: str): ...
-
-    def reaches(self, hid: str, target_id: str, now: float) -> bool: ...
-
-    def event(self, kind: str, reason: str, heliostat_id=None, target_id=None, data=None, time_s=None): ...
+    def event(self, kind: str, reason: str, heliostat_id: str | None = None, target_id: str | None = None,
+              data: dict | None = None, time_s: float | None = None) -> RunEvent:
+        """Record an event (:meth:`helicalib.campaign.journal.Journal.event`)."""
 
 
 KINDS = {
@@ -108,25 +108,25 @@ class OperatorDesk:
 
         applied = self.store.actions(self.campaign_id, pending=False)
         self.standing = replay(applied)
-        now = runner.clock.now_s()
+        st, store, ops = runner.state, runner.devices.store, runner.ops
+        now = runner.devices.clock.now_s()
         for hid, t in self.standing.repaired_s.items():
-            if hid not in runner.book.h:
+            if hid not in st.book.h:
                 continue
-            b = runner.book.h[hid]
+            b = st.book.h[hid]
             # repaired after its drift: the nominal again (a drift confirmed after the repair keeps its prior)
-            forgot = any(d["heliostat_id"] == hid and d["since_s"] < t for d in runner.drifts)
+            forgot = any(d["heliostat_id"] == hid and d["since_s"] < t for d in ops.drifts)
             b.drifted = b.drifted and not forgot
-            runner.ops.forget(hid, prior_too=forgot)
+            ops.forget(hid, prior_too=forgot)
             # those after the repair (and, after a drift since, those between the repair and the drift)
-            b.points, _prior, b.earlier = stored_basis(runner.store, runner.campaign_id, hid)
+            b.points, _prior, b.earlier = stored_basis(store, st.campaign_id, hid)
             b.fit, b.last_first_error_mrad = None, None
-            runner.models[hid] = runner.nominal_of(hid)
+            st.models[hid] = st.nominal_of(hid)
             if b.points:
-                runner.models[hid], b.fit = verdicts.refit(runner.nominal_of(hid), b.points, runner.models[hid],
-                                                         prior_mean=runner.prior_mean(hid),
-                                                         tilt_rate=runner.ops.tilt_rate_of(hid), earlier=b.earlier)
-                b.verdict = verdicts.verdict(runner.cfg, runner.book, hid, runner.nominal_of(hid), now,
-                                           runner.models[hid])
+                st.models[hid], b.fit = verdicts.refit(st.nominal_of(hid), b.points, st.models[hid],
+                                                     prior_mean=ops.prior_mean(hid),
+                                                     tilt_rate=ops.tilt_rate_of(hid), earlier=b.earlier)
+                b.verdict = verdicts.verdict(st.cfg, st.book, hid, st.nominal_of(hid), now, st.models[hid])
             else:
                 b.verdict = None
         # re-checks applied (queued) whose visit never started, heliostat by heliostat (the start
@@ -144,12 +144,12 @@ class OperatorDesk:
         """Apply every pending action (a repair of a heliostat in a visit waits for the visit's end)."""
         pending = self.store.actions(self.campaign_id, pending=True)
         if pending:
-            busy = set(runner.active)
+            busy = set(runner.state.active)
             for a in pending:
                 self._apply_one(runner, a, now, busy)
         self._hold(runner)
 
-    def _apply_one(self, runner, a, now: float, busy: set[str]) -> None:
+    def _apply_one(self, runner: CrewHost, a, now: float, busy: set[str]) -> None:
         ids = list(a.heliostat_ids)
         asked = f"asked by {a.who}"
         if a.kind == "pause":
@@ -181,34 +181,36 @@ class OperatorDesk:
         else:  # in_service
             self.standing.out_of_service.difference_update(ids)
             for hid in ids:
-                runner.book.h[hid].cooldown_until_s = 0.0
+                runner.state.book.h[hid].cooldown_until_s = 0.0
             text = f"{', '.join(ids)} back in service ({asked})"
         self.store.finish_action(a.id, done_s=now, outcome=text)
         runner.event("operator", text, ids[0] if len(ids) == 1 else None, time_s=now,
                      data={"action": a.id, "kind": a.kind, "heliostats": ids, "who": a.who})
 
-    def _reset(self, runner, hid: str, now: float, who: str) -> None:
-        b = runner.book.h[hid]
+    def _reset(self, runner: CrewHost, hid: str, now: float, who: str) -> None:
+        st = runner.state
+        b = st.book.h[hid]
         b.points, b.drifted, b.earlier = [], False, None
         b.fit = b.verdict = b.last_first_error_mrad = None
         b.cooldown_until_s = 0.0
         runner.ops.forget(hid)  # a repaired heliostat starts from the nominal again, drift or not
-        runner.models[hid] = runner.nominal_of(hid)
-        runner.store.record_verdict(campaign_id=runner.campaign_id, heliostat_id=hid, time_s=now, accepted=False,
-                                    n_points=0, rms_mrad=None, reasons=[f"repaired: model reset by {who}"],
-                                    details={"repaired": True})
+        st.models[hid] = st.nominal_of(hid)
+        runner.devices.store.record_verdict(campaign_id=st.campaign_id, heliostat_id=hid, time_s=now, accepted=False,
+                                            n_points=0, rms_mrad=None, reasons=[f"repaired: model reset by {who}"],
+                                            details={"repaired": True})
 
-    def _hold(self, runner) -> None:
+    def _hold(self, runner: CrewHost) -> None:
         """Out-of-service heliostats are never eligible (the planners skip a heliostat in cool-down)."""
+        book = runner.state.book
         for hid in self.standing.out_of_service:
-            if hid in runner.book.h:
-                runner.book.h[hid].cooldown_until_s = math.inf
+            if hid in book.h:
+                book.h[hid].cooldown_until_s = math.inf
 
     def next_for(self, runner: CrewHost, target_id: str, now: float) -> str | None:
         """The queued re-check that goes on ``target_id`` now (its own board, not in a visit), or None."""
-        busy = set(runner.active)
+        busy = set(runner.state.active)
         for k, (hid, action_id) in enumerate(self.queue):
-            if (runner.cfg.heliostat(hid).target == target_id and hid not in busy
+            if (runner.state.cfg.heliostat(hid).target == target_id and hid not in busy
                     and hid not in self.standing.out_of_service and runner.reaches(hid, target_id, now)):
                 del self.queue[k]
                 text = f"re-check of {hid} (action {action_id}): onto {target_id} now"
