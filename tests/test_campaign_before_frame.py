@@ -1,4 +1,4 @@
-"""A before frame that held another beam: the visit takes it again (campaign/controller.py,
+"""A before frame that held another beam: the visit takes it again (campaign/measure.py,
 ``retake_before``) instead of losing the reading.
 
 On the in-process simulated plant with rendered PNG frames and a real store. The board's camera
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helicalib.campaign import visit as controller
+from helicalib.campaign import measure
 from helicalib.campaign.board import Board
 from helicalib.config import load_field_config
 from helicalib.devices.registers import HeliostatState
@@ -95,7 +95,7 @@ def test_a_before_frame_that_held_another_beam_is_taken_again_and_the_reading_is
     first, counts, images = _first_visit(cfg, tmp_path, dirty=1)
     assert counts[:2] == [True, False]  # the first before frame with the other beam, the second without
     assert first.valid, (first.reason, first.message)
-    assert controller.RETAKEN + " 1 time" in first.message and "another beam" in first.message
+    assert measure.RETAKEN + " 1 time" in first.message and "another beam" in first.message
     assert first.before_frame_path is not None and (images / first.before_frame_path).is_file()
     assert first.before_frame_path.endswith("before-1.png")  # the retaken frame; the first is kept beside it
 
@@ -103,17 +103,17 @@ def test_a_before_frame_that_held_another_beam_is_taken_again_and_the_reading_is
 def test_after_the_limit_of_retakes_the_reading_is_refused_saying_why(cfg, tmp_path):
     """Every before frame holds another beam: after :data:`MAX_BEFORE_RETAKES` retakes the reading is
     refused as ``ambient_change`` and says the limit was reached; no further frame is taken for it."""
-    n = controller.MAX_BEFORE_RETAKES
+    n = measure.MAX_BEFORE_RETAKES
     first, counts, _ = _first_visit(cfg, tmp_path, dirty=100)
     assert not first.valid and first.reason == "ambient_change"
-    assert f"{controller.RETAKEN} {n} times (the limit)" in first.message
+    assert f"{measure.RETAKEN} {n} times (the limit)" in first.message
     assert "another beam crossed the board while the before frame was taken" in first.message
     assert counts[:n + 1] == [True] * (n + 1)  # the first before frame and n retakes, each with the beam
 
 
 def test_a_clean_before_frame_is_not_taken_again(cfg, tmp_path):
     first, counts, _ = _first_visit(cfg, tmp_path, dirty=0)
-    assert first.valid and controller.RETAKEN not in first.message
+    assert first.valid and measure.RETAKEN not in first.message
 
 
 class _Plant:
@@ -130,7 +130,7 @@ class _Plant:
 
 def _wait(ctx, plant):
     """Run the wait before a retake on ``plant``'s clock; returns (seen moving, still moving)."""
-    gen = controller._beams_gone(ctx, controller.RETAKE_WAIT_S)
+    gen = measure._beams_gone(ctx, measure.RETAKE_WAIT_S)
     try:
         while True:
             plant.t += next(gen)
@@ -158,12 +158,12 @@ def test_the_retake_waits_until_the_board_s_last_heliostats_stop_moving():
     ctx = Ctx()
     ctx.board, ctx.plant = board, plant
     seen, still = _wait(ctx, plant)
-    assert seen == ["A", "C"] and still == [] and 30.0 <= plant.t <= 30.0 + controller.POLL_S
+    assert seen == ["A", "C"] and still == [] and 30.0 <= plant.t <= 30.0 + measure.POLL_S
     assert board.movers("B") == [("C", 2)]  # A arrived at tracking: forgotten; C is a visitor still
     plant.moving_until = {2: 1e9}  # one that never stops: the wait ends at the timeout
     plant.t = 0.0
     seen, still = _wait(ctx, plant)
-    assert still == ["C"] and plant.t == pytest.approx(controller.BEAM_CLEAR_TIMEOUT_S)
+    assert still == ["C"] and plant.t == pytest.approx(measure.BEAM_CLEAR_TIMEOUT_S)
 
 
 def test_the_fast_sensor_sees_light_lost_since_the_before_frame_as_the_vision_does(cfg):

@@ -27,12 +27,14 @@ from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.events import BoardState, RunEvent, Snapshot
 from helicalib.campaign.field import WEATHER_POLL_S, Field
 from helicalib.campaign.journal import Journal
+from helicalib.campaign.moves import leave_board
 from helicalib.campaign.operation.checks import OperationChecks
 from helicalib.campaign.resume import resume_from_store
 from helicalib.campaign.sensor import camera_sensors
 from helicalib.campaign.state import CampaignDevices, CampaignOptions, RunningVisit, build_state
 from helicalib.campaign.tracking import Tracking
-from helicalib.campaign.visit import VisitContext, VisitOutcome, leave_board, run_visit
+from helicalib.campaign.visit import run_visit
+from helicalib.campaign.visit_types import VisitContext, VisitOutcome
 from helicalib.devices.protocols import SpotSensor, abilities_of
 from helicalib.errors import HelicalibError
 from helicalib.geometry.heliostat import HeliostatModel

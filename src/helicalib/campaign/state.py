@@ -27,7 +27,7 @@ from helicalib.campaign import choice as choices
 from helicalib.campaign.board import AUTO_SPOTS, Board
 from helicalib.campaign.events import BoardState, RunEvent
 from helicalib.campaign.operation import rules as op_rules
-from helicalib.campaign.visit import VisitContext, VisitSettings
+from helicalib.campaign.visit_types import VisitContext, VisitSettings
 from helicalib.devices.protocols import PlantAbilities, SpotSensor
 from helicalib.errors import StorageError
 from helicalib.geometry.heliostat import HeliostatModel

@@ -5,11 +5,16 @@ The habit of ophyd-async's ``AsyncStatus``, in the generator form the visit runs
 :meth:`MoveStatus.poll` reads the heliostat's plant state once, and :func:`wait` yields
 :data:`POLL_S` plant seconds between polls until the status is done. The campaign loop steps
 the visit at each of those waits, so the plant is read at the same plant times whether the
-clock is virtual or the plant's own.
+clock is virtual or the plant's own. A move the controller declines before sending it (a stroke
+out of the drive's range, a board whose turn is another beam's) is a status that is done and
+failed from the start (:func:`refuse`): nothing is sent and the plant is not read.
 
-A status that fails carries a reason code (``plant_fault``, ``plant_refused``,
-``settle_timeout``) and one line naming the heliostat; :func:`wait` raises it as a
-:class:`MoveFailed`.
+A status that fails carries a reason code, the one the store records for the visit's failed
+attempt, and one line naming the heliostat; :func:`wait` raises it as a :class:`MoveFailed`:
+
+- from the plant: :data:`PLANT_FAULT`, :data:`PLANT_REFUSED`, :data:`SETTLE_TIMEOUT`;
+- declined by the controller (``refused``): :data:`STROKE_OUT_OF_RANGE`, :data:`BOARD_NOT_HELD`,
+  and :data:`AIM_OUT_OF_RANGE` for an aim point the model cannot reach (no move is made).
 """
 
 from __future__ import annotations
@@ -24,6 +29,19 @@ from helicalib.errors import HelicalibError
 
 POLL_S = 2.0
 """Plant seconds between status polls while waiting for a heliostat to settle."""
+
+PLANT_FAULT = "plant_fault"
+"""The plant answered the move command with a fault."""
+PLANT_REFUSED = "plant_refused"
+"""The heliostat is stowed or offline: the plant did not move it."""
+SETTLE_TIMEOUT = "settle_timeout"
+"""Not holding after the drive's settle time (``calibration.settle_timeout_s``)."""
+STROKE_OUT_OF_RANGE = "stroke_out_of_range"
+"""Strokes outside the drive's range: the controller did not send them."""
+BOARD_NOT_HELD = "board_not_held"
+"""A move onto a board whose turn another beam holds: the controller did not send it."""
+AIM_OUT_OF_RANGE = "aim_out_of_range"
+"""The model's strokes for an aim point lie outside the drive's range: no move is made."""
 
 
 class MoveFailed(HelicalibError):
@@ -40,15 +58,16 @@ class MoveFailed(HelicalibError):
 class MoveStatus:
     """One move command sent to one heliostat, followed until it holds.
 
-    ``sequence`` is the command's sequence number; ``timeout_s`` the plant seconds it may take to
-    hold. After a poll that ends it, ``done`` is True and either ``strokes_mm`` holds the read-back
-    strokes [mm] (success) or ``failure`` the :class:`MoveFailed` that says why.
+    ``sequence`` is the command's sequence number (None: declined, never sent); ``timeout_s`` the
+    plant seconds it may take to hold. After a poll that ends it, ``done`` is True and either
+    ``strokes_mm`` holds the read-back strokes [mm] (success) or ``failure`` the
+    :class:`MoveFailed` that says why.
     """
 
     plant: object
     index: int
     heliostat_id: str
-    sequence: int
+    sequence: int | None
     timeout_s: float
     waited_s: float = 0.0
     done: bool = False
@@ -65,11 +84,11 @@ class MoveStatus:
         if st.sequence_done == self.sequence and st.state == HeliostatState.HOLDING:
             self.done, self.strokes_mm = True, st.strokes_mm
         elif st.sequence_done == self.sequence and st.state == HeliostatState.FAULT:
-            self._fail("plant_fault", f"{self.heliostat_id}: plant fault code {st.fault} on a move command")
+            self._fail(PLANT_FAULT, f"{self.heliostat_id}: plant fault code {st.fault} on a move command")
         elif st.state in (HeliostatState.STOWED, HeliostatState.OFFLINE) and st.sequence_done == self.sequence:
-            self._fail("plant_refused", f"{self.heliostat_id}: heliostat is {st.state.name.lower()}")
+            self._fail(PLANT_REFUSED, f"{self.heliostat_id}: heliostat is {st.state.name.lower()}")
         elif self.waited_s >= self.timeout_s:
-            self._fail("settle_timeout", f"{self.heliostat_id}: not holding after {self.waited_s:.0f} s")
+            self._fail(SETTLE_TIMEOUT, f"{self.heliostat_id}: not holding after {self.waited_s:.0f} s")
         return self.done
 
     def _fail(self, code: str, message: str) -> None:
@@ -82,10 +101,17 @@ def start_move(plant, index: int, heliostat_id: str, strokes_mm: np.ndarray, tim
     return MoveStatus(plant, index, heliostat_id, seq, float(timeout_s))
 
 
+def refuse(plant, index: int, heliostat_id: str, code: str, message: str) -> MoveStatus:
+    """A move the controller declines: nothing is sent; the status is done and failed with ``code``
+    (a :class:`MoveFailed` that is ``refused``)."""
+    return MoveStatus(plant, index, heliostat_id, None, 0.0, done=True,
+                      failure=MoveFailed(code, message, refused=True))
+
+
 def wait(status: MoveStatus, poll_s: float = POLL_S) -> Generator[float, None, tuple[float, float]]:
     """Poll ``status`` until it is done, yielding ``poll_s`` plant seconds between polls; returns
     the read-back strokes, or raises the status's :class:`MoveFailed`."""
-    while not status.poll():
+    while not status.done and not status.poll():
         yield poll_s
         status.waited_s += poll_s
     if status.failure is not None:

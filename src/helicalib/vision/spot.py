@@ -121,7 +121,7 @@ class SpotResult:
     before_beam: bool = False
     """True for an "ambient_change" whose cause is light on the board in the before frame that is
     gone in the after frame (another beam lay on the board while the before frame was taken): a
-    campaign takes the before frame again (``campaign.controller.retake_before``)."""
+    campaign takes the before frame again (``campaign.measure.retake_before``)."""
 
     def to_json(self) -> dict:
         """A JSON-ready dict (lists and floats; None where not measured)."""
