@@ -1,5 +1,5 @@
 """Readings refused because another beam lay on the board in the before frame, with and without
-taking the before frame again (``campaign.controller.retake_before``).
+taking the before frame again (``campaign.measure.retake_before``).
 
 Runs :func:`helicalib.app.simulated.simulate_campaign` on each case twice, with the same field,
 seed and start: once as the campaign runs (``retake``: up to ``MAX_BEFORE_RETAKES`` new before
@@ -49,7 +49,7 @@ MODES = ("no-retake", "retake")
 
 def count(db: Path) -> dict:
     """The newest campaign's placements by what happened to their before frame."""
-    from helicalib.campaign.visit import RETAKEN
+    from helicalib.campaign.measure import RETAKEN
 
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     try:
@@ -74,7 +74,7 @@ def count(db: Path) -> dict:
 
 
 def run_case(name: str, mode: str, args) -> dict:
-    from helicalib.campaign import visit as controller
+    from helicalib.campaign import measure as controller
     from helicalib.config import load_field_config
     from helicalib.app.simulated import default_start_s, simulate_campaign
 
