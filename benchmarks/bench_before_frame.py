@@ -74,23 +74,23 @@ def count(db: Path) -> dict:
 
 
 def run_case(name: str, mode: str, args) -> dict:
-    from helicalib.campaign import measure as controller
+    from helicalib.campaign import measure
     from helicalib.config import load_field_config
-    from helicalib.app.simulated import default_start_s, simulate_campaign
+    from helicalib.app.simulated import SimulationOptions, default_start_s, simulate_campaign
 
     spec = CASES[name]
     cfg = load_field_config(ROOT / spec["field"])
     days = spec["days"] if spec["days"] is not None else args.demo_hours / 24.0
     start = default_start_s(cfg) + (8 * 3600.0 if spec["days"] is None else 0.0)
-    keep = controller.MAX_BEFORE_RETAKES
-    controller.MAX_BEFORE_RETAKES = 0 if mode == "no-retake" else keep
+    keep = measure.MAX_BEFORE_RETAKES
+    measure.MAX_BEFORE_RETAKES = 0 if mode == "no-retake" else keep
     out = Path(tempfile.mkdtemp(prefix=f"bench_before_{name}_{mode}_"))
     t0, c0 = time.time(), time.process_time()
     try:
-        res = simulate_campaign(cfg, out, days=days, seed=args.seed, start_s=start, fidelity=spec["fidelity"],
-                                spots_per_board=spec["spots"])
+        res = simulate_campaign(cfg, out, SimulationOptions(days=days, seed=args.seed, start_s=start,
+                                                            fidelity=spec["fidelity"], spots_per_board=spec["spots"]))
     finally:
-        controller.MAX_BEFORE_RETAKES = keep
+        measure.MAX_BEFORE_RETAKES = keep
     summary = res.summary if hasattr(res, "summary") else res
     row = {"case": name, "mode": mode, "field": spec["field"], "days": round(days, 3), "fidelity": spec["fidelity"],
            "spots_per_board": spec["spots"], "seed": args.seed,

@@ -26,7 +26,7 @@ point back to tracking, and a visit on its way in travels from tracking to the s
 some layouts that path crosses the board. The board remembers the plant index of every heliostat
 in a visit on it and of the ones whose turn ended (:meth:`Board.movers`), so a visit whose before
 frame held another beam can wait until none of them is moving any more (the plant's state) before
-it takes its before frame again (:mod:`.controller`, :func:`~.controller.retake_before`).
+it takes its before frame again (:mod:`.measure`, :func:`~.measure.retake_before`).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ The runner is a shell over a :class:`~.state.CampaignState`: the field's side (w
 gate, cleanliness: :mod:`.field`), tracking and returns (:mod:`.tracking`), the journal of events,
 writes and faults (:mod:`.journal`), operation's checks (:mod:`.operation.checks`). Visits are
 generators (:func:`~.visit.run_visit`) that yield the plant seconds they want to wait; the loop
-steps each when its wake-up time comes, and is the visits' :class:`~.visit.VisitHost`: the store's
+steps each when its wake-up time comes, and is the visits' :class:`~.visit_types.VisitHost`: the store's
 writes and the refits happen here. A board serves up to ``spots_per_board`` visits at once, whose
 beams take turns on it (:mod:`.board`). Every observation goes to the store as soon as it is made.
 """

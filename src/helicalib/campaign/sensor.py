@@ -15,7 +15,7 @@ beam (light on the board in the before frame that is gone in the after frames) s
 (``Reading.before_beam``; reason ``ambient_change``). Both sensors can then take the before frame
 again and judge the same after frames against it (``retake``): the visit moves its beam to the
 standby point, waits until the other beams have left the board, and asks for it
-(:func:`~.visit.retake_before`).
+(:func:`~.measure.retake_before`).
 """
 
 from __future__ import annotations

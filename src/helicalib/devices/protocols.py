@@ -156,7 +156,7 @@ class Reading:
 
 @runtime_checkable
 class SpotSensor(Protocol):
-    """What a visit measures with. ``ctx`` is the visit's :class:`~helicalib.campaign.visit.VisitContext`."""
+    """What a visit measures with. ``ctx`` is the visit's :class:`~helicalib.campaign.visit_types.VisitContext`."""
 
     def before(self, ctx) -> Before:
         """The reference with the beam off the board. Raises :class:`MeasurementError` (reason
