@@ -158,7 +158,7 @@ def test_the_retake_waits_until_the_board_s_last_heliostats_stop_moving():
     ctx = Ctx()
     ctx.board, ctx.plant = board, plant
     seen, still = _wait(ctx, plant)
-    assert seen == ["A", "C"] and still == [] and 30.0 <= plant.t <= 30.0 + measure.POLL_S
+    assert seen == ["A", "C"] and still == [] and 30.0 <= plant.t <= 30.0 + measure.move_status.POLL_S
     assert board.movers("B") == [("C", 2)]  # A arrived at tracking: forgotten; C is a visitor still
     plant.moving_until = {2: 1e9}  # one that never stops: the wait ends at the timeout
     plant.t = 0.0

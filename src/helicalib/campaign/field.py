@@ -14,8 +14,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from helicalib.campaign import gating as gating_mod
 from helicalib.campaign import choice as choices
+from helicalib.campaign import gating as gating_mod
 from helicalib.campaign.events import BoardState, Snapshot
 from helicalib.campaign.journal import Journal, duration_text
 from helicalib.campaign.state import CampaignDevices, CampaignState

@@ -12,8 +12,8 @@ The runner is a shell over a :class:`~.state.CampaignState`: the field's side (w
 gate, cleanliness: :mod:`.field`), tracking and returns (:mod:`.tracking`), the journal of events,
 writes and faults (:mod:`.journal`), operation's checks (:mod:`.operation.checks`). Visits are
 generators (:func:`~.visit.run_visit`) that yield the plant seconds they want to wait; the loop
-steps each when its wake-up time comes, and is the visits' :class:`~.visit_types.VisitHost`: the store's
-writes and the refits happen here. A board serves up to ``spots_per_board`` visits at once, whose
+steps each when its wake-up time comes. What a visit writes and the refits it asks for happen in
+its host (:mod:`.host`), in one place. A board serves up to ``spots_per_board`` visits at once, whose
 beams take turns on it (:mod:`.board`). Every observation goes to the store as soon as it is made.
 """
 
@@ -26,6 +26,7 @@ from helicalib.campaign import choice as choices
 from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.events import BoardState, RunEvent, Snapshot
 from helicalib.campaign.field import WEATHER_POLL_S, Field
+from helicalib.campaign.host import Host
 from helicalib.campaign.journal import Journal
 from helicalib.campaign.moves import leave_board
 from helicalib.campaign.operation.checks import OperationChecks
@@ -73,15 +74,15 @@ class CampaignRunner:
         Everything the campaign knows and holds (book, models, boards, visits under way, faults).
     devices : CampaignDevices
         Plant (and its declared abilities), spot sensors, clock, store.
-    journal, field, tracking, ops
+    journal, field, tracking, ops, host
         The parts over the state: events, writes and faults (:mod:`.journal`); weather, stow,
         gate, cleanliness (:mod:`.field`); corrections and returns (:mod:`.tracking`);
-        operation's checks and drifts (:mod:`.operation.checks`).
+        operation's checks and drifts (:mod:`.operation.checks`); the visits' writes and fits
+        (:mod:`.host`).
 
     Its public methods: :meth:`run_until`, :meth:`tick`, :meth:`shutdown`, :meth:`snapshot`,
     :meth:`now`, :meth:`sun`, :meth:`event`, :meth:`reaches`, :meth:`accepted`,
-    :meth:`calibrated_model`, :meth:`rechecked`; it is the host of its visits
-    (:class:`~.visit_types.VisitHost`), of operation's checks
+    :meth:`calibrated_model`, :meth:`rechecked`; it is the host of operation's checks
     (:class:`~.operation.checks.CheckHost`) and of the crew's desk
     (:class:`~.operation.crew.CrewHost`).
     """
@@ -99,6 +100,8 @@ class CampaignRunner:
         self.tracking = Tracking(st, self.devices, self.journal)
         self.ops = OperationChecks(st, self, st.operation, opts.rota_days)
         """Operation's checks and drift detection (:mod:`.operation.checks`)."""
+        self.host = Host(st, self.devices, self.journal, self.tracking, self.ops)
+        """The visits' host: their writes and fits (:mod:`.host`)."""
         resume_from_store(self)
 
     # ------------------------------------------------------------------ time, sun, events
@@ -251,7 +254,7 @@ class CampaignRunner:
             index=cfg.heliostat_index(hid), target=cfg.target(target_id), board=board,
             sensor=self.devices.sensors[target_id], plant=self.devices.plant, now=self.now, sun=self.sun,
             model=st.models[hid], settings=st.check_settings if check else st.settings,
-            time_slack_s=lambda: float(self.devices.clock.uncertainty_s), host=self,
+            time_slack_s=lambda: float(self.devices.clock.uncertainty_s), host=self.host,
         )
         st.book.visiting(hid, now)
         self.ops.started(hid, visit_id, st.models[hid], now, check)
@@ -344,47 +347,6 @@ class CampaignRunner:
             text = "accepted" if verdict.accepted else f"no longer accepted: {(verdict.reasons or ('',))[0]}"
             self.event("verdict", f"{hid} {text} ({verdict.n_points} points{rms})", hid, time_s=now,
                        data={"accepted": verdict.accepted, "n_points": verdict.n_points, "rms_mrad": verdict.rms_mrad})
-
-    # ------------------------------------------------------------------ the visits' host (visit.VisitHost)
-    def _served(self, fn, *args, **kw):
-        """A host call for a visit; a failure is counted if it is the storage's, and raised into the visit."""
-        try:
-            return fn(*args, **kw)
-        except Exception as err:  # noqa: BLE001 - the visit decides; it must still leave the board
-            self.journal.storage_fault(err)
-            raise
-
-    def record(self, ctx: VisitContext, observation, frames: dict) -> int:
-        return self._served(self.journal.record, observation, **frames)
-
-    def save_frame(self, ctx: VisitContext, data: bytes, iteration: int, capture_time_s: float, kind: str) -> str:
-        return self._served(self.devices.store.save_frame, data, campaign_id=self.campaign_id,
-                            heliostat_id=ctx.heliostat_id, visit_id=ctx.visit_id, iteration=iteration,
-                            capture_time_s=capture_time_s, kind=kind)
-
-    def refit(self, ctx: VisitContext, observation) -> HeliostatModel:
-        return self._served(self._refit, ctx.heliostat_id, observation)
-
-    def corrections(self, ctx: VisitContext, model: HeliostatModel, stopping: bool):
-        hid = ctx.heliostat_id
-        if stopping:  # a stopped visit leaves with the corrections last written
-            return self.state.corrections[hid]
-        return self._served(lambda: self.tracking.corrections_for(hid, model, self.now()))
-
-    def _refit(self, hid: str, obs) -> HeliostatModel:
-        st = self.state
-        st.book.add(obs)
-        if st.recheck:  # a re-check measures the heliostat as it is; one point is no calibration
-            return st.models[hid]
-        model, fit = verdicts.refit(st.nominal_of(hid), st.book.points(hid), st.models[hid],
-                                  prior_mean=self.ops.prior_mean(hid), tilt_rate=self.ops.tilt_rate_of(hid),
-                                  earlier=st.book.h[hid].earlier)
-        st.models[hid] = model
-        if fit is not None:
-            st.book.h[hid].fit = fit
-            self.devices.store.record_fit(campaign_id=self.campaign_id, heliostat_id=hid, time_s=obs.capture_time_s,
-                                          **verdicts.fit_record(fit))
-        return model
 
     # ------------------------------------------------------------------ summary
     def rechecked(self) -> bool:

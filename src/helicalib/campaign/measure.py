@@ -23,8 +23,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from helicalib.campaign import status as move_status
 from helicalib.campaign.moves import to_standby
-from helicalib.campaign.status import POLL_S
 from helicalib.campaign.visit_types import VisitContext
 from helicalib.devices.protocols import Before
 from helicalib.devices.registers import HeliostatState
@@ -151,8 +151,8 @@ def _beams_gone(ctx: VisitContext, least_s: float) -> Generator[float, None, tup
         seen += [h for h in moving if h not in seen]
         if waited >= least_s and (not moving or waited >= BEAM_CLEAR_TIMEOUT_S):
             return seen, moving
-        yield POLL_S
-        waited += POLL_S
+        yield move_status.POLL_S
+        waited += move_status.POLL_S
 
 
 def _moving(ctx: VisitContext) -> list[str]:

@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 
 from helicalib.campaign import book as books
-from helicalib.store import history
 from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.state import Returning
+from helicalib.store import history
 from helicalib.store.records import off_tracking
 
 

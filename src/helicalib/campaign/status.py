@@ -108,9 +108,10 @@ def refuse(plant, index: int, heliostat_id: str, code: str, message: str) -> Mov
                       failure=MoveFailed(code, message, refused=True))
 
 
-def wait(status: MoveStatus, poll_s: float = POLL_S) -> Generator[float, None, tuple[float, float]]:
-    """Poll ``status`` until it is done, yielding ``poll_s`` plant seconds between polls; returns
-    the read-back strokes, or raises the status's :class:`MoveFailed`."""
+def wait(status: MoveStatus, poll_s: float | None = None) -> Generator[float, None, tuple[float, float]]:
+    """Poll ``status`` until it is done, yielding ``poll_s`` plant seconds (default :data:`POLL_S`)
+    between polls; returns the read-back strokes, or raises the status's :class:`MoveFailed`."""
+    poll_s = POLL_S if poll_s is None else poll_s
     while not status.done and not status.poll():
         yield poll_s
         status.waited_s += poll_s

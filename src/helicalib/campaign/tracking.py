@@ -16,8 +16,8 @@ import numpy as np
 
 from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.journal import Journal
-from helicalib.campaign.state import RETURN_CHECK_S, RETURN_RETRY_S, CampaignDevices, CampaignState, Returning
 from helicalib.campaign.moves import APPROACH_LEAD_S
+from helicalib.campaign.state import RETURN_CHECK_S, RETURN_RETRY_S, CampaignDevices, CampaignState, Returning
 from helicalib.campaign.visit_types import Left
 from helicalib.devices.protocols import FieldStowedError
 from helicalib.devices.registers import HeliostatState

@@ -67,6 +67,8 @@ class VisitContext:
     sun: Callable[[float], tuple[np.ndarray, float, float, bool]]
     model: HeliostatModel
     settings: VisitSettings
+    host: VisitHost
+    """The campaign's side: the store's writes, the refits, the corrections to leave with."""
     last_strokes_mm: np.ndarray | None = None
     held_mm: np.ndarray | None = None
     """Read-back strokes of the last hold [mm] (None before the first)."""
@@ -81,8 +83,6 @@ class VisitContext:
     """The board shared with other visits (its frame lock); None: the visit is alone."""
     on_board: bool = False
     """True while the beam was last commanded onto the board (False at standby or tracking)."""
-    host: VisitHost | None = None
-    """The campaign's side: the store's writes, the refits, the corrections to leave with."""
 
 
 class VisitHost(Protocol):

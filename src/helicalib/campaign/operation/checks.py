@@ -19,15 +19,15 @@ from typing import Protocol
 
 import numpy as np
 
-from helicalib.campaign.operation import rules as op_rules
 from helicalib.campaign import book as books
 from helicalib.campaign import choice as choices
-from helicalib.store import history
 from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.events import RunEvent
 from helicalib.campaign.field import Field
+from helicalib.campaign.operation import rules as op_rules
 from helicalib.campaign.state import CampaignDevices, CampaignState
 from helicalib.geometry.heliostat import HeliostatModel
+from helicalib.store import history
 
 SPREAD_KEEP_S = 600.0
 """A model's predicted error at the present sun is reused for this long [plant s]."""
@@ -143,8 +143,8 @@ class OperationChecks:
 
     def tilt_rate_of(self, hid: str, points: list | None = None) -> bool:
         """Whether ``hid``'s fit of ``points`` (default its book's) has the steady tilt rate
-        (:func:`.operation.fits_tilt_rate`: in operation, but not from a confirmed drift until
-        the points reach :data:`.operation.STILL_DAYS_AFTER_DRIFT` past the newest confirmation)."""
+        (:func:`.rules.fits_tilt_rate`: in operation, but not from a confirmed drift until
+        the points reach :data:`.rules.STILL_DAYS_AFTER_DRIFT` past the newest confirmation)."""
         b = self.state.book.h[hid]
         points = b.points if points is None else points
         newest = max((p.capture_time_s for p in points), default=-math.inf)
@@ -154,7 +154,7 @@ class OperationChecks:
     def prior_mean(self, hid: str) -> np.ndarray | None:
         """The centre of the priors of ``hid``'s fits (error parameters (P,)): None for the nominal
         heliostat, also after a confirmed drift whose fits carry the points from before it
-        (:data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT`), else after a drift the model from before it (:mod:`.operation`)."""
+        (:data:`helicalib.campaign.book.EPOCHS_AFTER_DRIFT`), else after a drift the model from before it (:mod:`.rules`)."""
         return None if self.state.book.h[hid].earlier is not None else self._prior.get(hid)
 
     # ------------------------------------------------------------------ choosing a check
@@ -230,7 +230,7 @@ class OperationChecks:
         return out
 
     def check_for(self, target_id: str, now: float, busy) -> str | None:
-        """The accepted heliostat of this board most worth a check now (:func:`.operation.choose_check`)."""
+        """The accepted heliostat of this board most worth a check now (:func:`.rules.choose_check`)."""
         # only heliostats a check may take at all (unchecked long enough) are weighed: cheap tests first
         wait = self.rota_days * 86400.0 if self.mode == "rota" else op_rules.MIN_CHECK_INTERVAL_S
         cands = [h for h in self.state.home[target_id] if now - self.state.book.h[h].last_visit_s >= wait]
@@ -258,8 +258,8 @@ class OperationChecks:
 
     def _drift_test(self, hid: str, visit_id: int, first, started_with: HeliostatModel, now: float) -> None:
         """A check of an accepted heliostat: its first placement against the fit the visit started
-        with (:func:`.drift.drift_evidence`); :data:`.operation.CONFIRM_CHECKS` in a row outside the
-        band confirm a drift and reopen the calibration (:mod:`.operation`)."""
+        with (:func:`.drift.drift_evidence`); :data:`.rules.CONFIRM_CHECKS` in a row outside the
+        band confirm a drift and reopen the calibration (:mod:`.rules`)."""
         from helicalib.campaign.operation.drift import drift_evidence, trend_p_value
 
         suspect = self.suspects.get(hid)
