@@ -9,7 +9,7 @@ its model's sky-wide error at the end (the simulator's truth at the last instant
 positions), the drift confirmations, and the same book refitted offline on its points after the
 drift's end only (what a fit that saw the drift stop would have), and refitted on all its located
 points thinned together to ``--cap`` with each drift epoch's own tilts and zero offsets
-(``point_epoch`` of the fit; epochs from the run's drift confirmations, no prior centre; the runner's
+(``FitPoints.epoch`` of the fit; epochs from the run's drift confirmations, no prior centre; the runner's
 own epoch fits keep the newest epoch under ``--cap-after-drift``). Keeps the run under ``--work``
 and writes JSON (default ``benchmarks/out/bench_cap.json``).
 

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from helicalib.calibration.observations import read_observations
-from helicalib.commands.fit import FitOptions, fit_report
+from helicalib.commands.fit import FitReportOptions, fit_report
 from helicalib.config import write_field_config
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.optics import angle_between_rad
@@ -72,7 +72,7 @@ def main(root: str) -> dict:
         for hid in ("AA39", "AA23", "AA31", "AC43"):
             hr = [r for r in rows if r.heliostat_id == hid]
             loo = len(hr) >= 3
-            rep = fit_report(cfg, hr, hid, FitOptions(dict(REALDATA_PRIOR_SIGMA), loo=loo))
+            rep = fit_report(cfg, hr, hid, FitReportOptions(dict(REALDATA_PRIOR_SIGMA), loo=loo))
             fits[hid] = {k: rep.get(k) for k in ("records", "nominal_normal_mrad_mean", "in_sample_normal_mrad_mean",
                                                   "in_sample_beam_m_mean", "loo_normal_mrad_mean", "loo_beam_m_mean")}
             fits[hid]["parameters"] = {k: v["value"] for k, v in rep["parameters"].items()}

@@ -26,7 +26,7 @@ is the wind's jitter, and both by wind speed.
     .venv/bin/python benchmarks/bench_sky_budget.py --days 90
     .venv/bin/python benchmarks/bench_sky_budget.py --days 90 --check-frames 1   # checks of one frame
 
-``--check-frames`` overrides ``operation.CHECK_AFTER_FRAMES`` for the run (the build before
+``--check-frames`` overrides ``operation.rules.CHECK_AFTER_FRAMES`` for the run (the build before
 2026-11-26 took one frame per check). Writes ``benchmarks/out/bench_sky_budget.json``.
 """
 
@@ -87,7 +87,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     operated_args(ap, days=90.0)
     ap.add_argument("--check-frames", type=int, default=None,
-                    help="after frames per check for this run (default operation.CHECK_AFTER_FRAMES)")
+                    help="after frames per check for this run (default operation.rules.CHECK_AFTER_FRAMES)")
     ap.add_argument("--white-mrad", type=float, default=0.33,
                     help="RMS of the white noise added to the exact spots, as a beam angle (default 0.33 mrad)")
     ap.add_argument("--work", type=Path, default=None, help="keep the run here (default a folder under benchmarks/out)")

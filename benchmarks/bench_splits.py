@@ -38,7 +38,7 @@ import numpy as np
 
 from helicalib.calibration.observations import read_observations, write_observations
 from helicalib.calibration.splits import DEFAULT_TEST_SHARE, SPLITS, Split
-from helicalib.commands.fit import FitOptions, fit_report, split_report
+from helicalib.commands.fit import FitReportOptions, fit_report, split_report
 from helicalib.config import load_field_config, write_field_config
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.realdata import paint
@@ -54,13 +54,13 @@ STARTS = ("2026-03-01T00:00:00+08:00", "2026-06-01T00:00:00+08:00", "2026-12-01T
 def evaluate(cfg, rows, hid: str, seeds: int, test_share: float, extra: dict[str, Split] | None = None) -> dict:
     """LOO and every split's out-of-sample RMS for one heliostat's rows (balanced over ``seeds`` seeds)."""
     priors = dict(REALDATA_PRIOR_SIGMA)
-    rep = fit_report(cfg, rows, hid, FitOptions(priors, 1.0, True, tuple(s for s in SPLITS if s != "balanced"),
+    rep = fit_report(cfg, rows, hid, FitReportOptions(priors, 1.0, True, tuple(s for s in SPLITS if s != "balanced"),
                                                test_share, 0))
     out = {"records": len(rows), "in_sample_normal_mrad_rms": float(np.sqrt(np.mean(np.square(rep["in_sample_normal_mrad"])))),
            "loo_normal_mrad_rms": rep["loo_normal_mrad_rms"], "loo_normal_mrad_mean": rep["loo_normal_mrad_mean"],
            "splits": {k: {"test_normal_mrad_rms": v["test_normal_mrad_rms"], "train": v["train"], "test": v["test"],
                           "test_record_ids": v["test_record_ids"]} for k, v in rep["splits"].items()}}
-    balanced = [fit_report(cfg, rows, hid, FitOptions(priors, 1.0, False, ("balanced",), test_share, seed))["splits"]["balanced"]
+    balanced = [fit_report(cfg, rows, hid, FitReportOptions(priors, 1.0, False, ("balanced",), test_share, seed))["splits"]["balanced"]
                 for seed in range(seeds)]
     b = np.array([x["test_normal_mrad_rms"] for x in balanced])
     out["splits"]["balanced"] = {"test_normal_mrad_rms": float(b.mean()), "min": float(b.min()), "max": float(b.max()),
@@ -68,7 +68,7 @@ def evaluate(cfg, rows, hid: str, seeds: int, test_share: float, extra: dict[str
     for name, split in (extra or {}).items():
         model = HeliostatModel.from_config(cfg, [hid])
         arrays = [np.array([getattr(r, f) for r in rows], dtype=float) for f in ("strokes_mm", "sun_enu", "spot_enu_m")]
-        sp = split_report(model, *arrays, [cfg.target(r.target_id) for r in rows], split, FitOptions(priors, 1.0),
+        sp = split_report(model, *arrays, [cfg.target(r.target_id) for r in rows], split, FitReportOptions(priors, 1.0),
                           [r.record_id for r in rows])
         out["splits"][name] = {"test_normal_mrad_rms": sp["test_normal_mrad_rms"], "train": sp["train"],
                                "test": sp["test"], "test_record_ids": sp["test_record_ids"]}

@@ -10,7 +10,7 @@ runner and what the crew sees (:mod:`.terminal`, the web console). The campaign'
 * a campaign reads ``running`` only while a process runs it; a stop leaves ``stopped``, the end
   of ``--until``/``--days`` (or of a check) ``finished``;
 * a campaign is resumed only on a plant clock consistent with it
-  (:func:`~helicalib.app.resume.check_plant_clock`) unless ``--accept-clock-jump``.
+  (:func:`~helicalib.app.opening.check_plant_clock`) unless ``--accept-clock-jump``.
 
 Exit status (``docs/running.md``): 0 done; 1 an error (one line);
 :data:`~helicalib.app.summary.EXIT_NOT_MEASURED`, :data:`EXIT_STORAGE`, :data:`EXIT_CLOCK_JUMP`.
@@ -24,7 +24,7 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
-from helicalib.app.resume import last_written_wall_s, open_campaign
+from helicalib.app.opening import last_written_wall_s, open_campaign
 from helicalib.app.settings import LiveSettings
 from helicalib.app.summary import EXIT_NOT_MEASURED, print_summary, session_summary
 from helicalib.errors import ConfigError, HelicalibError, StorageError

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import sys
 
-from helicalib.app.resume import Opened, plural
+from helicalib.app.opening import Opened, plural
 
 EXIT_NOT_MEASURED = 3
 """``check``: a heliostat could not be measured (night, gated, not armed, no visit in time)."""

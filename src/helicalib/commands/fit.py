@@ -49,7 +49,7 @@ def _rms(a) -> float | None:
 
 
 @dataclass(frozen=True)
-class FitOptions:
+class FitReportOptions:
     """How ``helicalib fit`` fits and what it reports: ``priors`` (parameter name → prior sigma in its
     unit; 0 fixes it at nominal), ``sigma_meas_mrad`` (the scatter of one observation), ``loo``
     (leave-one-out too), ``splits`` (benchmark splits, :data:`~helicalib.calibration.splits.SPLITS`),
@@ -63,7 +63,7 @@ class FitOptions:
     seed: int = 0
 
 
-def split_report(model, strokes, sun, spot, targets, split, options: FitOptions, record_ids) -> dict:
+def split_report(model, strokes, sun, spot, targets, split, options: FitReportOptions, record_ids) -> dict:
     """Fit on ``split.train``, predict ``split.test``: the out-of-sample errors of one benchmark split."""
     from helicalib.realdata.fitting import beam_error_m, fit, normal_error_mrad
 
@@ -81,7 +81,7 @@ def split_report(model, strokes, sun, spot, targets, split, options: FitOptions,
             "test_beam_m_rms": _rms(test_beam), "test_beam_m_mean": _mean(test_beam), "converged": res.success}
 
 
-def fit_report(cfg, rows, heliostat_id: str, options: FitOptions) -> dict:
+def fit_report(cfg, rows, heliostat_id: str, options: FitReportOptions) -> dict:
     """The fit of ``heliostat_id``'s observations ``rows``: nominal and in-sample errors, parameters and
     their identifiability, and (as ``options`` asks) leave-one-out and the benchmark splits."""
     from helicalib.calibration.observations import observations_arrays
@@ -169,7 +169,7 @@ def run(args) -> int:
     if loo and len(rows) < 3:
         raise MeasurementError(f"{args.observations}: {len(rows)} observations of {args.heliostat}; "
                                "leave-one-out and the splits need at least 3")
-    rep = fit_report(cfg, rows, args.heliostat, FitOptions(priors, args.sigma_meas_mrad, loo, splits,
+    rep = fit_report(cfg, rows, args.heliostat, FitReportOptions(priors, args.sigma_meas_mrad, loo, splits,
                                                            args.test_share, args.seed))
     if args.json:
         print(json.dumps(rep, indent=2))

@@ -182,7 +182,7 @@ class CameraSpec(_Model):
     background_counts: float = Field(default=10.0, ge=0)    # sky/tower around the board at DNI 1000
     board_albedo: float = Field(default=0.9, gt=0, le=1)
     mark_albedo: float = Field(default=0.04, ge=0, le=1)   # T/GRLM's black L marks
-    dot_albedo: float = Field(default=0.585, ge=0, le=1)   # a dot board's dots: light grey, 0.65 of the white (vision.render.DOT_ALBEDO)
+    dot_albedo: float = Field(default=0.585, ge=0, le=1)   # a dot board's dots: light grey, 0.65 of the white (sim.render.DOT_ALBEDO)
     board_px_per_m: float = Field(default=40.0, gt=0)       # raster of the board before the warp
 
 

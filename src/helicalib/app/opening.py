@@ -1,4 +1,4 @@
-"""Resuming or starting a live session's campaign, on a plant clock consistent with it.
+"""Opening a live session's campaign, resumed or new, on a plant clock consistent with it.
 
 * ``run`` resumes the field's campaign by default (finished or not: the database keeps one
   calibration of the field, its points never expire) and starts another only with
