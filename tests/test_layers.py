@@ -110,6 +110,35 @@ def test_the_pure_core_imports_no_devices_store_sim_console_commands_or_app():
     assert not {k: v for k, v in bad.items() if v}, bad
 
 
+PURE_MAY_IMPORT = ("helicalib.geometry", "helicalib.vision", "helicalib.calibration", "helicalib.config",
+                   "helicalib.errors")
+"""What of helicalib the pure core may import, besides the campaign's policy modules themselves."""
+
+
+def test_the_pure_core_imports_only_the_pure_core_the_config_and_the_errors():
+    """An allow-list: the pure core reaches no report, flux, realdata, sweep, nor any campaign module
+    that is not policy (the loop, its state, the visit), whatever new package appears."""
+    policy = {_module_name(SRC / name, SRC, "helicalib") for name in CAMPAIGN_POLICY}
+    packages = {"helicalib", "helicalib.campaign", "helicalib.campaign.operation"}  # bases of `from p import m`
+    allowed = PURE_MAY_IMPORT + tuple(policy)
+    bad = {}
+    for f in _pure_core_files():
+        names = {m for m in _imports(f) if m == "helicalib" or m.startswith("helicalib.")}
+        hits = sorted(m for m in names if m not in packages and not any(m == a or m.startswith(a + ".") for a in allowed))
+        if hits:
+            bad[str(f.relative_to(SRC))] = hits
+    assert not bad, bad
+
+
+def test_the_allow_list_check_sees_a_pure_module_reaching_the_loop(tmp_path):
+    pkg = tmp_path / "helicalib" / "campaign"
+    pkg.mkdir(parents=True)
+    f = pkg / "book.py"
+    f.write_text("from . import loop\nfrom ..report import html\n")
+    names = _imports(f, tmp_path / "helicalib", "helicalib")
+    assert {"helicalib.campaign.loop", "helicalib.report.html"} <= names
+
+
 def test_the_campaign_imports_no_sim_console_app_commands_argparse_rich_or_apscheduler():
     files = _files("campaign")
     assert files
