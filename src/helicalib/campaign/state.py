@@ -28,10 +28,11 @@ from helicalib.campaign.board import AUTO_SPOTS, Board
 from helicalib.campaign.events import BoardState, RunEvent
 from helicalib.campaign.operation import rules as op_rules
 from helicalib.campaign.visit_types import VisitContext, VisitSettings
-from helicalib.devices.protocols import PlantAbilities, SpotSensor
+from helicalib.devices.protocols import Clock, Plant, PlantAbilities, SpotSensor
 from helicalib.errors import StorageError
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.geometry.sun import SunTable
+from helicalib.store.sqlite import Store
 
 RETURN_CHECK_S = 10.0
 """Plant seconds after a track command before the plant's state is read to confirm tracking."""
@@ -92,10 +93,10 @@ class CampaignDevices:
     spot sensor (target id → :class:`~helicalib.devices.protocols.SpotSensor`), the plant clock and
     the store."""
 
-    plant: object
+    plant: Plant
     sensors: dict[str, SpotSensor]
-    clock: object
-    store: object
+    clock: Clock
+    store: Store
     abilities: PlantAbilities = PlantAbilities()
 
 
