@@ -86,6 +86,13 @@ def _files(package: str) -> list[Path]:
 
 
 # ---------------------------------------------------------------------------- layers
+def _violations(files: list[Path], forbidden: tuple[str, ...]) -> dict[str, list[str]]:
+    """Each file that imports something of ``forbidden``, with what (none: the layer holds)."""
+    assert files
+    bad = {str(f.relative_to(SRC)): _hits(_imports(f), forbidden) for f in files}
+    return {k: v for k, v in bad.items() if v}
+
+
 @pytest.mark.parametrize("package, forbidden", [("campaign", "helicalib.sim"), ("devices", "helicalib.flux"),
                                                 ("devices", "helicalib.sim"), ("devices", "helicalib.campaign")])
 def test_a_layer_imports_nothing_of_the_one_it_must_not_know(package, forbidden):
@@ -106,8 +113,8 @@ def _pure_core_files() -> list[Path]:
 def test_the_pure_core_imports_no_devices_store_sim_console_commands_or_app():
     files = _pure_core_files()
     assert len(files) > 20
-    bad = {str(f.relative_to(SRC)): _hits(_imports(f), PURE_FORBIDDEN) for f in files}
-    assert not {k: v for k, v in bad.items() if v}, bad
+    bad = _violations(files, PURE_FORBIDDEN)
+    assert not bad, bad
 
 
 PURE_MAY_IMPORT = ("helicalib.geometry", "helicalib.vision", "helicalib.calibration", "helicalib.config",
@@ -140,32 +147,24 @@ def test_the_allow_list_check_sees_a_pure_module_reaching_the_loop(tmp_path):
 
 
 def test_the_campaign_imports_no_sim_console_app_commands_argparse_rich_or_apscheduler():
-    files = _files("campaign")
-    assert files
-    bad = {str(f.relative_to(SRC)): _hits(_imports(f), CAMPAIGN_FORBIDDEN) for f in files}
-    assert not {k: v for k, v in bad.items() if v}, bad
+    bad = _violations(_files("campaign"), CAMPAIGN_FORBIDDEN)
+    assert not bad, bad
 
 
 def test_devices_import_no_vision_flux_campaign_or_sim():
-    files = _files("devices")
-    assert files
-    bad = {str(f.relative_to(SRC)): _hits(_imports(f), DEVICES_FORBIDDEN) for f in files}
-    assert not {k: v for k, v in bad.items() if v}, bad
+    bad = _violations(_files("devices"), DEVICES_FORBIDDEN)
+    assert not bad, bad
 
 
 @pytest.mark.parametrize("package", LIBRARY_PACKAGES)
 def test_report_store_and_flux_import_no_sim_console_app_or_commands(package):
-    files = _files(package)
-    assert files
-    bad = {str(f.relative_to(SRC)): _hits(_imports(f), LIBRARY_FORBIDDEN) for f in files}
-    assert not {k: v for k, v in bad.items() if v}, bad
+    bad = _violations(_files(package), LIBRARY_FORBIDDEN)
+    assert not bad, bad
 
 
 def test_the_web_console_imports_nothing_of_the_app():
-    files = _files("console")
-    assert files
-    bad = {str(f.relative_to(SRC)): _hits(_imports(f), CONSOLE_FORBIDDEN) for f in files}
-    assert not {k: v for k, v in bad.items() if v}, bad
+    bad = _violations(_files("console"), CONSOLE_FORBIDDEN)
+    assert not bad, bad
 
 
 def test_the_check_sees_an_import_inside_a_function(tmp_path):

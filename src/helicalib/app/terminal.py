@@ -306,4 +306,4 @@ def make_output(kind: str, tz: dt.tzinfo, title: str):
     return TerminalView(tz, title)
 
 
-__all__ = ["JsonLines", "LineLog", "PlantOrder", "TerminalView", "duration", "make_output", "site_timezone"]
+__all__ = ["JsonLines", "LineLog", "PlantOrder", "TerminalView", "make_output", "site_timezone"]

@@ -26,7 +26,7 @@ from collections.abc import Generator
 
 import numpy as np
 
-from helicalib.devices.protocols import Before, CaptureTimeError, Reading, SpotSensor  # noqa: F401 - the seam's types
+from helicalib.devices.protocols import Before, CaptureTimeError, Reading, SpotSensor
 from helicalib.errors import MeasurementError
 from helicalib.flux.visit import cleanliness_from_visit
 from helicalib.vision.frames import decode_frame

@@ -106,7 +106,7 @@ def plant_state(events, newest_obs) -> dict:
 def plant_lines(plant: dict, running: bool) -> list[tuple[str, str]]:
     """``status``'s lines on the plant (text, rich style): unreachable first, then the gate and the
     weather, each with its plant time and its age before the newest record."""
-    from helicalib.app.terminal import duration
+    from helicalib.campaign.words import duration
 
     newest = plant["newest_record_s"]
     age = lambda t: "" if newest is None else f", {duration(newest - t)} before the newest record"  # noqa: E731
