@@ -7,9 +7,9 @@ STAMP   := $(VENV)/.installed-stamp
 FIELD   ?= field_config/demo_north.yaml
 DEMO_OUT ?= demo_out
 
-# The crew console's browser tests drive Debian's Chromium through its chromedriver: installed
-# here when missing (apt-get, with sudo when not root); nothing is downloaded by selenium itself.
-BROWSER := /usr/bin/chromium /usr/bin/chromedriver
+# The crew console's browser tests drive Debian's Chromium through its chromedriver, and the stream
+# camera's tests read a real RTSP stream served by Debian's ffmpeg: installed here when missing
+# (apt-get, with sudo when not root); nothing is downloaded by selenium itself.
 SUDO    := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 .PHONY: demo test venv clean browser
@@ -26,10 +26,10 @@ demo: $(STAMP)
 	$(BIN)/helicalib demo $(FIELD) --out $(DEMO_OUT)
 
 browser:
-	@if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then \
-	  echo "installing chromium and chromium-driver (the console's browser tests)"; \
+	@if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ] || [ ! -x /usr/bin/ffmpeg ]; then \
+	  echo "installing chromium, chromium-driver and ffmpeg (the console's browser tests, the stream camera's tests)"; \
 	  $(SUDO) apt-get update -qq && \
-	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium chromium-driver ffmpeg >/dev/null; \
 	fi
 
 test: $(STAMP) browser

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from helicalib.config import load_field_config
-from helicalib.devices.camera_http import CameraError, HttpCamera, cameras_from_config, image_size
+from helicalib.devices.camera_http import CameraError, HttpCamera, image_size
+from helicalib.devices.connect import cameras_from_config
 from helicalib.devices.protocols import Camera
 from helicalib.errors import MeasurementError
 from helicalib.geometry.sun import to_unix_seconds

@@ -8,7 +8,7 @@ import yaml
 
 from helicalib.campaign.sensor import camera_sensors
 from helicalib.config import load_field_config
-from helicalib.devices.camera_http import cameras_from_config
+from helicalib.devices.connect import cameras_from_config
 from helicalib.errors import ConfigError
 
 

@@ -22,7 +22,7 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 import numpy as np
 import yaml
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, PrivateAttr, Tag,
-                      ValidationError, field_validator)
+                      ValidationError, field_validator, model_validator)
 
 from helicalib.errors import ConfigError, HelicalibError
 
@@ -448,6 +448,14 @@ MAX_FRAME_SIDE_PX = 20000
 """Largest frame side a camera may give [px] (a 150-megapixel back is 14204 px wide)."""
 
 
+class GenICam(_Model):
+    """A GenICam camera's producer and feature names (``cameras[].genicam``)."""
+
+    cti: str | None = None               # the GenTL producer (.cti); default: $GENICAM_GENTL64_PATH
+    exposure_feature: str = "ExposureTime"   # SFNC: microseconds
+    gain_feature: str = "Gain"
+
+
 class Camera(_Model):
     id: Id
     target: str
@@ -462,6 +470,13 @@ class Camera(_Model):
     # helicalib's own optional key: the camera's FLUX.yaml (docs/flux.md), relative to the field
     # config; its Fe turns the camera into a flux meter (cleanliness measured at every valid visit)
     flux_calibration: str | None = None
+    # helicalib's own optional keys: the kind of camera (docs/plant-interface.md, "Cameras").
+    # http: PLANT_INTERFACE.md's snapshot camera at url; stream: an RTSP or HTTP MJPEG stream at url,
+    # whose exposure (when it has one to set) is set at exposure_url; genicam: a GigE Vision / USB3
+    # Vision camera through a GenTL producer (url genicam://<serial>, the extra helicalib[genicam])
+    kind: Literal["http", "stream", "genicam"] = "http"
+    exposure_url: str | None = None
+    genicam: GenICam | None = None
 
     @field_validator("resolution_px")
     @classmethod
@@ -544,13 +559,53 @@ class Endpoint(_Model):
     timeout_s: Side(MAX_TIMEOUT_S) = 2.0
 
 
+OPCUA_POLICIES = ("None", "Basic256Sha256", "Aes128Sha256RsaOaep", "Aes256Sha256RsaPss")
+"""OPC UA security policies the client offers (asyncua's names)."""
+
+
+class OpcUa(_Model):
+    """helicalib's own optional key ``plant.opcua``: an SCS that speaks OPC UA (docs/plant-interface.md)."""
+
+    endpoint: str = Field(min_length=1, max_length=1000)   # opc.tcp://host:port/path
+    node_map: str | None = None          # a node-map YAML (relative to the field config) or a shipped map's name
+    security_policy: Literal[OPCUA_POLICIES] = "None"
+    security_mode: Literal["Sign", "SignAndEncrypt"] = "SignAndEncrypt"
+    certificate: str | None = None       # the client's certificate (PEM or DER), relative to the field config
+    private_key: str | None = None       # its private key (PEM)
+    server_certificate: str | None = None
+    username: str | None = None
+    password_env: str | None = None      # the environment variable that holds the password (never the password)
+    timeout_s: Side(MAX_TIMEOUT_S) = 4.0
+
+    @field_validator("endpoint")
+    @classmethod
+    def _opc_tcp(cls, value: str) -> str:
+        if not value.startswith("opc.tcp://"):
+            raise ValueError(f"expected an opc.tcp:// address, got {_short(value)}")
+        return value
+
+
 class Plant(_Model):
-    scs: Endpoint
+    # helicalib's own optional key: how the SCS is reached (modbus: scs + register_map; opcua: opcua)
+    protocol: Literal["modbus", "opcua"] = "modbus"
+    scs: Endpoint | None = None          # required with protocol modbus (FIELD_CONFIG.md)
     weather: Endpoint | None = None
     clock: Literal["plant", "system"] = "plant"
+    # helicalib's own optional keys: the plant's Modbus register map (a YAML file relative to the
+    # field config, or a shipped map's name; default: PLANT_INTERFACE.md), and the OPC UA server
+    register_map: str | None = None
+    opcua: OpcUa | None = None
+
+    @model_validator(mode="after")
+    def _protocol_keys(self):
+        if self.protocol == "modbus" and self.scs is None:
+            raise ValueError("scs: required (the SCS's Modbus TCP endpoint; or protocol: opcua with an opcua section)")
+        if self.protocol == "opcua" and self.opcua is None:
+            raise ValueError("opcua: required with protocol: opcua (endpoint, node_map, security)")
+        return self
 
     @property
-    def weather_endpoint(self) -> Endpoint:
+    def weather_endpoint(self) -> Endpoint | None:
         return self.weather or self.scs
 
 
@@ -1073,11 +1128,44 @@ def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConf
             p = Path(cam.flux_calibration)
             if not (p if p.is_absolute() else base / p).is_file():
                 problems.append(f"{where}cameras[{i}].flux_calibration: file not found: {base / p}")
+    problems += [f"{where}{p}" for p in _device_files(cfg, base)]
     if problems:
         raise ConfigError("\n".join(problems), problems=problems)
     if source is not None:
         cfg._source = Path(source).resolve()
     return cfg
+
+
+def _is_map_name(value: str) -> bool:
+    """A shipped map is named by a bare word (``scs-b``); anything with a folder or a suffix is a file."""
+    return "/" not in value and "\\" not in value and not value.endswith((".yaml", ".yml"))
+
+
+def _device_files(cfg: FieldConfig, base: Path) -> list[str]:
+    """The plant's and the cameras' files that must exist (a map named by a shipped name is checked
+    when it is loaded); one line each naming the key."""
+    out = []
+    plant = cfg.plant
+    files = [("plant.register_map", plant.register_map)]
+    if plant.opcua is not None:
+        files += [(f"plant.opcua.{k}", getattr(plant.opcua, k))
+                  for k in ("node_map", "certificate", "private_key", "server_certificate")]
+    for i, cam in enumerate(cfg.cameras):
+        if cam.genicam is not None and cam.genicam.cti is not None:
+            files.append((f"cameras[{i}].genicam.cti", cam.genicam.cti))
+    for key, value in files:
+        if value is None or (key.endswith(("register_map", "node_map")) and _is_map_name(value)):
+            continue
+        p = Path(value)
+        if not (p if p.is_absolute() else base / p).is_file():
+            out.append(f"{key}: file not found: {base / p}")
+    for i, cam in enumerate(cfg.cameras):
+        if cam.kind != "genicam" and cam.genicam is not None:
+            out.append(f"cameras[{i}].genicam: only for kind: genicam (this camera is kind: {cam.kind})")
+        if cam.exposure_url is not None and cam.kind != "stream":
+            out.append(f"cameras[{i}].exposure_url: only for kind: stream (an http camera takes ?exposure_ms= "
+                       "at its url)")
+    return out
 
 
 def load_field_config(path: str | Path) -> FieldConfig:

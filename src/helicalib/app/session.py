@@ -70,9 +70,8 @@ def run_session(settings: LiveSettings) -> int:
     from helicalib.campaign.loop import CampaignRunner
     from helicalib.config import load_field_config
     from helicalib.console.server import attach_console
-    from helicalib.devices.camera_http import cameras_from_config
     from helicalib.devices.clock import make_clock
-    from helicalib.devices.modbus import ModbusPlant
+    from helicalib.devices.connect import cameras_from_config, plant_from_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds
     from helicalib.store.sqlite import Store
 
@@ -92,7 +91,7 @@ def run_session(settings: LiveSettings) -> int:
     plant = None
     result = None
     try:
-        plant = ModbusPlant.from_config(cfg, armed=settings.armed)
+        plant = plant_from_config(cfg, armed=settings.armed, register_map=settings.register_map)
         check_plant(cfg, plant)
         clock = make_clock(cfg, plant)
         now = clock.now_s()
@@ -113,7 +112,7 @@ def run_session(settings: LiveSettings) -> int:
         if not settings.armed:
             output.message("not armed: reading and planning only, nothing is written to the plant (add --arm to "
                            "calibrate)")
-        cameras = cameras_from_config(cfg)
+        cameras = cameras_from_config(cfg, clock=clock)
         runner = CampaignRunner(cfg, plant, cameras, clock, store, opened.campaign_id,
                                 heliostat_ids=opened.heliostat_ids, planner=settings.planner,
                                 recheck=settings.recheck, armed=settings.armed, refine=settings.refine,

@@ -43,6 +43,8 @@ class LiveSettings:
     new_campaign: bool
     accept_clock_jump: bool
     console: ConsoleOptions
+    register_map: str | None = None
+    """``--register-map``: overrides the field config's ``plant.register_map``."""
 
     @property
     def command(self) -> str:
@@ -60,4 +62,5 @@ class LiveSettings:
                    rota_days=getattr(args, "rota_days", 14.0), keep_frames=getattr(args, "keep_frames", None),
                    spots_per_board=getattr(args, "spots_per_board", 1), as_json=bool(getattr(args, "json", False)),
                    new_campaign=bool(getattr(args, "new_campaign", False)),
-                   accept_clock_jump=bool(args.accept_clock_jump), console=ConsoleOptions.from_args(args))
+                   accept_clock_jump=bool(args.accept_clock_jump), console=ConsoleOptions.from_args(args),
+                   register_map=getattr(args, "register_map", None))

@@ -126,12 +126,21 @@ def iso_time(text: str) -> str:
     return text
 
 
+def add_register_map(p: argparse.ArgumentParser) -> None:
+    """``--register-map FILE``: the plant's Modbus register map, overriding the field config's
+    ``plant.register_map`` (a YAML file, or a shipped map's name such as ``scs-b``)."""
+    p.add_argument("--register-map", default=None, metavar="FILE",
+                   help="the plant's Modbus register map (YAML, or a shipped name: plant-interface-1, scs-b); "
+                        "overrides plant.register_map of the field config (docs/plant-interface.md)")
+
+
 def add_live_target(p: argparse.ArgumentParser, days_help: str) -> None:
     """The arguments every live command against the plant shares: the field, ``--arm``,
     ``--heliostats`` and when to stop (``--until`` or ``--days``)."""
     p.add_argument("field", help="field config YAML")
     p.add_argument("--arm", action="store_true", help="allow writes to the plant (commands, strokes, corrections)")
     p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
+    add_register_map(p)
     g = p.add_mutually_exclusive_group()
     g.add_argument("--until", type=iso_time, default=None, help="stop at this plant time (ISO 8601 with offset)")
     g.add_argument("--days", type=positive_float, default=None, help=days_help)

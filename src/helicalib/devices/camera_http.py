@@ -318,16 +318,3 @@ class HttpCamera:
                 raise CameraError("camera_wrong_size", f"{where}: frame of {size[0]}×{size[1]} px, "
                                                        f"expected {self.expected_size_px[0]}×{self.expected_size_px[1]}")
         return Frame(data=body, capture_time_s=capture, source=self.url)
-
-
-def cameras_from_config(cfg, timeout_s: float = 5.0, retries: int = 2) -> dict[str, HttpCamera]:
-    """One :class:`HttpCamera` per target (the first camera configured for it), by target id.
-
-    The frame size is checked against ``resolution_px`` when the camera gives it in the config.
-    """
-    out: dict[str, HttpCamera] = {}
-    for cam in cfg.cameras:
-        if cam.target not in out:
-            size = cam.resolution_px if "resolution_px" in cam.model_fields_set else None
-            out[cam.target] = HttpCamera(cam.url, timeout_s=timeout_s, retries=retries, expected_size_px=size)
-    return out

@@ -57,6 +57,9 @@ class Frame:
     data: bytes
     capture_time_s: float
     source: str
+    exposure_ms: float | None = None
+    """The exposure the camera applied [ms] (PLANT_INTERFACE 1.1 ``X-Exposure-Ms``); None: a camera
+    that cannot set its exposure."""
 
 
 @runtime_checkable
@@ -110,8 +113,10 @@ class Plant(Protocol):
 class Camera(Protocol):
     """A target camera."""
 
-    def grab(self) -> Frame:
-        """The current frame; raises :class:`helicalib.errors.MeasurementError` or ``PlantError`` on failure."""
+    def grab(self, exposure_ms: float | None = None) -> Frame:
+        """The current frame, taken at ``exposure_ms`` when given and the camera can set its exposure
+        (clamped to its range; ``Frame.exposure_ms`` says what was applied; a camera that cannot
+        ignores it); raises :class:`helicalib.errors.MeasurementError` or ``PlantError`` on failure."""
         ...
 
 

@@ -14,25 +14,20 @@ from __future__ import annotations
 
 import asyncio
 import errno
-import json
 import random
 import socket
 import threading
 import time
 from dataclasses import dataclass, field
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import ThreadingHTTPServer
 from urllib.parse import urlparse
 
 import numpy as np
-from pymodbus.constants import ExcCodes
-from pymodbus.datastore import ModbusServerContext
-from pymodbus.exceptions import NoSuchIdException
-from pymodbus.server import ModbusTcpServer
-from pymodbus.server.requesthandler import ServerRequestHandler
-
 from helicalib.errors import ConfigError
-from helicalib.sim.camera import SimCamera, encode_png
+from helicalib.sim.camera import SimCamera
+from helicalib.sim.camera_server import make_http_handler
 from helicalib.sim.modbus_map import PlantRegisters
+from helicalib.sim.modbus_server import FaultyTcpServer, PlantContext
 
 LOOPBACK = "127.0.0.1"
 MODBUS = "Modbus TCP"
@@ -95,97 +90,6 @@ class FaultInjector:
         return probability > 0 and self.rng.random() < probability
 
 
-class _PlantContext(ModbusServerContext):
-    """pymodbus 3.16 server context backed by :class:`PlantRegisters` (bypasses the data blocks)."""
-
-    def __init__(self, registers: PlantRegisters, units: set[int]):  # noqa: D107  (no super().__init__)
-        self.old_simulator = True      # pymodbus then calls our async_getValues/async_setValues
-        self.simdevices = []
-        self._devices = {u: None for u in units}
-        self.registers = registers
-        self.units = units
-
-    def _check(self, device_id: int) -> None:
-        if device_id not in self.units:
-            raise NoSuchIdException(f"device_id {device_id}: this plant answers on unit(s) {sorted(self.units)}")
-
-    async def async_getValues(self, device_id, func_code, address, count=1):
-        self._check(device_id)
-        out = self.registers.read(address, count)
-        return ExcCodes(out) if isinstance(out, int) else out
-
-    async def async_setValues(self, device_id, func_code, address, values):
-        self._check(device_id)
-        rc = self.registers.write(address, values)
-        return None if rc is None else ExcCodes(rc)
-
-    def device_ids(self):
-        return sorted(self.units)
-
-
-class _FaultyHandler(ServerRequestHandler):
-    async def handle_request(self):
-        faults: FaultInjector = self.server.faults
-        if self.last_pdu and faults.happens(faults.modbus_drop_probability):
-            self.last_pdu = None
-            self.close()           # the connection drops without an answer
-            return
-        if faults.happens(faults.modbus_slow_probability):
-            await asyncio.sleep(faults.modbus_slow_s)
-        await super().handle_request()
-
-
-class _FaultyTcpServer(ModbusTcpServer):
-    faults: FaultInjector
-
-    def callback_new_connection(self):
-        return _FaultyHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
-
-
-def _make_http_handler(server: PlantServer, cameras: dict[str, SimCamera]):
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
-
-        def log_message(self, *args):  # quiet
-            pass
-
-        def _send(self, code: int, body: bytes, ctype: str, headers: dict | None = None, cut: bool = False):
-            self.send_response(code)
-            self.send_header("Content-Type", ctype)
-            self.send_header("Content-Length", str(len(body)))
-            for k, v in (headers or {}).items():
-                self.send_header(k, v)
-            if cut:
-                self.send_header("Connection", "close")
-            self.end_headers()
-            self.wfile.write(body[: len(body) // 2] if cut else body)
-            if cut:
-                self.wfile.flush()
-                self.close_connection = True
-
-        def do_GET(self):  # noqa: N802
-            path = urlparse(self.path).path
-            f = server.faults
-            if path == "/truth.json":
-                body = json.dumps(server.truth()).encode()
-                return self._send(200, body, "application/json")
-            cam = cameras.get(path)
-            if cam is None:
-                return self._send(404, f"no camera at {path}; cameras: {sorted(cameras)}\n".encode(), "text/plain")
-            if f.happens(f.camera_slow_probability):
-                server.sleep(f.camera_slow_s)
-            if f.happens(f.camera_503_probability):
-                return self._send(503, b"camera busy (injected fault)\n", "text/plain")
-            with server.registers.lock:
-                server.registers.sync()
-                image, t = cam.render()
-            body = encode_png(image)
-            self._send(200, body, "image/png", {"X-Capture-Time": repr(float(t))},
-                       cut=f.happens(f.camera_truncate_probability))
-
-    return Handler
-
-
 class PlantServer:
     """Serve a simulated plant on loopback (Modbus TCP + HTTP cameras) until :meth:`stop`.
 
@@ -224,7 +128,7 @@ class PlantServer:
         self.modbus_ports: list[int] = []
         self.camera_ports: dict[int, int] = {}   # wanted → bound
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._modbus: list[_FaultyTcpServer] = []
+        self._modbus: list[FaultyTcpServer] = []
         self._http: list[ThreadingHTTPServer] = []
         self._threads: list[threading.Thread] = []
 
@@ -263,8 +167,8 @@ class PlantServer:
 
             async def boot():
                 for port in self._want_modbus:
-                    ctx = _PlantContext(self.registers, self.units)
-                    srv = _FaultyTcpServer(ctx, address=(LOOPBACK, port))
+                    ctx = PlantContext(self.registers, self.units)
+                    srv = FaultyTcpServer(ctx, address=(LOOPBACK, port))
                     srv.faults = self.faults
                     await srv.serve_forever(background=True)
                     self._modbus.append(srv)
@@ -290,7 +194,7 @@ class PlantServer:
             raise RuntimeError(f"Modbus server did not start: {errors[0]}")
         for want, group in self._camera_groups.items():
             try:
-                httpd = ThreadingHTTPServer((LOOPBACK, want), _make_http_handler(self, group))
+                httpd = ThreadingHTTPServer((LOOPBACK, want), make_http_handler(self, group))
             except OSError as exc:
                 raise bind_error(CAMERA_HTTP, want, exc) from None
             httpd.daemon_threads = True

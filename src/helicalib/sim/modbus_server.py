@@ -1,0 +1,65 @@
+"""The simulated plant's Modbus TCP server: a pymodbus server context backed by
+:class:`~helicalib.sim.modbus_map.PlantRegisters`, with injected faults (dropped or slow answers)."""
+
+from __future__ import annotations
+
+import asyncio
+
+from pymodbus.constants import ExcCodes
+from pymodbus.datastore import ModbusServerContext
+from pymodbus.exceptions import NoSuchIdException
+from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
+
+from helicalib.sim.modbus_map import PlantRegisters
+
+
+class PlantContext(ModbusServerContext):
+    """pymodbus 3.16 server context backed by :class:`PlantRegisters` (bypasses the data blocks)."""
+
+    def __init__(self, registers: PlantRegisters, units: set[int]):  # noqa: D107  (no super().__init__)
+        self.old_simulator = True      # pymodbus then calls our async_getValues/async_setValues
+        self.simdevices = []
+        self._devices = {u: None for u in units}
+        self.registers = registers
+        self.units = units
+
+    def _check(self, device_id: int) -> None:
+        if device_id not in self.units:
+            raise NoSuchIdException(f"device_id {device_id}: this plant answers on unit(s) {sorted(self.units)}")
+
+    async def async_getValues(self, device_id, func_code, address, count=1):
+        self._check(device_id)
+        out = self.registers.read(address, count)
+        return ExcCodes(out) if isinstance(out, int) else out
+
+    async def async_setValues(self, device_id, func_code, address, values):
+        self._check(device_id)
+        rc = self.registers.write(address, values)
+        return None if rc is None else ExcCodes(rc)
+
+    def device_ids(self):
+        return sorted(self.units)
+
+
+class FaultyHandler(ServerRequestHandler):
+    """Drops or delays a request as the server's fault injector decides."""
+
+    async def handle_request(self):
+        faults = self.server.faults
+        if self.last_pdu and faults.happens(faults.modbus_drop_probability):
+            self.last_pdu = None
+            self.close()           # the connection drops without an answer
+            return
+        if faults.happens(faults.modbus_slow_probability):
+            await asyncio.sleep(faults.modbus_slow_s)
+        await super().handle_request()
+
+
+class FaultyTcpServer(ModbusTcpServer):
+    """A pymodbus TCP server whose connections go through :class:`FaultyHandler`."""
+
+    faults: object  # helicalib.sim.server.FaultInjector
+
+    def callback_new_connection(self):
+        return FaultyHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
