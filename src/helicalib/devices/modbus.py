@@ -26,12 +26,12 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
-import numpy as np
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from helicalib.devices import registers as R
-from helicalib.devices.protocols import FieldStowedError, HeliostatStatus, PlantUnreachableError, Weather
+from helicalib.devices.guard import CommandGuard
+from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.errors import PlantError
 
 log = logging.getLogger(__name__)
@@ -211,21 +211,21 @@ class ModbusPlant:
             self.weather_link = self.scs
         else:
             self.weather_link = ModbusLink(w.host, w.port, w.unit, getattr(w, "timeout_s", endpoint.timeout_s), **kw)
-        self.armed = bool(armed)
+        self.guard = CommandGuard(armed, heliostat_ids, stroke_limits_mm)
         self._expected_count = heliostat_count
         self._count: int | None = None
-        self._ids = list(heliostat_ids) if heliostat_ids is not None else None
-        self._limits = None if stroke_limits_mm is None else np.asarray(stroke_limits_mm, dtype=float)
         self._last_sent: dict[int, int] = {}
-        self._seq_lock = threading.Lock()  # a heliostat command's writes, or a field command, at a time
-        self._stowed = False
 
     @classmethod
-    def from_config(cls, cfg, *, armed: bool = False, **kw) -> "ModbusPlant":
+    def from_config(cls, cfg, *, armed: bool = False, register_map=None, **kw) -> "ModbusPlant":
         """The client of the plant a field config names, with its heliostat ids and stroke ranges."""
-        limits = np.array([[a.stroke_range_mm for a in cfg.drive_of(h.id).actuators] for h in cfg.heliostats])
+        g = CommandGuard.from_config(cfg, armed)
         return cls(cfg.plant.scs, cfg.plant.weather_endpoint, len(cfg.heliostats), armed=armed,
-                   heliostat_ids=[h.id for h in cfg.heliostats], stroke_limits_mm=limits, **kw)
+                   heliostat_ids=g.heliostat_ids, stroke_limits_mm=g.stroke_limits_mm, **kw)
+
+    @property
+    def armed(self) -> bool:
+        return self.guard.armed
 
     def hurry(self) -> None:
         """Two attempts per request from now on, no back-off (a stopping controller must not wait out retries)."""
@@ -245,17 +245,12 @@ class ModbusPlant:
 
     # ------------------------------------------------------------------ helpers
     def _label(self, index: int) -> str:
-        name = self._ids[index] if self._ids is not None and 0 <= index < len(self._ids) else None
-        return f"heliostat {index}" + (f" ({name})" if name else "")
+        return self.guard.label(index)
 
     def _check_index(self, index: int) -> None:
         n = self.heliostat_count()
         if not 0 <= int(index) < n:
             raise PlantError(f"heliostat index {index} outside the plant's 0..{n - 1}")
-
-    def _refuse_unarmed(self, what: str) -> None:
-        if not self.armed:
-            raise PlantError(f"read-only mode: not writing {what} (start with --arm to command the plant)")
 
     # ------------------------------------------------------------------ reads
     def interface_version(self) -> int:
@@ -315,19 +310,16 @@ class ModbusPlant:
     @property
     def stowed(self) -> bool:
         """Whether this client sent STOW ALL and no RESUME TRACKING since (moves and tracks are refused)."""
-        return self._stowed
+        return self.guard.stowed
 
     def field_command(self, command: int) -> None:
         """Field command: 1 stow all (from then on every move and track command is refused), 2 resume
         tracking all (the gate opens again)."""
         cmd = R.FieldCommand(int(command))
-        self._refuse_unarmed(f"field command {cmd.name}")
-        with self._seq_lock:  # after the heliostat command in flight, before any waiting one
+        self.guard.refuse_unarmed(f"field command {cmd.name}")
+        with self.guard.lock:  # after the heliostat command in flight, before any waiting one
             self.scs.write(R.REG_FIELD_COMMAND, [int(cmd)], f"field command {cmd.name}")
-            if cmd == R.FieldCommand.STOW_ALL:
-                self._stowed = True
-            elif cmd == R.FieldCommand.RESUME_TRACKING:
-                self._stowed = False
+            self.guard.field_sent(cmd)
 
     def _next_sequence(self, index: int, regs: list[int]) -> int:
         """A sequence number the plant sees as new: one past the register's value (and past ours)."""
@@ -340,10 +332,9 @@ class ModbusPlant:
 
     def _command(self, index: int, command: R.HeliostatCommand, fields: list[tuple[int, list[int], str]]) -> int:
         what = f"{command.name} command to {self._label(index)}"
-        self._refuse_unarmed(what)
-        with self._seq_lock:
-            if self._stowed and command in (R.HeliostatCommand.MOVE, R.HeliostatCommand.TRACK):
-                raise FieldStowedError(f"{what} not sent: the field is stowed for wind")
+        self.guard.refuse_unarmed(what)
+        with self.guard.lock:
+            self.guard.gate(command, what)
             regs = self._block(index)
             seq = self._next_sequence(index, regs)
             base = R.heliostat_address(index)
@@ -360,14 +351,7 @@ class ModbusPlant:
         Non-finite strokes, and strokes outside ``stroke_limits_mm`` when given, are refused
         with a :class:`PlantError` before anything is written.
         """
-        s = np.asarray(strokes_mm, dtype=float).reshape(2)
-        if not np.all(np.isfinite(s)):
-            raise PlantError(f"refusing to send non-finite strokes {s.tolist()} to {self._label(index)}")
-        if self._limits is not None:
-            lim = self._limits[index]
-            if np.any(s < lim[:, 0]) or np.any(s > lim[:, 1]):
-                raise PlantError(f"refusing to send strokes {np.round(s, 3).tolist()} mm to {self._label(index)}: "
-                                 f"outside its stroke ranges {lim.tolist()} mm")
+        s = self.guard.strokes(index, strokes_mm)
         return self._command(index, R.HeliostatCommand.MOVE,
                              [(R.OFF_STROKE_CMD_1, R.encode_f32(s[0]) + R.encode_f32(s[1]), "stroke command")])
 
@@ -379,9 +363,7 @@ class ModbusPlant:
         """
         if corrections_mm is None:
             return self._command(index, R.HeliostatCommand.TRACK, [])
-        c = np.asarray(corrections_mm, dtype=float).reshape(2)
-        if not np.all(np.isfinite(c)):
-            raise PlantError(f"refusing to send non-finite tracking corrections {c.tolist()} to {self._label(index)}")
+        c = self.guard.corrections(index, corrections_mm)
         return self._command(index, R.HeliostatCommand.TRACK,
                              [(R.OFF_TRACK_CORR_1, R.encode_f32(c[0]) + R.encode_f32(c[1]), "tracking corrections")])
 
