@@ -10,6 +10,11 @@ redirect is followed within the same deadline) and a size cap from the frame's e
 fill the memory). Every failure raises
 :class:`CameraError` (a :class:`~helicalib.errors.MeasurementError`) whose ``reason`` is a short
 code the visit records and whose message is one readable sentence.
+
+Exposure (interface 1.1): ``grab(exposure_ms=x)`` asks for ``x`` ms through the query parameter
+``exposure_ms`` (added to any query the URL has); the frame's ``X-Exposure-Ms`` header, the
+exposure the camera applied, goes into ``Frame.exposure_ms`` (None without the header: a camera
+that cannot set its exposure and ignores the parameter).
 """
 
 from __future__ import annotations
@@ -35,7 +40,8 @@ REDIRECTS = (301, 302, 303, 307, 308)
 """Answers whose ``Location`` is followed, once per fetch (a camera behind a proxy or moved)."""
 
 REASONS = ("camera_timeout", "camera_unreachable", "camera_http_error", "camera_truncated", "camera_not_image",
-           "camera_no_capture_time", "camera_wrong_size", "camera_deadline", "camera_too_large")
+           "camera_no_capture_time", "camera_wrong_size", "camera_deadline", "camera_too_large",
+           "camera_bad_exposure")
 """Reason codes of :class:`CameraError`."""
 
 DEADLINE_S = 10.0
@@ -136,9 +142,11 @@ class HttpCamera:
         self._resolve = resolve
         self._parts = urllib.parse.urlsplit(url)
 
-    def grab(self) -> Frame:
-        """The current frame; raises :class:`CameraError` after the retries, or when the fetch's
-        deadline passes (``camera_deadline``: no further attempt)."""
+    def grab(self, exposure_ms: float | None = None) -> Frame:
+        """The current frame, taken at ``exposure_ms`` [ms] if given (interface 1.1; a camera without
+        exposure control ignores it); raises :class:`CameraError` after the retries, or when the
+        fetch's deadline passes (``camera_deadline``: no further attempt)."""
+        parts = None if exposure_ms is None else self._with_exposure(exposure_ms)
         delay = self.backoff_s
         end = self._monotonic() + self.deadline_s
         for attempt in range(self.retries + 1):
@@ -147,7 +155,7 @@ class HttpCamera:
                 self._sleep(wait)
                 delay *= 2
             try:
-                return self._once(end)
+                return self._once(end, parts, asked=parts is not None)
             except CameraError as err:
                 out_of_time = self._monotonic() >= end
                 if not err.transient or attempt == self.retries or out_of_time:
@@ -155,6 +163,18 @@ class HttpCamera:
                         raise CameraError(err.reason, f"{err} (after {attempt + 1} attempts)") from None
                     raise
         raise AssertionError("unreachable")
+
+    def _with_exposure(self, exposure_ms: float):
+        """The camera's address with ``exposure_ms=<value>`` in its query (any other parameter kept,
+        an ``exposure_ms`` of the URL replaced)."""
+        value = float(exposure_ms)
+        if not (math.isfinite(value) and value > 0):
+            raise CameraError("camera_bad_exposure", f"camera {self.url}: exposure {exposure_ms!r} ms asked; "
+                                                     "it must be a positive number")
+        query = [(k, v) for k, v in urllib.parse.parse_qsl(self._parts.query, keep_blank_values=True)
+                 if k != "exposure_ms"]
+        query.append(("exposure_ms", f"{value:.6g}"))
+        return self._parts._replace(query=urllib.parse.urlencode(query))
 
     def _connection(self, parts, timeout_s: float, end: float, where: str) -> http.client.HTTPConnection:
         kind = http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
@@ -190,10 +210,11 @@ class HttpCamera:
                                                     f"({found.get('error', 'no address')})", True)
         return found["info"][0][4][:2]
 
-    def _once(self, end: float, parts=None) -> Frame:
+    def _once(self, end: float, parts=None, asked: bool = False) -> Frame:
         """One request, ended (its socket shut) at monotonic time ``end`` whatever the server does;
-        ``parts``: the address a redirect gave (one is followed)."""
-        redirected = parts is not None
+        ``parts``: the address to ask (the camera's with an exposure when ``asked``, or the one a
+        redirect gave: one is followed)."""
+        redirected = parts is not None and not asked
         parts = parts or self._parts
         where = f"camera {self.url}" + (f" (redirected to {urllib.parse.urlunsplit(parts)})" if redirected else "")
         if parts.scheme not in ("http", "https") or not parts.hostname:
@@ -317,4 +338,19 @@ class HttpCamera:
             if size != self.expected_size_px:
                 raise CameraError("camera_wrong_size", f"{where}: frame of {size[0]}×{size[1]} px, "
                                                        f"expected {self.expected_size_px[0]}×{self.expected_size_px[1]}")
-        return Frame(data=body, capture_time_s=capture, source=self.url)
+        return Frame(data=body, capture_time_s=capture, source=self.url, exposure_ms=self._exposure(headers, where))
+
+    @staticmethod
+    def _exposure(headers, where: str) -> float | None:
+        """``X-Exposure-Ms`` [ms]; None without it (a camera that cannot set its exposure)."""
+        raw = headers.get("X-Exposure-Ms")
+        if raw is None:
+            return None
+        try:
+            value = float(raw)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise CameraError("camera_bad_exposure", f"{where}: X-Exposure-Ms header unreadable ({raw!r}); "
+                                                     "expected the applied exposure in ms, a positive number")
+        return value

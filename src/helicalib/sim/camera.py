@@ -224,8 +224,13 @@ class BoardRenderer:
             k[idx[stopped_before(self.target, others, origin_enu[idx], direction_enu[idx])]] = False
         return uv[k], power[k], width[k], sigma[k]
 
-    def render(self, spots, dni_wm2: float, daylight: bool) -> np.ndarray:
-        """The frame (height, width) uint8 for spots ``(uv, power, width, sigma)`` and the ambient light."""
+    def render(self, spots, dni_wm2: float, daylight: bool, exposure: float = 1.0) -> np.ndarray:
+        """The frame (height, width) uint8 for spots ``(uv, power, width, sigma)`` and the ambient light.
+
+        ``exposure``: the exposure relative to the nominal one (``CameraSpec.exposure_ms``). Light
+        (board, spots, background) scales with it; the noise is the sensor's at the nominal exposure
+        times :func:`noise_scale` (read noise fixed, shot noise growing with the collected light);
+        values clip at 255. At 1 the frame is the nominal one, bit for bit."""
         s = self.spec
         ambient = np.float32((s.ambient_fraction * dni_wm2 + s.ambient_offset_wm2) if daylight else 0.0)
         # the board lit by the ambient light, then the spots only inside their window (the flux
@@ -237,15 +242,26 @@ class BoardRenderer:
             flux += ambient
             flux *= self.albedo[rows, cols]
             radiance[rows, cols] = flux
-        radiance *= np.float32(s.gain_counts_per_wm2)
-        background = s.background_counts * (dni_wm2 / 1000.0 + 0.2) if daylight else 0.0
+        radiance *= np.float32(s.gain_counts_per_wm2 * exposure)
+        background = s.background_counts * (dni_wm2 / 1000.0 + 0.2) * exposure if daylight else 0.0
         w, h = self.size_px
         img = cv2.warpPerspective(radiance, self.h_raster, (w, h), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=float(background))
         ox, oy = self._rng.integers(0, 64, size=2)
-        img += self._noise[oy:oy + h, ox:ox + w]
+        if exposure == 1.0:
+            img += self._noise[oy:oy + h, ox:ox + w]
+        else:
+            img += self._noise[oy:oy + h, ox:ox + w] * np.float32(noise_scale(exposure, s.read_noise_share))
         np.clip(img, 0.0, 255.0, out=img)
         return (img + 0.5).astype(np.uint8)
+
+
+def noise_scale(exposure: float, read_share: float) -> float:
+    """The sensor noise's standard deviation at ``exposure`` (relative to the nominal one) over
+    its nominal value: read noise (variance share ``read_share``) stays, shot noise grows with the
+    light collected (variance ∝ exposure). Modelled per frame, not per pixel, so that the nominal
+    frame keeps its uniform noise."""
+    return math.sqrt(read_share + (1.0 - read_share) * exposure)
 
 
 _PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
@@ -270,7 +286,14 @@ class SimCamera:
     capture time in plant time. ``render()`` gives the uint8 array without encoding.
 
     ``fe_wm2_per_grey`` is :func:`simulated_fe` of the plant's scenario (the campaign gets it
-    through :func:`simulated_flux`, not from the camera).
+    through :func:`simulated_flux`, not from the camera); it holds at the nominal exposure
+    (``CameraSpec.exposure_ms``), grey levels scale with ``exposure_ms`` / nominal.
+
+    Exposure (PLANT_INTERFACE 1.1): ``exposure_control`` is the scenario's ``camera.exposure``.
+    A camera with it keeps its setting ``exposure_ms`` (the nominal exposure at first), which
+    :meth:`set_exposure` or ``grab(exposure_ms=...)`` changes (clamped to
+    ``camera.exposure_range_ms``), and its frames carry it (``Frame.exposure_ms``). A camera without
+    it ignores every asked exposure, stays at the nominal one and its frames carry None.
     """
 
     def __init__(self, plant, camera_id: str):
@@ -286,9 +309,25 @@ class SimCamera:
         self.others = tuple(t for t in plant.cfg.targets if t.id != self.target.id)  # boards that may stop a beam
         self.source = self.config.url
         self.fe_wm2_per_grey = simulated_fe(sc)
+        self.nominal_exposure_ms = float(sc.camera.exposure_ms)
+        self.exposure_range_ms = (float(sc.camera.exposure_range_ms[0]), float(sc.camera.exposure_range_ms[1]))
+        self.exposure_control = bool(sc.camera.exposure)
+        self.exposure_ms = self.nominal_exposure_ms
+
+    def set_exposure(self, exposure_ms: float) -> float | None:
+        """Set the exposure [ms], clamped to ``exposure_range_ms``; returns the exposure applied, or
+        None (nothing changed) for a camera without exposure control. Raises ValueError for an
+        exposure that is not a positive finite number."""
+        value = float(exposure_ms)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"exposure_ms must be a positive number, got {exposure_ms!r}")
+        if not self.exposure_control:
+            return None
+        self.exposure_ms = min(max(value, self.exposure_range_ms[0]), self.exposure_range_ms[1])
+        return self.exposure_ms
 
     def render(self) -> tuple[np.ndarray, float]:
-        """(frame (height, width) uint8, capture time [UTC s, plant time])."""
+        """(frame (height, width) uint8, capture time [UTC s, plant time]) at the current exposure."""
         p = self.plant
         t = p.t_s
         sun, elevation = p.sun(t)
@@ -297,8 +336,14 @@ class SimCamera:
         spots = self.renderer.spots_from_beams(
             beams.origin_enu, beams.direction_enu, sun, beams.normal_enu, p.nominal.drives.mirror_size_m,
             weather.dni_wm2, p.soiling.cleanliness(t), others=self.others)
-        return self.renderer.render(spots, weather.dni_wm2, elevation > 0.0), t
+        exposure = self.exposure_ms / self.nominal_exposure_ms
+        return self.renderer.render(spots, weather.dni_wm2, elevation > 0.0, exposure), t
 
-    def grab(self) -> Frame:
+    def grab(self, exposure_ms: float | None = None) -> Frame:
+        """A frame at ``exposure_ms`` (set first; ignored without exposure control), else at the
+        current setting."""
+        if exposure_ms is not None:
+            self.set_exposure(exposure_ms)
         image, t = self.render()
-        return Frame(data=encode_png(image), capture_time_s=float(t), source=self.source)
+        return Frame(data=encode_png(image), capture_time_s=float(t), source=self.source,
+                     exposure_ms=self.exposure_ms if self.exposure_control else None)

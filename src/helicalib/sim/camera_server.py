@@ -1,11 +1,17 @@
 """The simulated plant's HTTP cameras: one handler per camera port answering ``GET <camera url path>``
-with a PNG frame and ``X-Capture-Time`` (PLANT_INTERFACE.md, "Camera"), and ``GET /truth.json``."""
+with a PNG frame and ``X-Capture-Time`` (PLANT_INTERFACE.md, "Camera"), and ``GET /truth.json``.
+
+Exposure (interface 1.1): a camera with exposure control (the scenario's ``camera.exposure``, the
+default) takes ``?exposure_ms=<positive float>`` (clamped to its range; anything else is answered
+400) and sends ``X-Exposure-Ms`` with every frame; one without sends no such header and ignores
+the parameter."""
 
 from __future__ import annotations
 
 import json
 from http.server import BaseHTTPRequestHandler
-from urllib.parse import urlparse
+import math
+from urllib.parse import parse_qs, urlparse
 
 from helicalib.sim.camera import SimCamera, encode_png
 
@@ -32,7 +38,8 @@ def make_http_handler(server, cameras: dict[str, SimCamera]):
                 self.close_connection = True
 
         def do_GET(self):  # noqa: N802
-            path = urlparse(self.path).path
+            parts = urlparse(self.path)
+            path = parts.path
             f = server.faults
             if path == "/truth.json":
                 body = json.dumps(server.truth()).encode()
@@ -42,13 +49,28 @@ def make_http_handler(server, cameras: dict[str, SimCamera]):
                 return self._send(404, f"no camera at {path}; cameras: {sorted(cameras)}\n".encode(), "text/plain")
             if f.happens(f.camera_slow_probability):
                 server.sleep(f.camera_slow_s)
+            asked = parse_qs(parts.query).get("exposure_ms") if cam.exposure_control else None
+            exposure_ms = None
+            if asked:
+                try:
+                    exposure_ms = float(asked[-1])
+                except ValueError:
+                    exposure_ms = math.nan
+                if not (math.isfinite(exposure_ms) and exposure_ms > 0):
+                    return self._send(400, f"exposure_ms must be a positive number, got {asked[-1]!r}\n".encode(),
+                                      "text/plain")
             if f.happens(f.camera_503_probability):
                 return self._send(503, b"camera busy (injected fault)\n", "text/plain")
             with server.registers.lock:
                 server.registers.sync()
+                if exposure_ms is not None:
+                    cam.set_exposure(exposure_ms)
                 image, t = cam.render()
+                applied = cam.exposure_ms
             body = encode_png(image)
-            self._send(200, body, "image/png", {"X-Capture-Time": repr(float(t))},
-                       cut=f.happens(f.camera_truncate_probability))
+            headers = {"X-Capture-Time": repr(float(t))}
+            if cam.exposure_control:
+                headers["X-Exposure-Ms"] = repr(float(applied))
+            self._send(200, body, "image/png", headers, cut=f.happens(f.camera_truncate_probability))
 
     return Handler

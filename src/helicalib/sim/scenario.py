@@ -184,6 +184,25 @@ class CameraSpec(_Model):
     mark_albedo: float = Field(default=0.04, ge=0, le=1)   # T/GRLM's black L marks
     dot_albedo: float = Field(default=0.585, ge=0, le=1)   # a dot board's dots: light grey, 0.65 of the white (sim.render.DOT_ALBEDO)
     board_px_per_m: float = Field(default=40.0, gt=0)       # raster of the board before the warp
+    exposure: bool = True                                   # the cameras take PLANT_INTERFACE 1.1's exposure_ms (false: fixed, no X-Exposure-Ms)
+    exposure_ms: float = Field(default=1.0, gt=0)           # nominal exposure: the grey levels above hold at it
+    exposure_range_ms: Range = (0.01, 100.0)                # what a camera applies, an asked exposure clamped to it
+    read_noise_share: float = Field(default=0.45, ge=0, le=1)  # share of the noise variance at exposure_ms that does not grow with the exposure (read noise; the rest is shot noise)
+
+    @field_validator("exposure_range_ms")
+    @classmethod
+    def _exposure_range(cls, value):
+        lo, hi = _range("exposure_range_ms", value)
+        if not lo > 0:
+            raise ValueError(f"expected a positive low end, got {lo}")
+        return value
+
+    @model_validator(mode="after")
+    def _nominal_in_range(self):
+        lo, hi = self.exposure_range_ms
+        if not lo <= self.exposure_ms <= hi:
+            raise ValueError(f"exposure_ms {self.exposure_ms} lies outside exposure_range_ms [{lo}, {hi}]")
+        return self
 
 
 class Faults(_Model):
