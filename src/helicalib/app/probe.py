@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from helicalib.app.probe_checks import (MISMATCH, OK, SKIPPED, WARNING, Check, capture_time_check, clock_checks,
+from helicalib.app.probe_checks import (MISMATCH, OK, WARNING, Check, capture_time_check, clock_checks,
                                         count_check, exposure_check, frame_check, heliostat_check, skipped_check,
                                         unread_check, weather_checks)
 from helicalib.errors import ConfigError, MeasurementError, PlantError
@@ -208,7 +208,7 @@ def _bare(err: Exception, url: str) -> str:
     """The error's text without a leading ``camera <url>:`` (the line names the camera once)."""
     text = str(err)
     prefix = f"camera {url}: "
-    return text[len(prefix):] if text.startswith(prefix) else text
+    return text.removeprefix(prefix)
 
 
 def run_probe(field: str, *, register_map: str | None = None, heliostats: str | None = None,
