@@ -25,12 +25,15 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from helicalib.devices import registers as R
 from helicalib.devices.guard import CommandGuard
+from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, plan_reads, raw_of, state_name
+from helicalib.devices.registers import FaultCode, FieldCommand, FieldState, HeliostatCommand, HeliostatState
+from helicalib.devices.regmap import Q, load_register_map
 from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.errors import PlantError
 
@@ -45,9 +48,11 @@ def quiet_pymodbus() -> None:
 EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure",
                    6: "device busy", 10: "gateway path unavailable", 11: "gateway target failed to respond"}
 
-_OFFSET_NAMES = {R.OFF_COMMAND: "command", R.OFF_SEQUENCE: "sequence number", R.OFF_STATE: "state",
-                 R.OFF_STROKE_CMD_1: "stroke command", R.OFF_TRACK_CORR_1: "tracking corrections",
-                 R.OFF_CLEANLINESS: "cleanliness"}
+HANDSHAKE = "heliostats.command.handshake."
+STATUS_PATHS = ("heliostats.status.state", "heliostats.status.fault", "heliostats.status.strokes_mm[0]",
+                "heliostats.status.strokes_mm[1]", "heliostats.status.cleanliness")
+WEATHER_KEYS = ("wind_ms", "wind_direction_deg", "dni_wm2", "temperature_c", "pressure_hpa")
+FIELD_COMMAND_NAME = {FieldCommand.NONE: "none", FieldCommand.STOW_ALL: "stow", FieldCommand.RESUME_TRACKING: "resume"}
 
 
 class ModbusLink:
@@ -154,20 +159,34 @@ class ModbusLink:
         self._down_reason = last
         raise PlantUnreachableError(f"plant {self.name}: {what} failed after {attempts} attempt{'s' * (attempts > 1)} ({last})")
 
-    def read(self, address: int, count: int, what: str) -> list[int]:
-        """``count`` holding registers from ``address``; ``what`` names them in errors."""
-        rr = self._call(f"read of {what} (address {address}, {count} registers)",
-                        lambda c: c.read_holding_registers(address, count=count, device_id=self.unit))
-        regs = list(rr.registers)
+    def read(self, address: int, count: int, what: str, table: str = "holding") -> list[int]:
+        """``count`` registers of ``table`` (holding: function 3, input: 4, coil: 1) from ``address``;
+        ``what`` names them in errors."""
+        where = f"address {address}" if table == "holding" else f"{table} address {address}"
+        label = f"read of {what} ({where}, {count} registers)"
+        if table == "coil":
+            rr = self._call(label, lambda c: c.read_coils(address, count=count, device_id=self.unit))
+            regs = [int(b) for b in rr.bits]
+        else:
+            fn = "read_input_registers" if table == "input" else "read_holding_registers"
+            rr = self._call(label, lambda c: getattr(c, fn)(address, count=count, device_id=self.unit))
+            regs = list(rr.registers)
         if len(regs) < count:
-            raise PlantError(f"plant {self.name}: read of {what} (address {address}) answered {len(regs)} of {count} registers")
+            raise PlantError(f"plant {self.name}: read of {what} ({where}) answered {len(regs)} of {count} registers")
         return regs[:count]
 
-    def write(self, address: int, values: Sequence[int], what: str) -> None:
-        """Write holding registers (function 6 for one, 16 for several)."""
+    def write(self, address: int, values: Sequence[int], what: str, table: str = "holding") -> None:
+        """Write holding registers (function 6 for one, 16 for several) or coils (5, 15)."""
         values = [int(v) & 0xFFFF for v in values]
-        label = f"write of {what} (address {address})"
-        if len(values) == 1:
+        where = f"address {address}" if table == "holding" else f"{table} address {address}"
+        label = f"write of {what} ({where})"
+        if table == "coil":
+            bits = [bool(v) for v in values]
+            if len(bits) == 1:
+                self._call(label, lambda c: c.write_coil(address, bits[0], device_id=self.unit))
+            else:
+                self._call(label, lambda c: c.write_coils(address, bits, device_id=self.unit))
+        elif len(values) == 1:
             self._call(label, lambda c: c.write_register(address, values[0], device_id=self.unit))
         else:
             self._call(label, lambda c: c.write_registers(address, values, device_id=self.unit))
@@ -197,13 +216,16 @@ class ModbusPlant:
     stroke_limits_mm : array_like, shape (N, 2, 2), optional
         ``[i, actuator, (min, max)]``: a stroke command outside is refused before it is sent (a
         second guard behind the controller's own check).
+    register_map : RegisterMap, str or Path, optional
+        The plant's register map (default: ``PLANT_INTERFACE.md``); see :func:`load_register_map`.
     retries, backoff_s, backoff_max_s, sleep :
         See :class:`ModbusLink`.
     """
 
     def __init__(self, endpoint, weather_endpoint=None, heliostat_count: int | None = None, *, armed: bool = False,
-                 heliostat_ids: Sequence[str] | None = None, stroke_limits_mm=None, retries: int = 3,
-                 backoff_s: float = 0.2, backoff_max_s: float = 5.0, sleep: Callable[[float], None] = time.sleep):
+                 heliostat_ids: Sequence[str] | None = None, stroke_limits_mm=None, register_map=None,
+                 retries: int = 3, backoff_s: float = 0.2, backoff_max_s: float = 5.0,
+                 sleep: Callable[[float], None] = time.sleep):
         kw = dict(retries=retries, backoff_s=backoff_s, backoff_max_s=backoff_max_s, sleep=sleep)
         self.scs = ModbusLink(endpoint.host, endpoint.port, endpoint.unit, endpoint.timeout_s, **kw)
         w = weather_endpoint
@@ -211,17 +233,30 @@ class ModbusPlant:
             self.weather_link = self.scs
         else:
             self.weather_link = ModbusLink(w.host, w.port, w.unit, getattr(w, "timeout_s", endpoint.timeout_s), **kw)
+        self.map = load_register_map(register_map)
+        if heliostat_count is not None:
+            self.map.check_count(heliostat_count)
         self.guard = CommandGuard(armed, heliostat_ids, stroke_limits_mm)
         self._expected_count = heliostat_count
         self._count: int | None = None
         self._last_sent: dict[int, int] = {}
+        q = self.map.q
+        self._hs = self.map.doc.heliostats.command.handshake
+        self._status_q = [q[k] for k in STATUS_PATHS] + [q[HANDSHAKE + "done"]]
+        self._command_q = self._status_q + ([q[HANDSHAKE + "sequence"]] if self._hs.kind == "sequence"
+                                            else [q[HANDSHAKE + "execute"]])
 
     @classmethod
     def from_config(cls, cfg, *, armed: bool = False, register_map=None, **kw) -> "ModbusPlant":
-        """The client of the plant a field config names, with its heliostat ids and stroke ranges."""
+        """The client of the plant a field config names, with its heliostat ids and stroke ranges;
+        ``register_map`` (a file or a shipped name) overrides the config's ``plant.register_map``."""
         g = CommandGuard.from_config(cfg, armed)
+        if register_map is not None:
+            rmap = load_register_map(register_map, Path.cwd())
+        else:
+            rmap = load_register_map(cfg.plant.register_map, cfg.base_dir)
         return cls(cfg.plant.scs, cfg.plant.weather_endpoint, len(cfg.heliostats), armed=armed,
-                   heliostat_ids=g.heliostat_ids, stroke_limits_mm=g.stroke_limits_mm, **kw)
+                   heliostat_ids=g.heliostat_ids, stroke_limits_mm=g.stroke_limits_mm, register_map=rmap, **kw)
 
     @property
     def armed(self) -> bool:
@@ -252,16 +287,57 @@ class ModbusPlant:
         if not 0 <= int(index) < n:
             raise PlantError(f"heliostat index {index} outside the plant's 0..{n - 1}")
 
+    def _where(self, q: Q, index: int | None = None) -> str:
+        """``input 10002 (heliostats.status.strokes_mm[0])``: a quantity's register in messages."""
+        return f"{q.table} {self.map.address(q, index)} ({q.path})"
+
+    def _read(self, qs: list[Q], what: str, index: int | None = None, link: ModbusLink | None = None) -> dict[str, list[int]]:
+        """The registers of ``qs`` (plant-wide, or of heliostat ``index``'s block), in few requests."""
+        m = self.map
+        base = 0 if index is None else m.block_address(index)
+        if index is None:
+            readable = m.plant_readable
+        else:
+            readable = lambda table, a: 0 <= a - base < m.block_extent(table)  # noqa: E731
+        wanted = [(q.table, base + r if q.block else r) for q in qs for r in q.registers]
+        image: dict[tuple[str, int], int] = {}
+        for table, start, count in plan_reads(wanted, readable):
+            link = link or self.scs
+            got = link.read(start, count, what) if table == "holding" else link.read(start, count, what, table=table)
+            for k, v in enumerate(got):
+                image[(table, start + k)] = v
+        return {q.path: [image.get((q.table, m.address(q, index) + k), 0) for k in range(q.width)] for q in qs}
+
+    def _write(self, table: str, address: int, values: list[int], what: str) -> None:
+        if table == "holding":
+            self.scs.write(address, values, what)
+        else:
+            self.scs.write(address, values, what, table=table)
+
+    def _value(self, q: Q, regs: list[int], who: str) -> float:
+        v = decode(q, regs)
+        if not math.isfinite(v):
+            raise PlantError(f"plant {self.scs.name}: {who} {q.path} = {v!r} at {q.table} {q.start}: not a finite number")
+        return v
+
     # ------------------------------------------------------------------ reads
-    def interface_version(self) -> int:
-        return self.scs.read(R.REG_VERSION, 1, "interface version")[0]
+    def interface_version(self) -> int | None:
+        """The first identity register's value (PLANT_INTERFACE's interface version); None: the map has none."""
+        q = self.map.q.get("identity[0]")
+        return None if q is None else int(decode(q, self._read([q], "interface version")[q.path]))
 
     def heliostat_count(self) -> int:
-        """Heliostats the plant reports (checked once against the version and the expected count)."""
+        """Heliostats the plant reports (checked once against the map's identity and the expected count)."""
         if self._count is None:
-            version, count = self.scs.read(R.REG_VERSION, 2, "interface version and heliostat count")
-            if version != R.INTERFACE_VERSION:
-                raise PlantError(f"plant {self.scs.name}: interface version {version}, helicalib speaks {R.INTERFACE_VERSION}")
+            ids = [q for p, q in self.map.q.items() if p.startswith("identity[")]
+            cq = self.map.q["plant.heliostat_count"]
+            regs = self._read(ids + [cq], "interface version and heliostat count" if ids else "heliostat count")
+            for q in ids:
+                value = decode(q, regs[q.path])
+                if value != q.equals:
+                    raise PlantError(f"plant {self.scs.name}: {q.meaning or q.path} {value:g} at {q.table} {q.start}, "
+                                     f"the register map {self.map.name} expects {q.equals}")
+            count = int(decode(cq, regs[cq.path]))
             if self._expected_count is not None and count != self._expected_count:
                 raise PlantError(f"plant {self.scs.name}: reports {count} heliostats, the field config has "
                                  f"{self._expected_count}; the block order must match the config")
@@ -269,42 +345,56 @@ class ModbusPlant:
         return self._count
 
     def plant_time(self) -> tuple[float, float]:
-        """(plant time [UTC s], rate)."""
-        regs = self.scs.read(R.REG_PLANT_TIME, 6, "plant time and rate")
-        t, rate = R.decode_f64(regs[0:4]), R.decode_f32(regs[4:6])
+        """(plant time [UTC s], rate); a map without a rate register: rate 1."""
+        tq, rq = self.map.q["plant.clock.time"], self.map.q.get("plant.clock.rate")
+        regs = self._read([tq] + ([rq] if rq else []), "plant time and rate")
+        t = decode(tq, regs[tq.path])
+        rate = decode(rq, regs[rq.path]) if rq else 1.0
         if not (math.isfinite(t) and math.isfinite(rate) and rate > 0):
             raise PlantError(f"plant {self.scs.name}: plant time {t!r} / rate {rate!r} outside the contract")
         return t, rate
 
     def weather(self) -> Weather:
-        """Wind, direction, DNI, temperature, pressure (weather block 100-109)."""
-        regs = self.weather_link.read(R.WEATHER_BLOCK[0], R.WEATHER_BLOCK[1], "weather block")
-        v = [R.decode_f32(regs[k:k + 2]) for k in range(0, 10, 2)]
-        return Weather(wind_ms=v[0], wind_direction_deg=v[1], dni_wm2=v[2], temperature_c=v[3], pressure_hpa=v[4])
+        """Wind, direction, DNI, temperature, pressure (the map's weather quantities)."""
+        qs = [self.map.q[f"weather.{k}"] for k in WEATHER_KEYS]
+        regs = self._read(qs, "weather block", link=self.weather_link)
+        return Weather(**{k: self._value(q, regs[q.path], "weather") for k, q in zip(WEATHER_KEYS, qs)})
 
-    def field_state(self) -> R.FieldState:
-        value = self.scs.read(R.REG_FIELD_STATE, 1, "field state")[0]
-        try:
-            return R.FieldState(value)
-        except ValueError:
-            raise PlantError(f"plant {self.scs.name}: field state {value} outside the contract (0-2)") from None
+    def field_state(self) -> FieldState:
+        q = self.map.q["plant.field_state"]
+        raw = int(decode_raw(q, self._read([q], "field state")[q.path]))
+        name = state_name(q, raw)
+        if name is None:
+            raise PlantError(f"plant {self.scs.name}: field state {raw} at {self._where(q)} is not in the register "
+                             f"map {self.map.name} ({sorted(q.values)})")
+        return FieldState[name.upper()]
 
-    def _block(self, index: int) -> list[int]:
+    def _block(self, index: int, qs: list[Q]) -> dict[str, list[int]]:
         self._check_index(index)
-        return self.scs.read(R.heliostat_address(index), R.HELIOSTAT_USED, f"{self._label(index)} block")
+        return self._read(qs, f"{self._label(index)} block", index)
+
+    def _status(self, index: int, regs: dict[str, list[int]]) -> HeliostatStatus:
+        q = self.map.q
+        sq, fq = q["heliostats.status.state"], q["heliostats.status.fault"]
+        raw = int(decode_raw(sq, regs[sq.path]))
+        name = state_name(sq, raw)
+        if name is None:
+            raise PlantError(f"plant {self.scs.name}: {self._label(index)} state {raw} at {self._where(sq, index)} "
+                             f"is not in the register map {self.map.name}")
+        fraw = int(decode_raw(fq, regs[fq.path]))
+        fname = state_name(fq, fraw)
+        fault = FaultCode[fname.upper()].value if fname is not None else fraw
+        who = self._label(index)
+        s = tuple(self._value(q[f"heliostats.status.strokes_mm[{k}]"], regs[f"heliostats.status.strokes_mm[{k}]"], who)
+                  for k in (0, 1))
+        clean = self._value(q["heliostats.status.cleanliness"], regs["heliostats.status.cleanliness"], who)
+        done = int(decode_raw(q[HANDSHAKE + "done"], regs[HANDSHAKE + "done"]))
+        return HeliostatStatus(index=int(index), state=HeliostatState[name.upper()], sequence_done=done,
+                               fault=fault, strokes_mm=s, cleanliness=clean)
 
     def status(self, index: int) -> HeliostatStatus:
-        """State, last sequence processed, fault code, actual strokes, cleanliness of one heliostat."""
-        regs = self._block(index)
-        try:
-            state = R.HeliostatState(regs[R.OFF_STATE])
-        except ValueError:
-            raise PlantError(f"plant {self.scs.name}: {self._label(index)} state {regs[R.OFF_STATE]} outside the contract (0-6)") from None
-        s1 = R.decode_f32(regs[R.OFF_STROKE_ACT_1:R.OFF_STROKE_ACT_1 + 2])
-        s2 = R.decode_f32(regs[R.OFF_STROKE_ACT_2:R.OFF_STROKE_ACT_2 + 2])
-        clean = R.decode_f32(regs[R.OFF_CLEANLINESS:R.OFF_CLEANLINESS + 2])
-        return HeliostatStatus(index=int(index), state=state, sequence_done=regs[R.OFF_SEQUENCE_DONE],
-                               fault=regs[R.OFF_FAULT], strokes_mm=(s1, s2), cleanliness=clean)
+        """State, last command taken (the handshake's token), fault code, actual strokes, cleanliness."""
+        return self._status(index, self._block(index, self._status_q))
 
     # ------------------------------------------------------------------ writes
     @property
@@ -315,58 +405,108 @@ class ModbusPlant:
     def field_command(self, command: int) -> None:
         """Field command: 1 stow all (from then on every move and track command is refused), 2 resume
         tracking all (the gate opens again)."""
-        cmd = R.FieldCommand(int(command))
+        cmd = FieldCommand(int(command))
         self.guard.refuse_unarmed(f"field command {cmd.name}")
+        q = self.map.q["plant.field_command"]
+        value = q.values.get(FIELD_COMMAND_NAME[cmd])
+        if value is None:
+            raise PlantError(f"plant {self.scs.name}: the register map {self.map.name} has no value for field "
+                             f"command {cmd.name} ({q.path}.values)")
         with self.guard.lock:  # after the heliostat command in flight, before any waiting one
-            self.scs.write(R.REG_FIELD_COMMAND, [int(cmd)], f"field command {cmd.name}")
+            self._write(q.table, q.start, encode_raw(q, value), f"field command {cmd.name}")
             self.guard.field_sent(cmd)
 
-    def _next_sequence(self, index: int, regs: list[int]) -> int:
+    def _next_sequence(self, index: int, written: int, done: int) -> int:
         """A sequence number the plant sees as new: one past the register's value (and past ours)."""
-        written, done = regs[R.OFF_SEQUENCE], regs[R.OFF_SEQUENCE_DONE]
         taken = {written, done, self._last_sent.get(index, -1)}
         seq = (written + 1) & 0xFFFF
         while seq in taken:
             seq = (seq + 1) & 0xFFFF
         return seq
 
-    def _command(self, index: int, command: R.HeliostatCommand, fields: list[tuple[int, list[int], str]]) -> int:
+    def _encode(self, index: int, q: Q, value: float, limits=None) -> list[int]:
+        """``value`` in ``q``'s registers; a stroke rounded to the register's resolution stays inside ``limits``."""
+        try:
+            if limits is None or q.type in ("f32", "f64") or q.parts:
+                return encode(q, value)
+            lo, hi = (float(x) for x in limits)
+            up, down = (math.ceil, math.floor) if q.scale > 0 else (math.floor, math.ceil)
+            raw = raw_of(q, value)
+            if raw * q.scale + q.value_offset < lo:
+                raw = raw_of(q, lo, rounding=up)
+            elif raw * q.scale + q.value_offset > hi:
+                raw = raw_of(q, hi, rounding=down)
+            return encode_raw(q, raw)
+        except ValueError as exc:
+            raise PlantError(f"plant {self.scs.name}: {self._label(index)}: {q.path} at {self._where(q, index)}: "
+                             f"{exc}") from None
+
+    def _command(self, index: int, command: HeliostatCommand, fields: list[tuple[Q, list[int]]]) -> int:
         what = f"{command.name} command to {self._label(index)}"
         self.guard.refuse_unarmed(what)
+        mq = self.map.q["heliostats.command.mode"]
+        mode = mq.values.get(command.name.lower())
+        if mode is None:
+            raise PlantError(f"plant {self.scs.name}: the register map {self.map.name} has no mode value for "
+                             f"{command.name.lower()} ({mq.path}.values)")
+        label = self._label(index)
         with self.guard.lock:
             self.guard.gate(command, what)
-            regs = self._block(index)
-            seq = self._next_sequence(index, regs)
-            base = R.heliostat_address(index)
-            for offset, values, name in fields:
-                self.scs.write(base + offset, values, f"{self._label(index)} {name}")
-            self.scs.write(base + R.OFF_COMMAND, [int(command)], f"{self._label(index)} command {command.name}")
-            self.scs.write(base + R.OFF_SEQUENCE, [seq], f"{self._label(index)} sequence number")
-            self._last_sent[index] = seq
-        return seq
+            regs = self._block(index, self._command_q)
+            done = int(decode_raw(self.map.q[HANDSHAKE + "done"], regs[HANDSHAKE + "done"]))
+            if self._hs.kind == "sequence":
+                sq = self.map.q[HANDSHAKE + "sequence"]
+                token = self._next_sequence(index, int(decode_raw(sq, regs[sq.path])), done)
+                go = (sq, token, "sequence number")
+            else:
+                eq = self.map.q[HANDSHAKE + "execute"]
+                if int(decode_raw(eq, regs[eq.path])) != 0:
+                    raise PlantError(f"plant {self.scs.name}: {what} not sent: the execute register "
+                                     f"{self._where(eq, index)} of {label} is still set: the plant has not "
+                                     "taken the last command")
+                token = (done + 1) & 0xFFFF
+                go = (eq, 1, "execute")
+            for q, values in fields:
+                self._write(q.table, self.map.address(q, index), values, f"{label} {q.meaning or q.path}")
+            self._write(mq.table, self.map.address(mq, index), encode_raw(mq, mode), f"{label} command {command.name}")
+            self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}")
+            self._last_sent[index] = token
+        return token
+
+    def _pair(self, index: int, key: str, values, limits=None) -> list[tuple[Q, list[int]]]:
+        """The two registers (actuator 1, 2) of ``heliostats.command.<key>``, written as one request
+        where they are adjacent."""
+        q0, q1 = (self.map.q[f"heliostats.command.{key}[{k}]"] for k in (0, 1))
+        r0 = self._encode(index, q0, values[0], None if limits is None else limits[0])
+        r1 = self._encode(index, q1, values[1], None if limits is None else limits[1])
+        if q0.table == q1.table and q0.table != "coil" and q1.start == q0.start + q0.width:
+            return [(q0, r0 + r1)]
+        return [(q0, r0), (q1, r1)]
 
     def move_to(self, index: int, strokes_mm) -> int:
-        """Command strokes (actuator 1, 2) [mm] and hold; returns the sequence number sent.
+        """Command strokes (actuator 1, 2) [mm] and hold; returns the token the plant will show in
+        ``status().sequence_done`` once it took the command.
 
         Non-finite strokes, and strokes outside ``stroke_limits_mm`` when given, are refused
-        with a :class:`PlantError` before anything is written.
+        with a :class:`PlantError` before anything is written; strokes are then rounded to the
+        registers' resolution, never outside the range.
         """
         s = self.guard.strokes(index, strokes_mm)
-        return self._command(index, R.HeliostatCommand.MOVE,
-                             [(R.OFF_STROKE_CMD_1, R.encode_f32(s[0]) + R.encode_f32(s[1]), "stroke command")])
+        lim = self.guard.stroke_limits_mm
+        return self._command(index, HeliostatCommand.MOVE,
+                             self._pair(index, "strokes_mm", s, None if lim is None else lim[index]))
 
     def track(self, index: int, corrections_mm) -> int:
-        """Return to tracking with these stroke corrections (actuator 1, 2) [mm]; returns the sequence number.
+        """Return to tracking with these stroke corrections (actuator 1, 2) [mm]; returns the token.
 
         ``corrections_mm=None`` leaves the correction registers as they are: the plant tracks with
         the corrections it already has (never wipe a plant's corrections by accident).
         """
         if corrections_mm is None:
-            return self._command(index, R.HeliostatCommand.TRACK, [])
+            return self._command(index, HeliostatCommand.TRACK, [])
         c = self.guard.corrections(index, corrections_mm)
-        return self._command(index, R.HeliostatCommand.TRACK,
-                             [(R.OFF_TRACK_CORR_1, R.encode_f32(c[0]) + R.encode_f32(c[1]), "tracking corrections")])
+        return self._command(index, HeliostatCommand.TRACK, self._pair(index, "corrections_mm", c))
 
     def stow(self, index: int) -> int:
-        """Send one heliostat to stow; returns the sequence number."""
-        return self._command(index, R.HeliostatCommand.STOW, [])
+        """Send one heliostat to stow; returns the token."""
+        return self._command(index, HeliostatCommand.STOW, [])
