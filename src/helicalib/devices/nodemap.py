@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, Field, ValidationError, field_validator, model_validator
 
 from helicalib.config import _Model, read_yaml, validation_error
 from helicalib.devices.registers import FaultCode, FieldCommand, FieldState, HeliostatState
@@ -36,16 +36,16 @@ ARG_TYPES = ("Boolean", "SByte", "Byte", "Int16", "UInt16", "Int32", "UInt32", "
              "Double", "String")
 
 
-def check_node(value: str, per_heliostat: bool) -> str:
-    """A node reference as a map writes it: a node id or a browse path, with placeholders only
-    where a node belongs to one heliostat."""
+def check_node(value: str, per_heliostat: bool | None) -> str:
+    """A node reference as a map writes it: a node id or a browse path, with placeholders where a
+    node belongs to one heliostat (``per_heliostat``: True required, False refused, None either)."""
     if not isinstance(value, str) or not value.strip():
         raise ValueError(f"expected a node id (ns=2;s=...) or a browse path (2:Plant/2:Field), got {value!r}")
     names = set(re.findall(r"{(\w*)}", value))
     if names - set(PLACEHOLDERS):
         raise ValueError(f"{value!r}: unknown placeholder {{{sorted(names - set(PLACEHOLDERS))[0]}}} "
                          "(use {id}, {index} or {n})")
-    if names and not per_heliostat:
+    if names and per_heliostat is False:
         raise ValueError(f"{value!r}: a placeholder in a node that is not a heliostat's")
     if per_heliostat and not names:
         raise ValueError(f"{value!r}: a heliostat's node needs a placeholder ({{id}}, {{index}} or {{n}})")
@@ -54,6 +54,14 @@ def check_node(value: str, per_heliostat: bool) -> str:
         raise ValueError(f"{value!r}: neither a node id (ns=2;s=Name, ns=2;i=17) nor a browse path "
                          "of namespace:Name parts (2:Plant/2:Field)")
     return value
+
+
+PlantNode = Annotated[str, AfterValidator(lambda v: check_node(v, False))]
+"""A node of the field or the weather station (no placeholder)."""
+HeliostatNode = Annotated[str, AfterValidator(lambda v: check_node(v, True))]
+"""A node of one heliostat (a placeholder: ``{id}``, ``{index}`` or ``{n}``)."""
+AnyNode = Annotated[str, AfterValidator(lambda v: check_node(v, None))]
+"""A method or its object: one per heliostat, or one for all (the heliostat then an argument)."""
 
 
 def is_node_id(ref: str) -> bool:
@@ -67,9 +75,9 @@ def fill(ref: str, index: int, heliostat_id: str) -> str:
 
 
 class Number(_Model):
-    """A numeric variable: helicalib value = raw × ``scale`` + ``offset``."""
+    """A numeric variable of the plant: helicalib value = raw × ``scale`` + ``offset``."""
 
-    node: str
+    node: PlantNode
     scale: float = 1.0
     offset: float = 0.0
 
@@ -87,11 +95,34 @@ class Number(_Model):
         return value
 
 
-class Enumeration(_Model):
+class HeliostatNumber(Number):
+    node: HeliostatNode
+
+
+def _names(enum, what: str):
+    def check(values: dict[int, str] | None):
+        for raw, name in (values or {}).items():
+            if name not in enum.__members__:
+                raise ValueError(f"{raw}: {name!r} is not a helicalib {what} ({', '.join(enum.__members__)})")
+        return values
+    return AfterValidator(check)
+
+
+class FieldStateEnum(_Model):
     """An enumerated variable: the plant's values → helicalib's names (default: helicalib's own codes)."""
 
-    node: str
-    values: dict[int, str] | None = None
+    node: PlantNode
+    values: Annotated[dict[int, str] | None, _names(FieldState, "field state")] = None
+
+
+class StateEnum(_Model):
+    node: HeliostatNode
+    values: Annotated[dict[int, str] | None, _names(HeliostatState, "heliostat state")] = None
+
+
+class FaultEnum(_Model):
+    node: HeliostatNode
+    values: Annotated[dict[int, str] | None, _names(FaultCode, "fault code")] = None
 
 
 def _number(value):
@@ -100,9 +131,9 @@ def _number(value):
 
 
 class FieldNodes(_Model):
-    heliostat_count: str
-    state: Enumeration
-    plant_time: str
+    heliostat_count: PlantNode
+    state: FieldStateEnum
+    plant_time: PlantNode
     """A DateTime variable, or a Double of UTC seconds."""
     plant_time_rate: Number | None = None
     """Plant seconds per real second (a simulator's); absent: 1."""
@@ -111,15 +142,6 @@ class FieldNodes(_Model):
     @classmethod
     def _short_forms(cls, value):
         return _number(value)
-
-    @model_validator(mode="after")
-    def _nodes(self):
-        for ref in (self.heliostat_count, self.state.node, self.plant_time,
-                    self.plant_time_rate.node if self.plant_time_rate else None):
-            if ref is not None:
-                check_node(ref, False)
-        _check_names(self.state.values, FieldState, "field state")
-        return self
 
 
 class WeatherNodes(_Model):
@@ -134,35 +156,20 @@ class WeatherNodes(_Model):
     def _short_forms(cls, value):
         return _number(value)
 
-    @model_validator(mode="after")
-    def _nodes(self):
-        for name in type(self).model_fields:
-            check_node(getattr(self, name).node, False)
-        return self
-
 
 class HeliostatNodes(_Model):
-    state: Enumeration
-    sequence_done: str
-    fault: Enumeration
-    stroke_1_mm: Number
-    stroke_2_mm: Number
-    cleanliness: Number
+    state: StateEnum
+    sequence_done: HeliostatNode
+    fault: FaultEnum
+    stroke_1_mm: HeliostatNumber
+    stroke_2_mm: HeliostatNumber
+    cleanliness: HeliostatNumber
     """0..1 after scaling (a plant in percent: ``scale: 0.01``)."""
 
     @field_validator("state", "fault", "stroke_1_mm", "stroke_2_mm", "cleanliness", mode="before")
     @classmethod
     def _short_forms(cls, value):
         return _number(value)
-
-    @model_validator(mode="after")
-    def _nodes(self):
-        for ref in (self.state.node, self.sequence_done, self.fault.node, self.stroke_1_mm.node,
-                    self.stroke_2_mm.node, self.cleanliness.node):
-            check_node(ref, True)
-        _check_names(self.state.values, HeliostatState, "heliostat state")
-        _check_names(self.fault.values, FaultCode, "fault code")
-        return self
 
     def order(self) -> tuple[str, ...]:
         """The per-heliostat references in the order a status read asks them."""
@@ -174,8 +181,8 @@ class Method(_Model):
     """A command as a method call: ``object`` (the method's parent) and ``method`` nodes, and the
     input arguments in order (``name`` or ``name:Type``)."""
 
-    object: str
-    method: str
+    object: AnyNode
+    method: AnyNode
     args: list[str] = Field(default_factory=list)
 
     @field_validator("args")
@@ -199,6 +206,8 @@ class Method(_Model):
 
 
 class FieldMethod(Method):
+    object: PlantNode
+    method: PlantNode
     values: dict[str, int] = Field(default_factory=lambda: {"STOW_ALL": 1, "RESUME_TRACKING": 2})
     """helicalib's field command → the value the plant's method takes as ``command``."""
 
@@ -221,19 +230,12 @@ class Commands(_Model):
     sequence_modulus: int = Field(default=65536, ge=2, le=2**32)
     """Sequence numbers run 0..modulus-1 and wrap."""
 
-    @model_validator(mode="after")
-    def _nodes(self):
-        check_node(self.field.object, False)
-        check_node(self.field.method, False)
-        for name in ("move", "track", "resume", "stow"):
-            m = getattr(self, name)
-            if m is None:
-                continue
-            check_node(m.object, _has_placeholder(m.object))
-            check_node(m.method, _has_placeholder(m.method))
-            if "sequence" not in {a for a, _ in m.typed_args()}:
-                raise ValueError(f"{name}.args: a heliostat command carries its sequence number (add 'sequence')")
-        return self
+    @field_validator("move", "track", "resume", "stow")
+    @classmethod
+    def _sequence(cls, m: Method | None) -> Method | None:
+        if m is not None and "sequence" not in {a for a, _ in m.typed_args()}:
+            raise ValueError("args: a heliostat command carries its sequence number (add 'sequence')")
+        return m
 
 
 class NodeMap(_Model):
@@ -265,16 +267,6 @@ class NodeMap(_Model):
 
     def raw_field_state(self, state: int) -> int:
         return _reverse(self.field.state.values, FieldState(int(state)))
-
-
-def _has_placeholder(ref: str) -> bool:
-    return bool(re.search(r"{\w*}", ref))
-
-
-def _check_names(values: dict[int, str] | None, enum, what: str) -> None:
-    for raw, name in (values or {}).items():
-        if name not in enum.__members__:
-            raise ValueError(f"values: {raw}: {name!r} is not a helicalib {what} ({', '.join(enum.__members__)})")
 
 
 def _lookup(values: dict[int, str] | None, raw: int, enum):
