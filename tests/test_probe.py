@@ -67,9 +67,9 @@ def writes(served, monkeypatch):
     registers = served[0].registers
     seen, write = [], registers.write
 
-    def counting(address, values):
+    def counting(address, values, *args, **kw):
         seen.append((address, list(values)))
-        return write(address, values)
+        return write(address, values, *args, **kw)
 
     monkeypatch.setattr(registers, "write", counting)
     return seen
