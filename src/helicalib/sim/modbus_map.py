@@ -1,25 +1,33 @@
-"""The simulated plant's holding registers (``PLANT_INTERFACE.md``), independent of any transport.
+"""The simulated plant's Modbus registers, laid out by a register map, independent of any transport.
 
-:class:`PlantRegisters` answers register reads and writes for a :class:`SimulatedPlant`:
-reads compose the register image from the plant's state at the current plant time (addresses in
-the map but unused read 0; addresses past the last heliostat block are refused with exception 2);
-a write touching any read-only or unused register is refused whole (exception 2); otherwise the
-values are stored, the field command is acted on at every write, and a heliostat command is acted
-on when the write changes its sequence number (after all registers of the write are stored). Every
-call first advances the plant to ``clock.now_s()`` under one lock, so a Modbus server thread and
-HTTP camera threads can share a plant.
+:class:`PlantRegisters` answers register reads and writes for a :class:`SimulatedPlant` in the
+layout of a :class:`~helicalib.devices.regmap.RegisterMap` (default: ``PLANT_INTERFACE.md``):
+reads compose the image of a table (holding, input, coil) from the plant's state at the current
+plant time (registers in a ``readable`` range or a heliostat block but not mapped read 0; others
+are refused with exception 2); a write touching any register that is not a command register is
+refused whole (exception 2); otherwise the values are stored, the field command is acted on at
+every write, and a heliostat command is acted on per the map's handshake (``sequence``: when the
+write changes the sequence number; ``execute``: when it sets the execute register, which is then
+set back to 0 and the command counter counts up), after all registers of the write are stored.
+Every call first advances the plant to ``clock.now_s()`` under one lock, so a Modbus server thread
+and HTTP camera threads can share a plant.
 """
 
 from __future__ import annotations
 
+import bisect
 import threading
 
-import numpy as np
-
-from helicalib.devices import registers as R
+from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, state_raw
+from helicalib.devices.registers import FaultCode, FieldCommand, HeliostatCommand, HeliostatState
+from helicalib.devices.regmap import Q, RegisterMap, load_register_map
 
 ILLEGAL_ADDRESS = 2
 """Modbus exception code of a refused read or write."""
+HS = "heliostats.command.handshake."
+UNKNOWN = 0xFFFF
+"""What the server shows for a plant state or fault the map has no value for."""
+_FIELD_COMMANDS = {"none": FieldCommand.NONE, "stow": FieldCommand.STOW_ALL, "resume": FieldCommand.RESUME_TRACKING}
 
 
 class PlantRegisters:
@@ -30,17 +38,25 @@ class PlantRegisters:
     plant : SimulatedPlant
     clock : object with ``now_s()`` (plant time [UTC s]) and attribute ``rate``
     lock : threading.Lock shared with the cameras (one is made if None)
+    register_map : RegisterMap, a shipped map's name or a YAML path, optional
+        The layout served (default: ``PLANT_INTERFACE.md``).
     """
 
-    def __init__(self, plant, clock, lock: threading.Lock | None = None):
+    def __init__(self, plant, clock, lock: threading.Lock | None = None, register_map=None):
         self.plant = plant
         self.clock = clock
         self.lock = lock or threading.RLock()
+        self.map: RegisterMap = load_register_map(register_map)
         self.n = plant.heliostat_count()
-        self.end = R.heliostat_address(self.n)
-        # raw writable registers: field command and every heliostat block (values as written)
-        self.field_command_reg = 0
-        self.raw = np.zeros((self.n, R.HELIOSTAT_STRIDE), dtype=np.int64)
+        self.map.check_count(self.n)
+        self.written: dict[tuple[str, int], int] = {}
+        """Command registers as written, by (table, address)."""
+        m = self.map
+        self._plant_w = {(q.table, r): q for q in m.q.values() if q.writable and not q.block for r in q.registers}
+        self._block_w = {(q.table, r): q for q in m.q.values() if q.writable and q.block for r in q.registers}
+        self._extent = {t: m.block_extent(t) for t in ("holding", "input", "coil")}
+        h = m.doc.heliostats
+        self._starts = sorted((m.block_address(i), i) for i in range(self.n)) if h.addresses is not None else None
 
     def sync(self) -> None:
         """Advance the plant to the clock's time (call with the lock held)."""
@@ -48,97 +64,158 @@ class PlantRegisters:
         if now > self.plant.t_s:
             self.plant.advance_to(now)
 
+    # -- where an address lies --------------------------------------------------------------
+    def _block_of(self, table: str, address: int) -> tuple[int, int] | None:
+        """(heliostat index, offset) of a register inside a block's readable extent, or None."""
+        extent = self._extent[table]
+        if not extent or self.n == 0:
+            return None
+        if self._starts is None:
+            h = self.map.doc.heliostats
+            i, off = divmod(address - h.base, h.stride)
+            return (i, off) if address >= h.base and i < self.n and off < extent else None
+        k = bisect.bisect_right(self._starts, (address, self.n)) - 1
+        if k < 0:
+            return None
+        start, i = self._starts[k]
+        return (i, address - start) if address - start < extent else None
+
+    def _readable(self, table: str, address: int) -> bool:
+        return self.map.plant_readable(table, address) or self._block_of(table, address) is not None
+
     # -- reads ------------------------------------------------------------------------------
-    def read(self, address: int, count: int) -> list[int] | int:
-        """``count`` registers from ``address``, or the exception code 2."""
-        if count < 1 or address < 0 or address + count > self.end:
+    def read(self, address: int, count: int, table: str = "holding") -> list[int] | int:
+        """``count`` registers of ``table`` from ``address``, or the exception code 2."""
+        if count < 1 or address < 0 or address + count > 65536:
+            return ILLEGAL_ADDRESS
+        if not all(self._readable(table, address + k) for k in range(count)):
             return ILLEGAL_ADDRESS
         with self.lock:
             self.sync()
-            return self._image(address, count)
+            return self._image(table, address, count)
 
-    def _image(self, address: int, count: int) -> list[int]:
-        p = self.plant
-        out = [0] * count
-        fixed = {}
-        if address < R.HELIOSTAT_BASE:
-            t, _ = p.plant_time()
-            w = p.weather()
-            fixed = {R.REG_VERSION: R.INTERFACE_VERSION, R.REG_HELIOSTAT_COUNT: self.n,
-                     R.REG_TARGET_COUNT: len(p.cfg.targets), R.REG_FIELD_COMMAND: self.field_command_reg,
-                     R.REG_FIELD_STATE: int(p.field_state())}
-            for base, regs in ((R.REG_PLANT_TIME, R.encode_f64(t)),
-                               (R.REG_PLANT_TIME_RATE, R.encode_f32(getattr(self.clock, "rate", p.rate))),
-                               (R.REG_WIND_SPEED, R.encode_f32(w.wind_ms)),
-                               (R.REG_WIND_DIRECTION, R.encode_f32(w.wind_direction_deg)),
-                               (R.REG_DNI, R.encode_f32(w.dni_wm2)),
-                               (R.REG_TEMPERATURE, R.encode_f32(w.temperature_c)),
-                               (R.REG_PRESSURE, R.encode_f32(w.pressure_hpa))):
-                fixed.update({base + k: v for k, v in enumerate(regs)})
-        last = address + count - 1
-        blocks = range(max(0, (address - R.HELIOSTAT_BASE) // R.HELIOSTAT_STRIDE),
-                       max(0, (last - R.HELIOSTAT_BASE) // R.HELIOSTAT_STRIDE + 1)) if last >= R.HELIOSTAT_BASE else ()
-        if len(blocks):
-            clean = p.soiling.cleanliness(p.t_s)
+    def _image(self, table: str, address: int, count: int) -> list[int]:
+        image: dict[int, int] = {}
+        if any(self.map.plant_readable(table, address + k) for k in range(count)):
+            image.update(self._plant_values(table))
+        blocks = {b[0] for k in range(count) if (b := self._block_of(table, address + k)) is not None}
+        if blocks:
+            clean = self.plant.soiling.cleanliness(self.plant.t_s)
             for i in blocks:
-                fixed.update(self._block(i, clean[i]))
-        for k in range(count):
-            out[k] = int(fixed.get(address + k, 0))
-        return out
+                image.update(self._block_values(table, i, float(clean[i])))
+        return [int(image.get(address + k, self.written.get((table, address + k), 0))) for k in range(count)]
 
-    def _block(self, i: int, cleanliness: float) -> dict[int, int]:
-        p = self.plant
-        base = R.heliostat_address(i)
-        regs = {base + off: int(self.raw[i, off]) for off in R.WRITABLE_HELIOSTAT_OFFSETS}
-        regs[base + R.OFF_STATE] = int(p.state[i])
-        regs[base + R.OFF_SEQUENCE_DONE] = int(p.sequence_done[i])
-        regs[base + R.OFF_FAULT] = int(p.fault[i])
-        for off, value in ((R.OFF_STROKE_ACT_1, p.strokes_mm[i, 0]), (R.OFF_STROKE_ACT_2, p.strokes_mm[i, 1]),
-                           (R.OFF_CLEANLINESS, cleanliness)):
-            hi, lo = R.encode_f32(value)
-            regs[base + off], regs[base + off + 1] = hi, lo
-        return regs
+    def _put(self, image: dict[int, int], q: Q, address: int, value: float) -> None:
+        for k, v in enumerate(encode(q, value, clamp=True)):
+            image[address + k] = v
+
+    def _plant_values(self, table: str) -> dict[int, int]:
+        p, m = self.plant, self.map
+        t, _ = p.plant_time()
+        w = p.weather()
+        values = {"plant.heliostat_count": self.n, "plant.target_count": len(p.cfg.targets), "plant.clock.time": t,
+                  "plant.clock.rate": getattr(self.clock, "rate", p.rate), "weather.wind_ms": w.wind_ms,
+                  "weather.wind_direction_deg": w.wind_direction_deg, "weather.dni_wm2": w.dni_wm2,
+                  "weather.temperature_c": w.temperature_c, "weather.pressure_hpa": w.pressure_hpa}
+        image: dict[int, int] = {}
+        for path, q in m.q.items():
+            if q.block or q.table != table or q.writable:
+                continue
+            if path.startswith("identity["):
+                value = q.equals
+            elif path == "plant.field_state":
+                value = state_raw(q, p.field_state().name.lower())
+            else:
+                value = values[path]
+            self._put(image, q, q.start, UNKNOWN if value is None else value)
+        return image
+
+    def _block_values(self, table: str, i: int, cleanliness: float) -> dict[int, int]:
+        p, m = self.plant, self.map
+        base = m.block_address(i)
+        q = m.q
+        image: dict[int, int] = {}
+        sq, fq = q["heliostats.status.state"], q["heliostats.status.fault"]
+        if sq.table == table:
+            name = HeliostatState(int(p.state[i])).name.lower()
+            raw = state_raw(sq, name)
+            raw = state_raw(sq, "fault") if raw is None else raw
+            image.update(zip(range(base + sq.start, base + sq.start + sq.width), encode_raw(sq, raw)))
+        if fq.table == table:
+            raw = state_raw(fq, FaultCode(int(p.fault[i])).name.lower())
+            image.update(zip(range(base + fq.start, base + fq.start + fq.width),
+                             encode_raw(fq, UNKNOWN if raw is None else raw)))
+        for path, value in ((HS + "done", int(p.sequence_done[i]) & 0xFFFF),
+                            ("heliostats.status.strokes_mm[0]", p.strokes_mm[i, 0]),
+                            ("heliostats.status.strokes_mm[1]", p.strokes_mm[i, 1]),
+                            ("heliostats.status.cleanliness", cleanliness)):
+            if q[path].table == table:
+                self._put(image, q[path], base + q[path].start, value)
+        return image
 
     # -- writes -----------------------------------------------------------------------------
-    @staticmethod
-    def writable(address: int) -> bool:
-        if address in R.WRITABLE_FIELD:
-            return True
-        if address < R.HELIOSTAT_BASE:
-            return False
-        return (address - R.HELIOSTAT_BASE) % R.HELIOSTAT_STRIDE in R.WRITABLE_HELIOSTAT_OFFSETS
+    def _command_register(self, table: str, address: int) -> tuple[int | None, Q] | None:
+        """(heliostat index or None, the command quantity) of a writable register, else None."""
+        q = self._plant_w.get((table, address))
+        if q is not None:
+            return None, q
+        b = self._block_of(table, address)
+        if b is None:
+            return None
+        q = self._block_w.get((table, b[1]))
+        return None if q is None else (b[0], q)
 
-    def write(self, address: int, values) -> int | None:
+    def writable(self, address: int, table: str = "holding") -> bool:
+        return self._command_register(table, address) is not None
+
+    def write(self, address: int, values, table: str = "holding") -> int | None:
         """Store ``values`` from ``address``; returns None, or exception code 2 (nothing stored)."""
         values = [int(v) & 0xFFFF for v in values]
-        if not values or address < 0 or address + len(values) > self.end:
+        if not values or address < 0 or address + len(values) > 65536:
             return ILLEGAL_ADDRESS
-        if not all(self.writable(address + k) for k in range(len(values))):
+        targets = [self._command_register(table, address + k) for k in range(len(values))]
+        if any(t is None for t in targets):
             return ILLEGAL_ADDRESS
         with self.lock:
             self.sync()
             field_written = False
-            sequences: dict[int, int] = {}
+            acts: dict[int, str] = {}
             for k, v in enumerate(values):
-                a = address + k
-                if a == R.REG_FIELD_COMMAND:
-                    self.field_command_reg = v
+                self.written[(table, address + k)] = v
+                i, q = targets[k]
+                if i is None:
                     field_written = True
-                    continue
-                i, off = divmod(a - R.HELIOSTAT_BASE, R.HELIOSTAT_STRIDE)
-                self.raw[i, off] = v
-                if off == R.OFF_SEQUENCE:
-                    sequences[i] = v
+                elif q.path in (HS + "sequence", HS + "execute"):
+                    acts[i] = q.path
             if field_written:
-                self.plant.field_command(self.field_command_reg)
-            for i, seq in sequences.items():
-                self._act(i, seq)
+                fq = self.map.q["plant.field_command"]
+                raw = int(decode_raw(fq, self._regs(fq)))
+                name = next((n for n, v in fq.values.items() if v == raw), "none")
+                self.plant.field_command(int(_FIELD_COMMANDS[name]))
+            for i, path in acts.items():
+                self._act(i, path)
         return None
 
-    def _act(self, i: int, seq: int) -> None:
-        r = self.raw[i]
-        strokes = [R.decode_f32(r[R.OFF_STROKE_CMD_1:R.OFF_STROKE_CMD_1 + 2]),
-                   R.decode_f32(r[R.OFF_STROKE_CMD_2:R.OFF_STROKE_CMD_2 + 2])]
-        corr = [R.decode_f32(r[R.OFF_TRACK_CORR_1:R.OFF_TRACK_CORR_1 + 2]),
-                R.decode_f32(r[R.OFF_TRACK_CORR_2:R.OFF_TRACK_CORR_2 + 2])]
-        self.plant.write_command(i, int(r[R.OFF_COMMAND]), seq, strokes_mm=strokes, corrections_mm=corr)
+    def _regs(self, q: Q, i: int | None = None) -> list[int]:
+        start = self.map.address(q, i)
+        return [self.written.get((q.table, start + k), 0) for k in range(q.width)]
+
+    def _act(self, i: int, path: str) -> None:
+        q, p = self.map.q, self.plant
+        hq = q[path]
+        if path == HS + "sequence":
+            seq = int(decode_raw(hq, self._regs(hq, i)))
+        else:
+            if not int(decode_raw(hq, self._regs(hq, i))):
+                return                                  # execute written back to 0: nothing to do
+            self.written[(hq.table, self.map.address(hq, i))] = 0
+            seq = (int(p.sequence_done[i]) + 1) & 0xFFFF
+        mq = q["heliostats.command.mode"]
+        raw = int(decode_raw(mq, self._regs(mq, i)))
+        name = next((n for n, v in mq.values.items() if v == raw), None)
+        command = int(HeliostatCommand[name.upper()]) if name is not None else -1   # -1: an unknown command
+        strokes = [decode(q[f"heliostats.command.strokes_mm[{k}]"], self._regs(q[f"heliostats.command.strokes_mm[{k}]"], i))
+                   for k in (0, 1)]
+        corr = [decode(q[f"heliostats.command.corrections_mm[{k}]"],
+                       self._regs(q[f"heliostats.command.corrections_mm[{k}]"], i)) for k in (0, 1)]
+        p.write_command(i, command, seq, strokes_mm=strokes, corrections_mm=corr)

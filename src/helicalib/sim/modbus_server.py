@@ -11,11 +11,17 @@ from pymodbus.exceptions import NoSuchIdException
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 
-from helicalib.sim.modbus_map import PlantRegisters
+from helicalib.sim.modbus_map import ILLEGAL_ADDRESS, PlantRegisters
+
+
+TABLES = {1: "coil", 5: "coil", 15: "coil", 3: "holding", 6: "holding", 16: "holding", 22: "holding", 23: "holding",
+          4: "input"}
+"""The register table a Modbus function code addresses (discrete inputs, 2, are not served)."""
 
 
 class PlantContext(ModbusServerContext):
-    """pymodbus 3.16 server context backed by :class:`PlantRegisters` (bypasses the data blocks)."""
+    """pymodbus 3.16 server context backed by :class:`PlantRegisters` (bypasses the data blocks);
+    the function code of each request says which table it reads or writes."""
 
     def __init__(self, registers: PlantRegisters, units: set[int]):  # noqa: D107  (no super().__init__)
         self.old_simulator = True      # pymodbus then calls our async_getValues/async_setValues
@@ -30,12 +36,16 @@ class PlantContext(ModbusServerContext):
 
     async def async_getValues(self, device_id, func_code, address, count=1):
         self._check(device_id)
-        out = self.registers.read(address, count)
-        return ExcCodes(out) if isinstance(out, int) else out
+        table = TABLES.get(func_code)
+        out = ILLEGAL_ADDRESS if table is None else self.registers.read(address, count, table)
+        if isinstance(out, int):
+            return ExcCodes(out)
+        return [bool(v) for v in out] if table == "coil" else out
 
     async def async_setValues(self, device_id, func_code, address, values):
         self._check(device_id)
-        rc = self.registers.write(address, values)
+        table = TABLES.get(func_code)
+        rc = ILLEGAL_ADDRESS if table is None else self.registers.write(address, [int(v) for v in values], table)
         return None if rc is None else ExcCodes(rc)
 
     def device_ids(self):
