@@ -105,13 +105,16 @@ class PlantServer:
     faults : FaultInjector, optional
     sleep : callable
         Real sleep for slow answers (``time.sleep``).
+    register_map : RegisterMap, a shipped map's name or a YAML path, optional
+        The Modbus layout served (default: ``PLANT_INTERFACE.md``).
     """
 
     def __init__(self, plant, clock, modbus_port: int = 0, camera_port: int | None = 0,
-                 weather_port: int | None = None, faults: FaultInjector | None = None, sleep=time.sleep):
+                 weather_port: int | None = None, faults: FaultInjector | None = None, sleep=time.sleep,
+                 register_map=None):
         self.plant = plant
         self.clock = clock
-        self.registers = PlantRegisters(plant, clock)
+        self.registers = PlantRegisters(plant, clock, register_map=register_map)
         self.faults = faults or FaultInjector()
         self.sleep = sleep
         cfg = plant.cfg
