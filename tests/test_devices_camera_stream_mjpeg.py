@@ -143,7 +143,7 @@ def test_ffmpeg_mjpeg_over_http_hands_out_the_newest_frame():
         first = number(cam.grab())
         time.sleep(0.8)
         second = number(cam.grab())
-        assert 6 <= second - first <= 13, (first, second)
+        assert 4 <= second - first <= 13, (first, second)  # a camera that buffered: 1
     finally:
         cam.close()
         proc.kill()
