@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import iso_time, nonnegative_int, port, positive_float
+from helicalib.commands._args import add_register_map, iso_time, nonnegative_int, port, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="HTTP port for every camera (default: the ports of the cameras' URLs; 0 = free port)")
     p.add_argument("--scenario", default=None, help="scenario YAML (weather, soiling, errors, faults)")
     p.add_argument("--zero-errors", action="store_true", help="a perfect field: no hidden errors at all")
+    add_register_map(p)
     p.set_defaults(func=run)
 
 
@@ -33,6 +34,7 @@ def run(args) -> int:
     from datetime import datetime, timezone
 
     from helicalib.config import load_field_config
+    from helicalib.devices.regmap import register_map_of
     from helicalib.errors import ConfigError
     from helicalib.geometry.sun import parse_time, to_unix_seconds, utc_now
     from helicalib.sim.clock import RateClock
@@ -44,6 +46,7 @@ def run(args) -> int:
         raise ConfigError(f"--rate {args.rate}: must be > 0")
     cfg = load_field_config(args.field)
     cfg.require_cameras()  # a PAINT import describes a plant; it cannot be measured
+    register_map = register_map_of(cfg, args.register_map)
     scenario = load_scenario(args.scenario)
     if args.seed is not None:
         scenario = scenario.model_copy(update={"seed": args.seed})
@@ -55,7 +58,7 @@ def run(args) -> int:
     weather = cfg.plant.weather_endpoint
     weather_port = weather.port if (args.port is None and weather.port != cfg.plant.scs.port) else None
     server = PlantServer(plant, clock, modbus_port=port, camera_port=args.camera_port, weather_port=weather_port,
-                         faults=FaultInjector.from_scenario(scenario.faults, scenario.seed))
+                         faults=FaultInjector.from_scenario(scenario.faults, scenario.seed), register_map=register_map)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -68,7 +71,7 @@ def run(args) -> int:
     print(f"sim-plant: {plant.n} heliostats, scenario '{scenario.name}', seed {scenario.seed}, rate {args.rate}x, "
           f"plant time starts {datetime.fromtimestamp(start_s, tz=timezone.utc).isoformat()}")
     for p in server.modbus_ports:
-        print(f"  Modbus TCP  127.0.0.1:{p}  unit(s) {sorted(server.units)}")
+        print(f"  Modbus TCP  127.0.0.1:{p}  unit(s) {sorted(server.units)}  register map {register_map.name}")
     for c in cfg.cameras:
         print(f"  camera {c.id:<6} {server.camera_url(c.id)}")
     print("  Ctrl-C or SIGTERM to stop", flush=True)

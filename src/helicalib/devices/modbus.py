@@ -25,7 +25,6 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException
@@ -33,7 +32,7 @@ from pymodbus.exceptions import ModbusException
 from helicalib.devices.guard import CommandGuard
 from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, plan_reads, raw_of, state_name
 from helicalib.devices.registers import FaultCode, FieldCommand, FieldState, HeliostatCommand, HeliostatState
-from helicalib.devices.regmap import Q, load_register_map
+from helicalib.devices.regmap import Q, load_register_map, register_map_of
 from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.errors import PlantError
 
@@ -251,10 +250,7 @@ class ModbusPlant:
         """The client of the plant a field config names, with its heliostat ids and stroke ranges;
         ``register_map`` (a file or a shipped name) overrides the config's ``plant.register_map``."""
         g = CommandGuard.from_config(cfg, armed)
-        if register_map is not None:
-            rmap = load_register_map(register_map, Path.cwd())
-        else:
-            rmap = load_register_map(cfg.plant.register_map, cfg.base_dir)
+        rmap = register_map_of(cfg, register_map)
         return cls(cfg.plant.scs, cfg.plant.weather_endpoint, len(cfg.heliostats), armed=armed,
                    heliostat_ids=g.heliostat_ids, stroke_limits_mm=g.stroke_limits_mm, register_map=rmap, **kw)
 

@@ -397,3 +397,15 @@ def load_register_map(value: str | Path | RegisterMap | None, base_dir: Path | N
 def default_register_map() -> RegisterMap:
     """``PLANT_INTERFACE.md`` version 1 (the shipped ``plant-interface-1``)."""
     return _shipped(DEFAULT_MAP)
+
+
+def register_map_of(cfg, override: str | Path | None = None) -> RegisterMap:
+    """The register map of a field config's plant, checked against its heliostat count: ``override``
+    (``--register-map``: a shipped name, or a file relative to the working directory), else
+    ``plant.register_map`` (relative to the field config), else the default."""
+    if override is not None:
+        rmap = load_register_map(override, Path.cwd())
+    else:
+        rmap = load_register_map(cfg.plant.register_map, cfg.base_dir)
+    rmap.check_count(len(cfg.heliostats))
+    return rmap
