@@ -8,6 +8,7 @@ matter. The node map's validation is tested on files written to tmp_path.
 from __future__ import annotations
 
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -29,20 +30,12 @@ START = float(to_unix_seconds("2026-03-20T05:00:00Z"))
 RATE = 600.0
 
 
-class FakeSource:
-    def __init__(self):
-        self.t = 100.0
-
-    def __call__(self):
-        return self.t
-
-
 @pytest.fixture(scope="module")
 def served(demo_field_path):
     cfg = load_field_config(demo_field_path)
-    source = FakeSource()
+    source = SimpleNamespace(t=100.0)            # the monotonic source the tests move
     plant = SimulatedPlant(cfg, start_s=START, rate=RATE)
-    svc = OpcUaPlantService(plant, RateClock(START, RATE, source)).start()
+    svc = OpcUaPlantService(plant, RateClock(START, RATE, lambda: source.t)).start()
     yield cfg, plant, svc, source
     svc.stop()
 
@@ -206,13 +199,14 @@ def test_a_heliostat_count_other_than_the_configs_is_refused(served):
 
 
 def test_a_fault_code_maps_to_helicalibs(served, tmp_path):
-    """A plant whose fault values differ: the map translates them (the simulated server serves the
-    map's raw values, the client reads them back as helicalib's codes)."""
+    """A plant whose fault values differ: the map translates them both ways (the simulated server
+    serves the map's raw value, the client reads it as helicalib's code); a value outside the map
+    is no code at all."""
     cfg, plant, _svc, source = served
     edit = lambda d: d["heliostat"]["fault"].update(values={0: "NONE", 11: "STROKE_OUT_OF_RANGE",  # noqa: E731
                                                             12: "REFUSED_DURING_STOW", 13: "UNKNOWN_COMMAND"})
     nm = load_node_map(write_map(tmp_path, edit))
-    svc2 = OpcUaPlantService(plant, RateClock(START, RATE, source), lock=None, node_map=nm)
+    svc2 = OpcUaPlantService(plant, RateClock(START, RATE, lambda: source.t), node_map=nm)
     assert svc2.map.raw_fault(FaultCode.STROKE_OUT_OF_RANGE) == 11 and nm.fault_of(12) == FaultCode.REFUSED_DURING_STOW
     assert nm.fault_of(1) is None
 

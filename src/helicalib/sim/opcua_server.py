@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import socket
 import threading
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -108,6 +109,7 @@ class OpcUaPlantService:
     def start(self) -> OpcUaPlantService:
         """Listen on loopback; a port that cannot be bound is a one-line :class:`ConfigError`."""
         quiet_asyncua()
+        self._probe()
         ready = threading.Event()
         errors: list[BaseException] = []
 
@@ -135,12 +137,26 @@ class OpcUaPlantService:
             self._thread.join(5)
             exc = errors[0]
             if isinstance(exc, OSError):
-                if exc.errno == errno.EADDRINUSE:
-                    raise ConfigError(f"{OPCUA} port {self._want_port} on {LOOPBACK} is in use") from None
-                raise ConfigError(f"{OPCUA} port {self._want_port} on {LOOPBACK}: cannot listen "
-                                  f"({exc.strerror or exc})") from None
+                raise self._bind_error(exc) from None
             raise exc
         return self
+
+    def _probe(self) -> None:
+        """Bind the wanted port the way the server will (``SO_REUSEADDR``) before the server's slow
+        set-up, so a port in use is said at once."""
+        if self._want_port == 0:
+            return
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                probe.bind((LOOPBACK, self._want_port))
+            except OSError as exc:
+                raise self._bind_error(exc) from None
+
+    def _bind_error(self, exc: OSError) -> ConfigError:
+        if exc.errno == errno.EADDRINUSE:
+            return ConfigError(f"{OPCUA} port {self._want_port} on {LOOPBACK} is in use")
+        return ConfigError(f"{OPCUA} port {self._want_port} on {LOOPBACK}: cannot listen ({exc.strerror or exc})")
 
     def stop(self) -> None:
         """Close the listener and every session; returns when the server thread has ended."""
