@@ -271,3 +271,13 @@ def test_selected_heliostats_only(field, capsys):
     code, doc = _json([field(), "--heliostats", "H0002,H0039"], capsys)
     assert code == 0
     assert [c["name"] for c in doc["checks"] if c["section"] == "heliostats"] == ["H0002", "H0039"]
+
+
+def test_a_second_camera_of_a_target_is_a_warning_not_a_failure(field, capsys):
+    def second(data):
+        data["cameras"].append(dict(data["cameras"][0], id="C3"))
+
+    code, doc = _json([field(second)], capsys)
+    row = next(c for c in doc["checks"] if c["name"] == "C3 frame")
+    assert code == 0 and row["status"] == "warning" and "watched by C1" in row["found"]
+    assert doc["summary"]["warning"] == 1

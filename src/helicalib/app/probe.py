@@ -146,14 +146,13 @@ def _heliostats(cfg, plant, ids: list[str], progress) -> list[Check]:
 def _cameras(cfg, cameras: dict, plant_now, clock_slack_s) -> list[Check]:
     out: list[Check] = []
     for cam_cfg in cfg.cameras:
-        camera = cameras.get(cam_cfg.target)
-        used = camera is not None and next(c for c in cfg.cameras if c.target == cam_cfg.target) is cam_cfg
-        if not used:
-            first = next(c for c in cfg.cameras if c.target == cam_cfg.target)
+        first = cfg.cameras_for(cam_cfg.target)[0]
+        if first is not cam_cfg:  # the controller uses a target's first camera only
             out.append(Check("cameras", f"{cam_cfg.id} frame", "", f"not probed: target {cam_cfg.target} is watched "
                              f"by {first.id} (the controller uses a target's first camera)", WARNING, {}))
             continue
-        out += camera_checks(cam_cfg, camera, plant_now, clock_slack_s, cfg.calibration.max_capture_skew_s)
+        out += camera_checks(cam_cfg, cameras[cam_cfg.target], plant_now, clock_slack_s,
+                             cfg.calibration.max_capture_skew_s)
     return out
 
 
