@@ -1,10 +1,10 @@
 """A target camera that streams (RTSP or HTTP MJPEG), read through OpenCV's FFmpeg backend.
 
 :class:`StreamCamera` implements :class:`helicalib.devices.protocols.Camera`. A reader thread
-reads the stream without pause and keeps only the newest decoded frame (so no frame waits in a
-buffer to be handed out later), with the real (monotonic) time it arrived. ``grab`` waits for the
-first frame that arrived after the call began, so a frame is never older than the request, and
-hands it out as an 8-bit grayscale PNG.
+takes every frame off the stream as it comes (so no frame waits in a buffer to be handed out
+later) and notes the real (monotonic) time it arrived. ``grab`` asks for the first frame that
+arrives after the call began, the newest one then, so a frame is never older than the request,
+and hands it out as an 8-bit grayscale PNG (only that frame is converted to an image).
 
 Capture time. A stream carries no capture time the controller can trust, so a frame's capture
 time is the plant time at which it arrived, less the camera's known latency: ``clock.now_s()`` at
@@ -88,12 +88,16 @@ def open_stream(url: str, open_timeout_s: float, read_timeout_s: float):
 
 
 class _Reader:
-    """One connection: a thread reading ``capture`` until the stream ends or ``stop`` is set."""
+    """One connection: a thread taking every frame of ``capture`` off the stream (``grab``: demuxed
+    and decoded, so none waits in a buffer) until the stream ends or ``stop`` is set; a frame is
+    converted to an image (``retrieve``) only when ``on_grabbed`` asks for it (a frame handed out):
+    measured at 1280 × 1024 MJPEG, 10 fps, 5 % of a core for grab alone, 13 % for grab and retrieve."""
 
-    def __init__(self, capture, on_frame: Callable[[np.ndarray], None], on_end: Callable[[str], None]):
+    def __init__(self, capture, on_grabbed: Callable[[], bool], on_image: Callable[[np.ndarray], None],
+                 on_end: Callable[[str], None]):
         self.capture = capture
         self.stop = threading.Event()
-        self._on_frame, self._on_end = on_frame, on_end
+        self._on_grabbed, self._on_image, self._on_end = on_grabbed, on_image, on_end
         self.thread = threading.Thread(target=self._run, daemon=True, name="helicalib-stream-reader")
         self.thread.start()
 
@@ -101,11 +105,15 @@ class _Reader:
         why = "stream closed"
         try:
             while not self.stop.is_set():
-                ok, image = self.capture.read()
-                if not ok or image is None:
+                if not self.capture.grab():
                     why = "the stream ended or stalled (no frame within the read timeout)"
                     break
-                self._on_frame(image)
+                if self._on_grabbed():
+                    ok, image = self.capture.retrieve()
+                    if not ok or image is None:
+                        why = "a frame could not be decoded"
+                        break
+                    self._on_image(image)
         except cv2.error as exc:  # a decoder fault: the connection is given up and opened again
             why = f"decoder error: {exc}"
         finally:
@@ -149,6 +157,8 @@ class StreamCamera:
         self._monotonic = monotonic
         self._cond = threading.Condition()
         self._newest: Arrived | None = None
+        self._last_arrival_s: float | None = None
+        self._wanted_after_s: float | None = None  # a grab waits for a frame that arrives after this
         self._count = 0
         self._intervals_s: list[float] = []
         self._reader: _Reader | None = None
@@ -170,13 +180,20 @@ class StreamCamera:
 
     # -- the reader's side -------------------------------------------------------------------
 
-    def _arrived(self, image: np.ndarray) -> None:
+    def _grabbed(self) -> bool:
+        """A frame came off the stream: note its arrival; True when a grab waits for it."""
         now = self._monotonic()
         with self._cond:
-            if self._newest is not None:
-                self._intervals_s = (self._intervals_s + [now - self._newest.arrived_s])[-8:]
+            if self._last_arrival_s is not None:
+                self._intervals_s = (self._intervals_s + [now - self._last_arrival_s])[-8:]
+            self._last_arrival_s = now
             self._count += 1
-            self._newest = Arrived(image, now, self._count)
+            return self._wanted_after_s is not None and now > self._wanted_after_s
+
+    def _retrieved(self, image: np.ndarray) -> None:
+        with self._cond:
+            self._newest = Arrived(image, self._last_arrival_s, self._count)
+            self._wanted_after_s = None
             self._cond.notify_all()
 
     def _ended_with(self, why: str) -> None:
@@ -220,22 +237,27 @@ class StreamCamera:
         with self._cond:
             self._ended = None
             self._intervals_s = []
-        self._reader = _Reader(capture, self._arrived, self._ended_with)
+            self._last_arrival_s = None
+        self._reader = _Reader(capture, self._grabbed, self._retrieved, self._ended_with)
 
     def _wait_frame(self, after_s: float, end: float) -> Arrived:
-        """The newest frame that arrived after monotonic ``after_s``, waiting until ``end``."""
+        """The first frame that arrived after monotonic ``after_s`` (the newest then), waiting until ``end``."""
         with self._cond:
-            while True:
-                newest = self._newest
-                if newest is not None and newest.arrived_s > after_s:
-                    return newest
-                if self._ended is not None:
-                    raise _Lost(self._ended)
-                left = end - self._monotonic()
-                if left <= 0:
-                    raise CameraError("camera_timeout", f"camera {self.url}: no new frame within "
-                                                        f"{self.timeout_s:g} s", True)
-                self._cond.wait(min(left, 0.1))
+            self._wanted_after_s = after_s
+            try:
+                while True:
+                    newest = self._newest
+                    if newest is not None and newest.arrived_s > after_s:
+                        return newest
+                    if self._ended is not None:
+                        raise _Lost(self._ended)
+                    left = end - self._monotonic()
+                    if left <= 0:
+                        raise CameraError("camera_timeout", f"camera {self.url}: no new frame within "
+                                                            f"{self.timeout_s:g} s", True)
+                    self._cond.wait(min(left, 0.1))
+            finally:
+                self._wanted_after_s = None
 
     def grab(self, exposure_ms: float | None = None) -> Frame:
         """The newest frame that arrived after this call began (after the exposure took effect, when
