@@ -192,7 +192,7 @@ def publish(url: str) -> subprocess.Popen:
               "geq=lum='if(bitand(N\\,pow(2\\,floor(X/32)))\\,255\\,0)',format=yuvj420p")
     return subprocess.Popen([FFMPEG, "-hide_banner", "-loglevel", "error", "-re", "-f", "lavfi", "-i", source,
                              "-c:v", "mjpeg", "-huffman", "default", "-force_duplicated_matrix", "1", "-q:v", "3", "-f", "rtsp", "-rtsp_transport", "tcp", url],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def number(frame) -> int:
