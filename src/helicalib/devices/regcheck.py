@@ -54,7 +54,7 @@ def _check_code(path: str, q: Q) -> list[str]:
     spec = CODED.get(path)
     has_values, has_bits = bool(q.values), bool(q.bits)
     if spec is None:
-        return [f"{path}.{k}: only a coded quantity takes {k}" for k, on in (("values", has_values), ("bits", has_bits)) if on]
+        return []
     allowed, required, how = spec
     out = []
     if q.type not in INT_RANGE or q.scale != 1 or q.value_offset != 0 or q.parts:
@@ -177,16 +177,12 @@ def check_count(m: RegisterMap, n: int) -> list[str]:
         return [f"heliostats.addresses: {len(h.addresses)} block addresses for a field of {n} heliostats"]
     if n == 0:
         return []
-    out = []
-    for table, e in sorted(_extents(m).items()):
-        span = max(e, h.block_size or 0)
-        last = max(m.block_address(i) for i in ((n - 1,) if h.addresses is None else range(n))) + span - 1
-        if last > 65535:
-            key = "heliostats.addresses" if h.addresses is not None else "heliostats.stride"
-            out.append(f"{key}: the {table} blocks of {n} heliostats end at address {last}, beyond 65535")
-            continue
-        lo = min(m.block_address(0), h.base if h.base is not None else min(h.addresses))
-        for q in m.q.values():
-            if not q.block and q.table == table and any(lo <= r <= last for r in q.registers):
-                out.append(f"{q.path}.address: {q.start} lies inside the heliostat blocks ({table} {lo}..{last})")
-    return out
+    starts = [m.block_address(i) for i in ((0, n - 1) if h.addresses is None else range(n))]
+    lo = min(starts)
+    ends = {table: max(starts) + max(e, h.block_size or 0) - 1 for table, e in _extents(m).items()}
+    table, last = max(ends.items(), key=lambda kv: kv[1])
+    if last > 65535:
+        key = "heliostats.addresses" if h.addresses is not None else "heliostats.stride"
+        return [f"{key}: the {table} blocks of {n} heliostats end at address {last}, beyond 65535"]
+    return [f"{q.path}.address: {q.start} lies inside the heliostat blocks ({q.table} {lo}..{ends[q.table]})"
+            for q in m.q.values() if not q.block and q.table in ends and any(lo <= r <= ends[q.table] for r in q.registers)]
