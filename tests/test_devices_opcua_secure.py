@@ -93,7 +93,7 @@ def test_a_wrong_password_is_a_refusal_not_an_unreachable_plant(secured, demo_fi
         with pytest.raises(PlantError) as err:
             op.heliostat_count()
     assert not isinstance(err.value, PlantUnreachableError)
-    assert "\n" not in str(err.value) and svc.endpoint in str(err.value) and "refused" in str(err.value)
+    assert "\n" not in str(err.value) and svc.endpoint in str(err.value) and "refused" in str(err.value), err.value
 
 
 def test_a_password_variable_that_is_not_set_is_a_config_error(secured, demo_field_path, monkeypatch):

@@ -27,7 +27,7 @@ from helicalib.errors import ConfigError
 MAPS_DIR = Path(__file__).parent / "maps"
 DEFAULT_MAP = "opcua-default"
 PLACEHOLDERS = ("id", "index", "n")
-NODE_ID = re.compile(r"(ns=\d+;|nsu=[^;]+;)?(i=\d+|s=.+|g=[0-9A-Fa-f-]{36}|b=.+)")
+NODE_ID = re.compile(r"(ns=\d+;)?(i=\d+|s=.+|g=[0-9A-Fa-f-]{36}|b=.+)")
 PATH_PART = re.compile(r"\d+:[^/:]+")
 ARG_NAMES = {"sequence": "UInt32", "command": "Int32", "stroke_1_mm": "Double", "stroke_2_mm": "Double",
              "correction_1_mm": "Double", "correction_2_mm": "Double", "index": "Int32", "id": "String"}
