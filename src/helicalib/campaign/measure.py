@@ -14,6 +14,12 @@ point, waits until the board's other heliostats have stopped moving (their plant
 the before frame again, up to :data:`MAX_BEFORE_RETAKES` times; the same after frames are judged
 against each new one, so a clean frame makes the reading valid (its message says the before frame
 was retaken, and why).
+
+A reading refused as too bright (``saturated``, or ``clipped`` by a saturated plateau) or too faint
+(``low_contrast``) by a camera that sets its exposure: :func:`retake_exposure` takes the before
+frame (beam at standby) and the after frames (the beam back at the same strokes, by the same
+approach) again at the exposure the sensor offers, up to
+:data:`~.exposure.MAX_EXPOSURE_RETAKES` times; the observation is the last reading's, at its hold.
 """
 
 from __future__ import annotations
@@ -24,7 +30,8 @@ from dataclasses import replace
 import numpy as np
 
 from helicalib.campaign import status as move_status
-from helicalib.campaign.moves import to_standby
+from helicalib.campaign.exposure import MAX_EXPOSURE_RETAKES
+from helicalib.campaign.moves import approach_and_hold, to_standby
 from helicalib.campaign.visit_types import VisitContext
 from helicalib.devices.protocols import Before
 from helicalib.devices.registers import HeliostatState
@@ -45,6 +52,8 @@ moving (:meth:`.board.Board.movers`); the before frame is taken again then even 
 (the new frame is judged by the same check)."""
 RETAKEN = "before frame retaken"
 """Words in the message of a reading whose before frame was taken again."""
+EXPOSED = "frames retaken at"
+"""Words in the message of a reading taken again at another exposure."""
 
 
 def take_before(ctx: VisitContext) -> Before:
@@ -60,10 +69,13 @@ def measure(ctx: VisitContext, before: Before, strokes_cmd, strokes_read, aim, i
             ) -> Generator[float, None, tuple[Observation, Before]]:
     """One "after" measurement at the held strokes; always returns an Observation (recorded) and the
     before reference the visit goes on with (a new one when it was taken again: :func:`retake_before`)."""
-    approach = ctx.approach  # of this placement (a retake moves the beam to standby and back)
     reading = yield from ctx.sensor.after(ctx, before)
     if reading.before_beam:
         before, reading = yield from retake_before(ctx, before, reading, iteration)
+    if not reading.valid and getattr(ctx.sensor, "exposure_retake", None) is not None:
+        before, reading, held = yield from retake_exposure(ctx, before, reading, strokes_cmd, aim, iteration)
+        strokes_read = strokes_read if held is None else held
+    approach = ctx.approach  # of this placement's last hold (a retake moves the beam to standby and back)
     capture_s = reading.capture_time_s
     sun_vec, az, el, rising = ctx.sun(capture_s)
     weather = _safe(ctx.plant.weather)
@@ -138,6 +150,42 @@ def retake_before(ctx: VisitContext, before: Before, reading, iteration: int):
     else:
         note = f"{RETAKEN} {times}: another beam lay on the board in the first{waits}"
     return before, replace(reading, message=f"{reading.message.rstrip('.')} [{note}].")
+
+
+def retake_exposure(ctx: VisitContext, before: Before, reading, strokes_cmd, aim, iteration: int):
+    """A reading refused as too bright or too faint, taken again at the exposure the sensor offers
+    (``ctx.sensor.exposure_retake(before, reading)``; None: none can mend it), at most
+    :data:`~.exposure.MAX_EXPOSURE_RETAKES` times: the beam to standby, a new before frame at that
+    exposure (saved; the visit's later placements use it), the beam back to ``strokes_cmd`` by the
+    same approach, new after frames. Returns ``(before, reading, held)``: ``held`` the read-back
+    strokes of the last hold (None: no retake). The reading's message says what was retaken and why;
+    a frame that cannot be had ends the retakes (the last reading stands, with that said)."""
+    offer = ctx.sensor.exposure_retake
+    first, steps, held = reading.reason, [getattr(before.state, "exposure_ms", None)], None
+    for _ in range(MAX_EXPOSURE_RETAKES):
+        exposure_ms = offer(before, reading)
+        if exposure_ms is None:
+            break
+        yield from to_standby(ctx)
+        try:
+            new = ctx.sensor.before(ctx, exposure_ms)
+        except MeasurementError as err:
+            return before, replace(reading, message=f"{reading.message.rstrip('.')} [no before frame at "
+                                                    f"{exposure_ms:.3g} ms could be had: {err}]."), held
+        before = new
+        steps.append(getattr(before.state, "exposure_ms", exposure_ms))
+        if before.data is not None:
+            ctx.before_path = ctx.host.save_frame(ctx, before.data, iteration, before.capture_time_s, "before")
+        held = yield from approach_and_hold(ctx, strokes_cmd, aim)
+        reading = yield from ctx.sensor.after(ctx, before)
+        if reading.before_beam:
+            before, reading = yield from retake_before(ctx, before, reading, iteration)
+    if len(steps) == 1:
+        return before, reading, held
+    path = " → ".join(f"{e:.3g}" for e in steps)
+    n = len(steps) - 1
+    note = f"{EXPOSED} {path} ms after a {first} reading ({n} time{'s' if n > 1 else ''})"
+    return before, replace(reading, message=f"{reading.message.rstrip('.')} [{note}]."), held
 
 
 def _beams_gone(ctx: VisitContext, least_s: float) -> Generator[float, None, tuple[list[str], list[str]]]:

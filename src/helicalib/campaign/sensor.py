@@ -16,18 +16,28 @@ beam (light on the board in the before frame that is gone in the after frames) s
 again and judge the same after frames against it (``retake``): the visit moves its beam to the
 standby point, waits until the other beams have left the board, and asks for it
 (:func:`~.measure.retake_before`).
+
+**Exposure.** A camera that takes an exposure (``Frame.exposure_ms`` not None, PLANT_INTERFACE
+1.1) is exposed per visit by :class:`~.exposure.ExposurePolicy`: the before frame is taken at the
+exposure chosen for the spot expected (DNI, distance, mirror, cleanliness) and the after frames at
+the same one; valid readings teach the camera's gain. A reading refused as too bright or too faint
+offers a corrected exposure (:meth:`CameraSensor.exposure_retake`), at which the visit takes the
+before and after frames again (:func:`~.measure.retake_exposure`). A camera without exposure control
+is never asked for one: its frames are grabbed as they always were.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections import deque
 from collections.abc import Generator
 
 import numpy as np
 
+from helicalib.campaign.exposure import AfterImages, BeforeState, ExposurePolicy, SpotFigures, board_grey, expected_peak_wm2
 from helicalib.devices.protocols import Before, CaptureTimeError, Reading, SpotSensor
-from helicalib.errors import MeasurementError
+from helicalib.errors import HelicalibError, MeasurementError
 from helicalib.flux.visit import cleanliness_from_visit
 from helicalib.vision.frames import decode_frame
 from helicalib.vision.marks import find_marks
@@ -63,23 +73,35 @@ class CameraSensor:
         The camera's flux factor, for the measured cleanliness (None: not measured).
     atmosphere : str or None
         Attenuation model between mirror and board for the measured cleanliness.
+    fe_exposure_ms : float, optional
+        The exposure at which ``fe_wm2_per_grey`` holds [ms]; default: the camera's exposure in its
+        first frame (before any was asked). Frames at another exposure scale Fe by the ratio.
     """
 
-    def __init__(self, camera, camera_config, fe_wm2_per_grey: float | None = None, atmosphere: str | None = "clear"):
+    def __init__(self, camera, camera_config, fe_wm2_per_grey: float | None = None, atmosphere: str | None = "clear",
+                 fe_exposure_ms: float | None = None):
         self.camera, self.camera_config = camera, camera_config
         self.fe_wm2_per_grey, self.atmosphere = fe_wm2_per_grey, atmosphere
+        self.fe_exposure_ms = fe_exposure_ms
+        self.exposure = ExposurePolicy()
+        self.exposure_control: bool | None = None
+        """Whether the camera sets its exposure: None until its first frame says (``Frame.exposure_ms``)."""
         self._marks = None
         self._marks_uses = 0
         self._marks_frames = 0  # before frames the marks were last sought on
         self._recent: deque = deque(maxlen=MARKS_MEAN_FRAMES)  # the last before images
 
     # ------------------------------------------------------------------ frames
-    def _grab(self, ctx):
-        """One frame and its image; refused (:class:`CaptureTimeError`) unless its capture time lies
-        within ``max_capture_skew_s`` (plus the clock's uncertainty) of the plant time around the grab."""
+    def _grab(self, ctx, exposure_ms: float | None = None):
+        """One frame and its image, at ``exposure_ms`` if given and the camera takes one (a camera
+        whose frames carry no exposure is never asked); refused (:class:`CaptureTimeError`) unless its
+        capture time lies within ``max_capture_skew_s`` (plus the clock's uncertainty) of the plant
+        time around the grab."""
         t0 = ctx.now()
-        frame = self.camera.grab()
+        ask = exposure_ms is not None and self.exposure_control
+        frame = self.camera.grab(exposure_ms=exposure_ms) if ask else self.camera.grab()
         t1 = ctx.now()
+        self._saw_exposure(frame.exposure_ms)
         slack = ctx.settings.max_capture_skew_s + (ctx.time_slack_s() if ctx.time_slack_s is not None else 0.0)
         t = float(frame.capture_time_s)
         if not (math.isfinite(t) and t0 - slack <= t <= t1 + slack):
@@ -87,6 +109,33 @@ class CameraSensor:
             raise CaptureTimeError(f"{ctx.heliostat_id}: the camera's capture time {t:.6g} lies {off} the plant "
                                    f"time of the grab (tolerance {slack:.1f} s): is the camera's clock set?", frame)
         return frame, decode_frame(frame.data, expected_shape=None)
+
+    def _saw_exposure(self, exposure_ms: float | None) -> None:
+        """What a frame says of the camera's exposure control (the first: Fe's reference exposure and
+        the policy's prior gain from it)."""
+        first = self.exposure_control is None
+        self.exposure_control = exposure_ms is not None and _takes_exposure(self.camera)
+        if first and self.exposure_control:
+            if self.fe_exposure_ms is None:
+                self.fe_exposure_ms = float(exposure_ms)
+            if self.fe_wm2_per_grey:
+                self.exposure.prior_gain = 1.0 / (self.fe_wm2_per_grey * self.fe_exposure_ms)
+
+    def _expected_peak(self, ctx) -> float | None:
+        """The visit's spot's expected peak irradiance [W/m²] now (None: the plant's weather or
+        status cannot be read, or the context has no plant and model to ask)."""
+        if getattr(ctx, "plant", None) is None or getattr(ctx, "model", None) is None:
+            return None
+        try:
+            dni = float(ctx.plant.weather().dni_wm2)
+            clean = float(ctx.plant.status(ctx.index).cleanliness)
+        except HelicalibError:  # a plant that does not answer: the camera keeps its exposure
+            return None
+        sun = ctx.sun(ctx.now())[0]
+        return expected_peak_wm2(
+            dni, ctx.model.drives.mirror_size_m[0], ctx.model.pivots_enu[0], ctx.target.center_enu_m,
+            ctx.target.frame_enu[2], sun, cleanliness=clean if math.isfinite(clean) else 1.0,
+            reflectivity=ctx.settings.reflectivity_clean, atmosphere=self.atmosphere)
 
     def _marks_for(self, image, target):
         """The board's marks for this before ``image``: found on the mean of the last before frames
@@ -124,14 +173,24 @@ class CameraSensor:
         self._recent.clear()
 
     # ------------------------------------------------------------------ the protocol
-    def before(self, ctx) -> Before:
-        frame, image = self._grab(ctx)
+    def before(self, ctx, exposure_ms: float | None = None) -> Before:
+        """The before frame, at ``exposure_ms`` (a retake's) or the exposure the policy chooses for
+        the visit's spot (a camera with exposure control, known from its first frame: the first
+        visit keeps the camera's own exposure)."""
+        expected = self._expected_peak(ctx) if self.exposure_control else None
+        want = exposure_ms if exposure_ms is not None else self.exposure.choose(expected)
+        frame, image = self._grab(ctx, want)
         marks = self._marks_for(image, ctx.target)
         if not marks.found:
-            marks = self._marks_on_more_frames(ctx, image, marks)
-        return Before(capture_time_s=float(frame.capture_time_s), data=frame.data, state=(image, marks))
+            marks = self._marks_on_more_frames(ctx, image, marks, want)
+        board = None
+        if frame.exposure_ms is not None:
+            board = board_grey(image, marks, ctx.target)
+            self.exposure.saw_board(board, frame.exposure_ms)
+        return Before(capture_time_s=float(frame.capture_time_s), data=frame.data,
+                      state=BeforeState(image, marks, frame.exposure_ms, expected, board, asked_ms=want))
 
-    def _marks_on_more_frames(self, ctx, image, failed):
+    def _marks_on_more_frames(self, ctx, image, failed, exposure_ms=None):
         """The marks sought once more on the mean of this frame and :data:`MARKS_MEAN_FRAMES` − 1 more
         grabbed now, when this frame alone shows none (beams are off the board during ``before``). On a
         board lit dimly (the camera exposed for the spot, a low sun: the board at some 10–15 grey levels)
@@ -142,7 +201,7 @@ class CameraSensor:
         frames = [image]
         try:
             for _ in range(MARKS_MEAN_FRAMES - 1):
-                frames.append(self._grab(ctx)[1])
+                frames.append(self._grab(ctx, exposure_ms)[1])
         except MeasurementError:
             return failed
         if any(f.shape != image.shape for f in frames):
@@ -166,7 +225,7 @@ class CameraSensor:
         :class:`MeasurementError` as :meth:`before` does."""
         if self._recent and before.state is not None and self._recent[-1] is before.state[0]:
             self._recent.pop()
-        new = self.before(ctx)
+        new = self.before(ctx, getattr(before.state, "asked_ms", None))
         if reading.state is None:  # no after image to judge again (the reading failed before the vision)
             return new, reading
         return new, self._judge(ctx, new, reading.state, reading.frames, reading.capture_time_s)
@@ -175,7 +234,7 @@ class CameraSensor:
         frames, images, reason, message, refused = [], [], None, "", []
         for _ in range(ctx.settings.after_frames):
             try:
-                f, img = self._grab(ctx)
+                f, img = self._grab(ctx, getattr(before.state, "asked_ms", None))
                 frames.append(f)
                 images.append(img)
             except MeasurementError as err:
@@ -202,6 +261,10 @@ class CameraSensor:
                             marks=marks, limits=limits)
         if spot.reason in MARKS_DOUBT:
             self._forget_marks()
+        images = AfterImages(images)
+        images.figures = self._figures(before, spot)
+        if spot.valid and images.figures is not None:
+            self.exposure.learn(images.figures, before.state.expected_peak)
         return Reading(
             valid=bool(spot.valid), reason=spot.reason, message=spot.message, capture_time_s=capture_s,
             offset_m=None if spot.offset_m is None else (float(spot.offset_m[0]), float(spot.offset_m[1])),
@@ -210,13 +273,39 @@ class CameraSensor:
             spot_area_px=_f(spot.spot_area_px), threshold=_f(spot.threshold), frames=data,
             before_beam=bool(spot.before_beam), state=images)
 
+    @staticmethod
+    def _figures(before: Before, spot) -> SpotFigures | None:
+        """What the reading showed of the light, at the before frame's exposure (None: no control)."""
+        exposure_ms = getattr(before.state, "exposure_ms", None)
+        if exposure_ms is None:
+            return None
+        f = spot.frames[-1] if spot.frames else None
+        sat = None if f is None or not math.isfinite(f.saturated_fraction) else float(f.saturated_fraction)
+        return SpotFigures(exposure_ms, peak=None if f is None else float(f.peak),
+                           noise=None if f is None else float(f.noise), saturated_fraction=sat,
+                           board_grey=before.state.board_grey)
+
+    def exposure_retake(self, before: Before, reading: Reading) -> float | None:
+        """The exposure [ms] at which to take ``reading`` again (before and after frames), when it
+        was refused as too bright or too faint and another exposure can mend it; else None (a camera
+        without exposure control, a spot cut by the board's rim, the end of the camera's range)."""
+        figures = getattr(reading.state, "figures", None)
+        if reading.valid or figures is None:
+            return None
+        return self.exposure.retake_exposure_ms(reading.reason, figures)
+
     def cleanliness(self, ctx, before: Before, reading: Reading, held_mm: np.ndarray, weather,
                     sun_enu: np.ndarray) -> float | None:
-        """The mirror's present cleanliness from the power in the spot (Zhang & Wang; docs/flux.md)."""
+        """The mirror's present cleanliness from the power in the spot (Zhang & Wang; docs/flux.md);
+        Fe scaled to the frames' exposure."""
         image, marks = before.state
         held = np.asarray(held_mm, dtype=float).reshape(1, 2)
+        fe = self.fe_wm2_per_grey
+        exposure_ms = getattr(before.state, "exposure_ms", None)
+        if fe is not None and exposure_ms is not None and self.fe_exposure_ms:
+            fe = fe * self.fe_exposure_ms / exposure_ms
         est = cleanliness_from_visit(
-            image, reading.state[-1], marks, ctx.target, fe_wm2_per_grey=self.fe_wm2_per_grey,
+            image, reading.state[-1], marks, ctx.target, fe_wm2_per_grey=fe,
             reflectivity_clean=ctx.settings.reflectivity_clean, dni_wm2=getattr(weather, "dni_wm2", None),
             sun_enu=sun_enu, pivot_enu=ctx.model.pivots_eff_enu[0], normal_enu=ctx.model.normal(held)[0],
             mirror_offset_m=float(ctx.model.mirror_offset_m[0]),
@@ -242,6 +331,15 @@ def camera_sensors(cfg, cameras: dict, flux: dict | None = None) -> dict[str, Ca
         fe, atmosphere = (flux or {}).get(tid) or flux_calibration_of(cfg, cam_cfg)
         out[tid] = CameraSensor(cam, cam_cfg, fe_wm2_per_grey=fe, atmosphere=atmosphere)
     return out
+
+
+def _takes_exposure(camera) -> bool:
+    """Whether ``camera.grab`` takes ``exposure_ms`` (a camera object made before interface 1.1, or a
+    wrapper that does not pass it on, is driven as a camera without exposure control)."""
+    try:
+        return "exposure_ms" in inspect.signature(camera.grab).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 def _f(x) -> float | None:
