@@ -146,11 +146,11 @@ def _check_blocks(m: RegisterMap) -> list[str]:
     out = []
     if h.block_size is not None and h.block_size < widest:
         out.append(f"heliostats.block_size: {h.block_size} is smaller than the block's extent {widest}")
-    if h.stride is not None:
-        for table, e in sorted(extent.items()):
-            if h.stride < max(e, h.block_size or 0):
-                out.append(f"heliostats.stride: {h.stride} is smaller than the block's extent "
-                           f"{max(e, h.block_size or 0)} ({table} offsets 0..{e - 1})")
+    if h.stride is not None and extent:
+        table, e = max(sorted(extent.items()), key=lambda kv: kv[1])
+        if h.stride < max(e, h.block_size or 0):
+            out.append(f"heliostats.stride: {h.stride} is smaller than the block's extent "
+                       f"{max(e, h.block_size or 0)} ({table} offsets 0..{e - 1})")
     if h.addresses is not None:
         ordered = sorted(h.addresses)
         for a, b in zip(ordered, ordered[1:]):
