@@ -62,6 +62,12 @@ class SimulationOptions:
     tracking sampled every plant day, reported per 30 days (``monthly_plant_tracking_rms_mrad``);
     ``keep_frames``: every night delete the frames of all but each heliostat's newest N observations
     and the rejected ones (as ``helicalib operate``; None: keep all).
+
+    Over the network, ``protocol`` (``"modbus"`` or ``"opcua"``) is how the SCS is served and
+    reached; ``register_map`` the Modbus map both sides speak (None: the field config's
+    ``plant.register_map``, else PLANT_INTERFACE.md's); ``lockstep``: the served plant's clock is
+    the controller's virtual clock (it moves only when the controller waits), so a run over the
+    network is repeatable: the same seed gives the same campaign whatever the protocol or map.
     """
 
     days: float
@@ -79,6 +85,9 @@ class SimulationOptions:
     monthly_tracking: bool | None = None
     keep_frames: int | None = None
     spots_per_board: int | str = 1
+    protocol: str = "modbus"
+    register_map: str | None = None
+    lockstep: bool = False
 
 
 def simulate_campaign(cfg, out_dir: Path, options: SimulationOptions,
@@ -91,6 +100,9 @@ def simulate_campaign(cfg, out_dir: Path, options: SimulationOptions,
 
     if options.fidelity not in FIDELITIES:
         raise ConfigError(f"fidelity {options.fidelity!r}: expected one of {', '.join(FIDELITIES)}")
+    if (options.protocol != "modbus" or options.register_map is not None or options.lockstep) \
+            and not options.over_network:
+        raise ConfigError("--protocol, --register-map and --lockstep describe the served plant: add --over-network")
     if options.fidelity == "fast" and options.over_network:
         raise ConfigError("fidelity fast: the fast sensor reads the in-process simulator's truth; it cannot run "
                           "--over-network (a served plant has cameras)")
@@ -126,7 +138,9 @@ def _simulate(store, cfg, out_dir: Path, db_path: Path, o: SimulationOptions, pr
     end_s = start_s + days * 86400.0
     with ExitStack() as stack:
         if o.over_network:
-            plant, cameras, clock, sim, _server = _network_plant(cfg, scenario, start_s, o.rate, stack)
+            plant, cameras, clock, sim, _server = _network_plant(
+                cfg, scenario, start_s, o.rate, stack, protocol=o.protocol, register_map=o.register_map,
+                lockstep=o.lockstep)
         else:
             sim = SimulatedPlant(cfg, scenario, start_s=start_s)
             clock = VirtualClock(start_s)
@@ -149,7 +163,9 @@ def _simulate(store, cfg, out_dir: Path, db_path: Path, o: SimulationOptions, pr
                 settings={"days": days, "seed": seed, "planner": o.planner, "refine": o.refine,
                           "over_network": o.over_network, "scenario": scenario.name, "fidelity": fidelity,
                           "operation": operation, "rota_days": o.rota_days if operation == "rota" else None,
-                          "spots_per_board": o.spots_per_board})
+                          "spots_per_board": o.spots_per_board,
+                          **({"protocol": o.protocol, "register_map": o.register_map, "lockstep": o.lockstep}
+                             if o.over_network else {})})
         elif clock.now_s() < store_resume_time(store, campaign_id, start_s):
             clock.sleep(store_resume_time(store, campaign_id, start_s) - clock.now_s())
         runner = CampaignRunner(cfg, plant, cameras, clock, store, campaign_id, heliostat_ids=o.heliostat_ids,
@@ -189,25 +205,29 @@ def store_resume_time(store: Store, campaign_id: int, start_s: float) -> float:
     return max(times)
 
 
-def _network_plant(cfg, scenario, start_s, rate, stack):
-    """Serve the simulated plant on loopback and connect the real clients to it; returns
-    (plant client, cameras, plant clock, simulated plant, server)."""
-    from helicalib.devices.camera_http import HttpCamera
+def _network_plant(cfg, scenario, start_s, rate, stack, *, protocol: str = "modbus", register_map=None,
+                   lockstep: bool = False):
+    """Serve the simulated plant on loopback (``protocol``, ``register_map``: see
+    :class:`SimulationOptions`) and connect the real clients to it; returns (plant client, cameras,
+    plant clock, simulated plant, server). With ``lockstep`` the server and the controller share one
+    virtual clock; else the plant runs at ``rate`` × real time."""
     from helicalib.devices.clock import PlantClock
-    from helicalib.devices.modbus import ModbusPlant
-    from helicalib.sim.clock import RateClock
+    from helicalib.devices.connect import cameras_from_config, plant_from_config
+    from helicalib.sim.clock import RateClock, VirtualClock
     from helicalib.sim.plant import SimulatedPlant
     from helicalib.sim.server import FaultInjector, PlantServer
 
     sim = SimulatedPlant(cfg, scenario, start_s=start_s, rate=rate)
-    server = PlantServer(sim, RateClock(start_s, rate, time.monotonic, time.sleep), modbus_port=0, camera_port=0,
+    served_clock = VirtualClock(start_s) if lockstep else RateClock(start_s, rate, time.monotonic, time.sleep)
+    server = PlantServer(sim, served_clock, modbus_port=0, camera_port=0, protocol=protocol,
+                         register_map=register_map, opcua_port=0,
                          faults=FaultInjector.from_scenario(scenario.faults, seed=scenario.seed))
     stack.enter_context(server)
-    endpoint = cfg.plant.scs.model_copy(update={"host": "127.0.0.1", "port": server.modbus_port})
-    plant = ModbusPlant(endpoint, endpoint, heliostat_count=len(cfg.heliostats), armed=True,
-                        heliostat_ids=[h.id for h in cfg.heliostats])
+    served = server.served_config(cfg)  # the field config with the bound ports and the served map
+    plant = plant_from_config(served, armed=True,
+                              register_map=server.registers.map if protocol == "modbus" else None)
     if hasattr(plant, "close"):
         stack.callback(plant.close)
-    cameras = {t.id: HttpCamera(server.camera_url(cfg.cameras_for(t.id)[0].id), timeout_s=5.0) for t in cfg.targets}
-    clock = PlantClock(plant)
+    clock = served_clock if lockstep else PlantClock(plant)
+    cameras = cameras_from_config(served, timeout_s=5.0, clock=clock)
     return plant, cameras, clock, sim, server

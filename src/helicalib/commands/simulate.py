@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from helicalib.commands._args import add_spots, float_in, iso_time, nonnegative_int, positive_float
+from helicalib.commands._args import add_register_map, add_spots, float_in, iso_time, nonnegative_int, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,6 +31,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--heliostats", default=None, help="comma-separated heliostat ids (default all)")
     p.add_argument("--over-network", action="store_true", help="serve the plant on loopback and use the real clients")
     p.add_argument("--rate", type=positive_float, default=3000.0, help="plant time rate with --over-network (default 3000)")
+    p.add_argument("--protocol", choices=("modbus", "opcua"), default="modbus",
+                   help="with --over-network: serve and reach the SCS over Modbus TCP (default) or OPC UA")
+    add_register_map(p)
+    p.add_argument("--lockstep", action="store_true",
+                   help="with --over-network: the served plant keeps the controller's virtual clock (a repeatable "
+                        "run: the same seed gives the same campaign over any protocol or register map)")
     p.add_argument("--fidelity", choices=("render", "fast"), default="render",
                    help="render (default): every frame drawn and measured by the vision; fast: the simulator's "
                         "true spot plus the fitted measurement-error model, no frames (large fields; "
@@ -120,7 +126,8 @@ def run_campaign(args, inputs: Inputs, out: Path) -> int:
                                     over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
                                     rate=args.rate, refine=args.refine, fidelity=args.fidelity, operation=args.operate,
                                     rota_days=args.rota_days, keep_frames=args.keep_frames,
-                                    spots_per_board=args.spots_per_board)
+                                    spots_per_board=args.spots_per_board, protocol=args.protocol,
+                                    register_map=args.register_map, lockstep=args.lockstep)
         result = simulate_campaign(cfg, out, options, progress=progress)
     (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
     if args.report:

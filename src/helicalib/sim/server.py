@@ -23,6 +23,7 @@ from http.server import ThreadingHTTPServer
 from urllib.parse import urlparse
 
 import numpy as np
+from helicalib.config import Endpoint, OpcUa, _is_map_name
 from helicalib.errors import ConfigError
 from helicalib.sim.camera import SimCamera
 from helicalib.sim.camera_server import make_http_handler
@@ -107,27 +108,60 @@ class PlantServer:
         Real sleep for slow answers (``time.sleep``).
     register_map : RegisterMap, a shipped map's name or a YAML path, optional
         The Modbus layout served (default: ``PLANT_INTERFACE.md``).
+    protocol : ``"modbus"`` or ``"opcua"``
+        How the SCS and the weather station are served: Modbus TCP (``register_map``), or OPC UA
+        (``node_map``, on ``opcua_port``; None: the port of ``plant.opcua.endpoint``).
+    The cameras are served by their ``kind``: ``http`` snapshot cameras on ``camera_port``,
+    ``stream`` cameras as HTTP MJPEG with an exposure URL on ``stream_port`` (None: the port of the
+    first stream camera's URL).
     """
 
     def __init__(self, plant, clock, modbus_port: int = 0, camera_port: int | None = 0,
                  weather_port: int | None = None, faults: FaultInjector | None = None, sleep=time.sleep,
-                 register_map=None):
+                 register_map=None, protocol: str = "modbus", opcua_port: int | None = None, node_map=None,
+                 opcua_security=None, stream_port: int | None = None):
         self.plant = plant
         self.clock = clock
         self.registers = PlantRegisters(plant, clock, register_map=register_map)
         self.faults = faults or FaultInjector()
         self.sleep = sleep
+        self.protocol = protocol
         cfg = plant.cfg
-        self.units = {cfg.plant.scs.unit, cfg.plant.weather_endpoint.unit}
-        self._want_modbus = [modbus_port]
-        if weather_port is not None and weather_port != modbus_port:
+        self.units = {e.unit for e in (cfg.plant.scs, cfg.plant.weather_endpoint) if e is not None} or {1}
+        self._want_modbus = [modbus_port] if protocol == "modbus" else []
+        if protocol == "modbus" and weather_port is not None and weather_port != modbus_port:
             self._want_modbus.append(weather_port)
-        # cameras grouped by port
+        self.opcua = None
+        if protocol == "opcua":
+            from helicalib.sim.opcua_server import OpcUaPlantService
+
+            if opcua_port is None:
+                opcua_port = urlparse(cfg.plant.opcua.endpoint).port if cfg.plant.opcua is not None else 0
+            if node_map is None and cfg.plant.opcua is not None and cfg.plant.opcua.node_map is not None:
+                node_map = str(cfg.resolve_path(cfg.plant.opcua.node_map)) \
+                    if not _is_map_name(cfg.plant.opcua.node_map) else cfg.plant.opcua.node_map
+            self.opcua = OpcUaPlantService(plant, clock, lock=self.registers.lock, port=opcua_port or 0,
+                                           node_map=node_map, security=opcua_security)
+        elif protocol != "modbus":
+            raise ConfigError(f"protocol {protocol!r}: expected modbus or opcua")
+        # snapshot cameras grouped by port; stream cameras on one stream service
         self._camera_groups: dict[int, dict[str, SimCamera]] = {}
+        streams: dict[str, SimCamera] = {}
         for c in cfg.cameras:
             url = urlparse(c.url)
+            if c.kind == "stream":
+                streams[c.id] = SimCamera(plant, c.id)
+                if stream_port is None:
+                    stream_port = url.port or 80
+                continue
             port = camera_port if camera_port is not None else (url.port or 80)
             self._camera_groups.setdefault(port, {})[url.path or "/"] = SimCamera(plant, c.id)
+        self.streams = None
+        if streams:
+            from helicalib.sim.stream_server import StreamService
+
+            self.streams = StreamService(streams, self.registers.lock, self.registers.sync,
+                                         port=stream_port if camera_port is None else camera_port)
         self.modbus_ports: list[int] = []
         self.camera_ports: dict[int, int] = {}   # wanted → bound
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -141,11 +175,38 @@ class PlantServer:
 
     def camera_url(self, camera_id: str) -> str:
         """The URL at which a camera is served (bound port)."""
+        if self.streams is not None and camera_id in self.streams.cameras:
+            return self.streams.url(camera_id)
         for want, group in self._camera_groups.items():
             for path, cam in group.items():
                 if cam.config.id == camera_id:
                     return f"http://{LOOPBACK}:{self.camera_ports[want]}{path}"
         raise KeyError(camera_id)
+
+    def served_config(self, cfg):
+        """``cfg`` as a client reaches this server: the SCS (and weather) endpoint, or the OPC UA
+        endpoint, and every camera's URL at the ports bound (the register map is the caller's:
+        ``self.registers.map``)."""
+        plant = cfg.plant
+        if self.protocol == "modbus":
+            scs = (plant.scs or Endpoint(host=LOOPBACK, port=1)).model_copy(
+                update={"host": LOOPBACK, "port": self.modbus_port})
+            weather = None
+            if plant.weather is not None and len(self.modbus_ports) > 1:
+                weather = plant.weather.model_copy(update={"host": LOOPBACK, "port": self.modbus_ports[1]})
+            plant = plant.model_copy(update={"protocol": "modbus", "scs": scs, "weather": weather})
+        else:  # the served node map, without the security this server was not given
+            node_map = None if plant.opcua is None else plant.opcua.node_map
+            opcua = OpcUa(endpoint=self.opcua.endpoint, node_map=node_map) if self.opcua.security is None else \
+                plant.opcua.model_copy(update={"endpoint": self.opcua.endpoint})
+            plant = plant.model_copy(update={"protocol": "opcua", "opcua": opcua})
+        cameras = []
+        for c in cfg.cameras:
+            update = {"url": self.camera_url(c.id)}
+            if c.kind == "stream":
+                update["exposure_url"] = self.streams.exposure_url(c.id)
+            cameras.append(c.model_copy(update=update))
+        return cfg.model_copy(update={"plant": plant, "cameras": tuple(cameras)})
 
     # -- lifecycle --------------------------------------------------------------------------
     def start(self) -> PlantServer:
@@ -160,6 +221,19 @@ class PlantServer:
             raise
 
     def _start(self) -> PlantServer:
+        if self.opcua is not None:
+            self.opcua.start()
+        if self._want_modbus:
+            self._start_modbus()
+        if self.streams is not None:
+            try:
+                self.streams.start()
+            except OSError as exc:
+                raise bind_error(CAMERA_HTTP, self.streams._want_port, exc) from None
+        self._start_cameras()
+        return self
+
+    def _start_modbus(self) -> None:
         ready = threading.Event()
         errors: list[BaseException] = []
 
@@ -195,6 +269,8 @@ class PlantServer:
             for port in self._want_modbus:           # taken since the first probe: say which
                 check_port_free(MODBUS, port)
             raise RuntimeError(f"Modbus server did not start: {errors[0]}")
+
+    def _start_cameras(self) -> None:
         for want, group in self._camera_groups.items():
             try:
                 httpd = ThreadingHTTPServer((LOOPBACK, want), make_http_handler(self, group))
@@ -206,13 +282,15 @@ class PlantServer:
             th.start()
             self._http.append(httpd)
             self._threads.append(th)
-        return self
 
     def stop(self) -> None:
         """Close every listener and connection; returns when the threads have ended."""
         for httpd in self._http:
             httpd.shutdown()
             httpd.server_close()
+        for service in (self.streams, self.opcua):
+            if service is not None:
+                service.stop()
         if self._loop is not None:
             async def down():
                 for srv in self._modbus:
