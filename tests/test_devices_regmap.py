@@ -13,14 +13,8 @@ from hypothesis import strategies as st
 
 from helicalib.devices import registers as R
 from helicalib.devices.regcodec import decode, encode, plan_reads, state_name, state_raw
-from helicalib.devices.regmap import (
-    MAPS_DIR,
-    Q,
-    default_register_map,
-    load_register_map,
-    parse_register_map,
-    shipped_maps,
-)
+from helicalib.devices.regmap import MAPS_DIR, default_register_map, load_register_map, parse_register_map, shipped_maps
+from helicalib.devices.regschema import Q
 from helicalib.errors import ConfigError
 
 H = "heliostats."
@@ -100,7 +94,7 @@ def test_scs_b_map_reproduces_its_register_document():
 
 
 def _q(kind, word="high_first", byte="big", scale=1.0, offset=0.0, table="holding"):
-    from helicalib.devices.regmap import WIDTH
+    from helicalib.devices.regschema import WIDTH
 
     return Q("x", table, kind, 0, WIDTH[kind], False, False, word, byte, scale, offset)
 
@@ -157,7 +151,7 @@ def test_plan_reads_groups_contiguous_registers_and_reads_through_readable_gaps(
        byte=st.sampled_from(["big", "little"]), scale=st.sampled_from([1.0, 0.01, 0.1, 0.001, 2.5, -0.5]),
        offset=st.sampled_from([0.0, -40.0, 1000.0]), u=st.floats(0, 1))
 def test_codec_round_trip(kind, word, byte, scale, offset, u):
-    from helicalib.devices.regmap import INT_RANGE
+    from helicalib.devices.regschema import INT_RANGE
 
     q = _q(kind, word, byte, scale, offset)
     lo, hi = INT_RANGE.get(kind, (-1e6, 1e6))

@@ -1,14 +1,15 @@
 """The checks of a register map that span its keys: codes and names, handshakes, overlapping
 registers, block strides, writable tables, and (once the field size is known) the address space.
 
-Each problem is one line ``key.path: what is wrong`` (the caller puts the file name in front).
+Each problem is one line ``key.path: what is wrong`` (the caller puts the file name in front);
+``m`` is a :class:`helicalib.devices.regmap.RegisterMap` (its ``q``, ``doc`` and block addresses).
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
 
-from helicalib.devices.regmap import (
+from helicalib.devices.regschema import (
     FAULT_NAMES,
     FIELD_COMMAND_NAMES,
     FIELD_STATE_NAMES,
@@ -17,7 +18,6 @@ from helicalib.devices.regmap import (
     STATE_NAMES,
     WIDTH,
     Q,
-    RegisterMap,
 )
 
 CODED = {  # key path: (allowed names, required names, how the plant's values are given)
@@ -29,7 +29,7 @@ CODED = {  # key path: (allowed names, required names, how the plant's values ar
 }
 
 
-def check_map(m: RegisterMap) -> list[str]:
+def check_map(m) -> list[str]:
     out: list[str] = []
     for path, q in m.q.items():
         out += _check_code(path, q)
@@ -101,7 +101,7 @@ def _check_code(path: str, q: Q) -> list[str]:
     return out
 
 
-def _check_handshake(m: RegisterMap) -> list[str]:
+def _check_handshake(m) -> list[str]:
     hs = m.doc.heliostats.command.handshake
     need = ("sequence", "done") if hs.kind == "sequence" else ("execute", "done")
     other = "execute" if hs.kind == "sequence" else "sequence"
@@ -117,12 +117,12 @@ def _check_handshake(m: RegisterMap) -> list[str]:
     return out
 
 
-def _check_writable(m: RegisterMap) -> list[str]:
+def _check_writable(m) -> list[str]:
     return [f"{q.path}.table: input registers cannot be written (a command register is holding or coil)"
             for q in m.q.values() if q.writable and q.table == "input"]
 
 
-def _check_overlaps(m: RegisterMap) -> list[str]:
+def _check_overlaps(m) -> list[str]:
     out = []
     seen: dict[tuple[bool, str, int], str] = {}
     for q in m.q.values():
@@ -136,7 +136,7 @@ def _check_overlaps(m: RegisterMap) -> list[str]:
     return out
 
 
-def _check_blocks(m: RegisterMap) -> list[str]:
+def _check_blocks(m) -> list[str]:
     h = m.doc.heliostats
     if (h.addresses is None) == (h.base is None or h.stride is None) or (h.addresses is not None and
                                                                            (h.base, h.stride) != (None, None)):
@@ -161,7 +161,7 @@ def _check_blocks(m: RegisterMap) -> list[str]:
     return out
 
 
-def _extents(m: RegisterMap) -> dict[str, int]:
+def _extents(m) -> dict[str, int]:
     ext: dict[str, int] = defaultdict(int)
     for q in m.q.values():
         if q.block:
@@ -169,7 +169,7 @@ def _extents(m: RegisterMap) -> dict[str, int]:
     return dict(ext)
 
 
-def check_count(m: RegisterMap, n: int) -> list[str]:
+def check_count(m, n: int) -> list[str]:
     """Problems of ``m`` with a field of ``n`` heliostats (addresses past 65535, a short address table,
     plant-wide registers inside the heliostat blocks)."""
     h = m.doc.heliostats

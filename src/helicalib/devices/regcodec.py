@@ -13,7 +13,7 @@ import math
 import struct
 from collections.abc import Iterable, Mapping
 
-from helicalib.devices.regmap import BIT_PRIORITY, INT_RANGE, Q
+from helicalib.devices.regschema import BIT_PRIORITY, INT_RANGE, Q
 
 _FMT = {"u16": ">H", "i16": ">h", "u32": ">I", "i32": ">i", "f32": ">f", "f64": ">d"}
 MAX_READ = 125

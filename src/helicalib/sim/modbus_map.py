@@ -20,7 +20,8 @@ import threading
 
 from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, state_raw
 from helicalib.devices.registers import FaultCode, FieldCommand, HeliostatCommand, HeliostatState
-from helicalib.devices.regmap import Q, RegisterMap, load_register_map
+from helicalib.devices.regmap import RegisterMap, load_register_map
+from helicalib.devices.regschema import Q
 
 ILLEGAL_ADDRESS = 2
 """Modbus exception code of a refused read or write."""

@@ -13,7 +13,6 @@ from pymodbus.server.requesthandler import ServerRequestHandler
 
 from helicalib.sim.modbus_map import ILLEGAL_ADDRESS, PlantRegisters
 
-
 TABLES = {1: "coil", 5: "coil", 15: "coil", 3: "holding", 6: "holding", 16: "holding", 22: "holding", 23: "holding",
           4: "input"}
 """The register table a Modbus function code addresses (discrete inputs, 2, are not served)."""
