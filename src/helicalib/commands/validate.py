@@ -48,9 +48,26 @@ def summarise(cfg) -> dict:
         "targets": per_target,
         "drives": {name: {"kind": cfg.drives[name].kind, "heliostats": n} for name, n in per_drive.items()},
         "cameras": len(cfg.cameras),  # 0: a plant description (an import), fitted and reported but not measured
-        "plant": {"scs": f"{cfg.plant.scs.host}:{cfg.plant.scs.port}", "clock": cfg.plant.clock},
+        "plant": plant_summary(cfg),
         "database": str(cfg.database_path),
     }
+
+
+def plant_summary(cfg) -> dict:
+    """How the SCS is reached: protocol, endpoint, the map (loaded and checked: a broken map is a
+    :class:`~helicalib.errors.ConfigError` naming the file and key), the clock."""
+    p = cfg.plant
+    if p.protocol == "modbus":
+        from helicalib.devices.regmap import register_map_of
+
+        rmap = register_map_of(cfg)
+        return {"protocol": "modbus", "scs": f"{p.scs.host}:{p.scs.port} unit {p.scs.unit}",
+                "register_map": rmap.name, "clock": p.clock}
+    from helicalib.devices.nodemap import load_node_map
+
+    nmap = load_node_map(p.opcua.node_map, cfg.resolve_path)
+    return {"protocol": "opcua", "scs": p.opcua.endpoint, "node_map": nmap.name,
+            "security_policy": p.opcua.security_policy, "clock": p.clock}
 
 
 def stroke_feasibility(cfg, year: int = 2026, min_elevation_deg: float = 5.0, every_days: int = 7,
@@ -115,7 +132,13 @@ def run(args) -> int:
             print(line, file=sys.stderr)
         print(f"{args.field}: {len(err.problems)} problem(s); not valid", file=sys.stderr)
         return 1
-    summary = summarise(cfg)
+    try:
+        summary = summarise(cfg)
+    except ConfigError as err:  # the plant's register or node map
+        for line in err.problems:
+            print(line, file=sys.stderr)
+        print(f"{args.field}: {len(err.problems)} problem(s); not valid", file=sys.stderr)
+        return 1
     sweep = None if getattr(args, "no_sweep", False) else stroke_feasibility(cfg, year=getattr(args, "year", 2026))
     if args.json:
         if sweep is not None:
@@ -137,7 +160,9 @@ def run(args) -> int:
         print("cameras   none: this field can be fitted, reported and exported, not measured (run, check, simulate)")
     for name, d in summary["drives"].items():
         print(f"drive     {name} ({d['kind']}): {d['heliostats']} heliostats")
-    print(f"plant     SCS {summary['plant']['scs']}, clock {summary['plant']['clock']}")
+    pl = summary["plant"]
+    layout = f"register map {pl['register_map']}" if pl["protocol"] == "modbus" else f"node map {pl['node_map']}"
+    print(f"plant     SCS {pl['protocol']} {pl['scs']}, {layout}, clock {pl['clock']}")
     print(f"storage   {summary['database']}")
     if sweep is not None:
         _print_sweep(sweep)
