@@ -1,8 +1,11 @@
-"""The Modbus register map of ``PLANT_INTERFACE.md`` (version 1): addresses, codes, encoding.
+"""``PLANT_INTERFACE.md`` (version 1): helicalib's own states, commands and fault codes, and the
+default register layout as constants.
 
-The single source of truth for the client (:mod:`helicalib.devices.modbus`) and the simulated
-plant's server (:mod:`helicalib.sim`). Addresses are protocol addresses (0-based), holding
-registers only. f32 and f64 are IEEE-754, high word first.
+The enumerations (:class:`HeliostatState`, :class:`HeliostatCommand`, :class:`FaultCode`,
+:class:`FieldCommand`, :class:`FieldState`) are the names the whole controller speaks; a register
+map (:mod:`helicalib.devices.regmap`) maps a plant's own codes to them. The client and the
+simulated plant's server read the layout from a map: the shipped ``plant-interface-1`` map
+reproduces the addresses below (a test holds them equal). f32 and f64 are IEEE-754, high word first.
 """
 
 from __future__ import annotations
