@@ -34,6 +34,7 @@ class RegisterMap:
         self.doc = doc
         self.source = source
         self.q: dict[str, Q] = {}
+        self._extents: dict[str, int] = {}
         problems: list[str] = []
         d = doc.defaults
         for k, ident in enumerate(doc.identity):
@@ -73,10 +74,10 @@ class RegisterMap:
 
     def block_extent(self, table: str) -> int:
         """Registers of a block that answer reads in ``table`` (0: the blocks do not use it)."""
-        used = [r + 1 for q in self.q.values() if q.block and q.table == table for r in q.registers]
-        if not used:
-            return 0
-        return max(max(used), self.doc.heliostats.block_size or 0)
+        if table not in self._extents:
+            used = [r + 1 for q in self.q.values() if q.block and q.table == table for r in q.registers]
+            self._extents[table] = max(max(used), self.doc.heliostats.block_size or 0) if used else 0
+        return self._extents[table]
 
     def plant_readable(self, table: str, address: int) -> bool:
         """Whether a plant-wide register answers reads: mapped, or inside a ``readable`` range."""
@@ -92,10 +93,6 @@ class RegisterMap:
                     out.setdefault(q.table, set()).update(q.registers)
             self._plant_regs_cache = out
         return self._plant_regs_cache
-
-    def block_quantities(self, paths) -> list[Q]:
-        """The quantities at ``paths`` that the map has (a block's reads)."""
-        return [self.q[p] for p in paths if p in self.q]
 
     def check_count(self, n: int) -> None:
         """Refuse a map that cannot address ``n`` heliostats (one line naming the key)."""
