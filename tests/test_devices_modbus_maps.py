@@ -305,3 +305,36 @@ def test_sim_plant_refuses_a_bad_register_map_in_one_line(tmp_path, capsys):
     assert main(["sim-plant", str(FIELD), "--register-map", bad, "--port", "0", "--camera-port", "0"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.yaml: heliostats.stride: 4 is smaller than the block's extent" in err[0]
+
+
+def test_an_explicit_block_address_table(tmp_path):
+    starts = [20000 + 16 * (39 - i) for i in range(40)]   # the plant lists its heliostats backwards
+
+    def table(doc):
+        h = doc["heliostats"]
+        del h["base"], h["stride"]
+        h["addresses"] = starts
+
+    with serve(variant(tmp_path, "table", table)) as (cfg, plant, server, raw, mp, source):
+        assert regs(raw, "input", starts[3], 8)[0] == 1                      # tracking
+        token = mp.move_to(3, [750.0, 650.0])
+        assert regs(raw, "holding", starts[3], 1) == [20] and regs(raw, "input", starts[3] + 7, 1) == [token]
+        source.t += 30
+        assert mp.status(3).state == HeliostatState.HOLDING and plant.state[3] == HeliostatState.HOLDING
+        assert plant.state[36] == HeliostatState.TRACKING                   # the block next to it is another heliostat
+        r = raw.read_input_registers(starts[0] + 8, count=1, device_id=UNIT)  # between two blocks
+        assert r.isError() and r.exception_code == 2
+
+
+def test_an_identity_register_that_does_not_match_refuses_the_plant(tmp_path):
+    doc = yaml.safe_load((MAPS_DIR / "plant-interface-1.yaml").read_text())
+    doc["identity"][0]["equals"] = 2
+    (tmp_path / "v2.yaml").write_text(yaml.safe_dump(doc))
+    cfg = load_field_config(FIELD)
+    with serve("plant-interface-1") as (_cfg, plant, server, raw, mp, source):
+        endpoint = cfg.plant.scs.model_copy(update={"port": server.modbus_port})
+        with ModbusPlant(endpoint, None, 40, register_map=str(tmp_path / "v2.yaml"), sleep=lambda _s: None) as other:
+            with pytest.raises(PlantError, match=r"interface version 1 at holding 0, the register map plant-interface-1 "
+                                                 r"expects 2$"):
+                other.heliostat_count()
+        assert mp.interface_version() == 1 and mp.heliostat_count() == 40
