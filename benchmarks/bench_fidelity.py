@@ -11,6 +11,10 @@ equinox), once with ``fidelity="render"`` (every frame drawn and measured) and o
 * the share of observations by reason (goal: each invalid reason within ±2 points);
 * visits, CPU seconds, CPU per measurement.
 
+The rendered run's cameras have a fixed exposure (the scenario's ``camera.exposure: false``), as
+the fast sensor's measurement-error model was fitted on; ``--camera-exposure`` lets them take the
+exposure the controller chooses (PLANT_INTERFACE 1.1; ``bench_exposure.py`` compares the two).
+
 Usage::
 
     .venv/bin/python benchmarks/bench_fidelity.py                       # bench500, equinox, 2 days
@@ -80,6 +84,8 @@ def main(argv=None) -> int:
     ap.add_argument("--days", type=float, default=2.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--start", default="2026-09-22T00:00:00+06:18", help="plant start (default the September equinox)")
+    ap.add_argument("--camera-exposure", action="store_true",
+                    help="rendered cameras take the controller's exposure (default: fixed, as the fast model)")
     ap.add_argument("--out", default=str(HERE / "out" / "bench_fidelity.json"))
     args = ap.parse_args(argv)
     field = Path(args.field)
@@ -87,6 +93,8 @@ def main(argv=None) -> int:
         ensure_field(field)
     cfg = load_field_config(field)
     scenario = load_scenario(None if args.scenario == "none" else args.scenario)
+    scenario = scenario.model_copy(update={"camera": scenario.camera.model_copy(
+        update={"exposure": bool(args.camera_exposure)})})
     ids = pick_heliostats(cfg, args.heliostats)
     start_s = float(to_unix_seconds([parse_time(args.start)])[0])
     results = {}

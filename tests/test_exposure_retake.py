@@ -63,6 +63,9 @@ def test_a_too_bright_or_too_faint_reading_is_retaken_at_a_corrected_exposure(cf
     assert measure.EXPOSED in first.message and f"after a {fixed.reason} reading" in first.message
     retaken = [e for e in asked if e is not None]
     assert retaken and all((e > 1.0) if longer else (e < 1.0) for e in retaken)  # from the nominal 1 ms
+    # the flux factor follows the exposure: the power in the spot is the mirror's (relative to a clean 0.93)
+    reflect = scenario.get("optics", {}).get("reflectivity", 0.93) / 0.93
+    assert first.cleanliness_measured == pytest.approx(first.cleanliness * reflect, rel=0.1)
 
 
 def test_a_camera_without_exposure_control_keeps_its_readings(cfg, tmp_path):
