@@ -192,14 +192,13 @@ class BeforeState(tuple):
     """A camera sensor's before reference, ``(image, marks)``, and the exposure it was taken at
     (``exposure_ms``, None: a camera without exposure control) with the spot's expected peak
     irradiance then (``expected_peak``, W/m²) and the white board's level in it (``board_grey``);
-    None where not known. ``asked_ms``: the exposure asked of the camera for it, which the after
-    frames ask again (None: the camera's own setting was kept)."""
+    None where not known. The after frames (and a before frame taken again) ask for the same
+    exposure: a board's camera may serve several visits at once."""
 
     def __new__(cls, image, marks, exposure_ms: float | None = None, expected_peak: float | None = None,
-                board_grey: float | None = None, asked_ms: float | None = None):
+                board_grey: float | None = None):
         self = super().__new__(cls, (image, marks))
         self.exposure_ms, self.expected_peak, self.board_grey = exposure_ms, expected_peak, board_grey
-        self.asked_ms = asked_ms
         return self
 
 

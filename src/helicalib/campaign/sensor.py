@@ -182,13 +182,13 @@ class CameraSensor:
         frame, image = self._grab(ctx, want)
         marks = self._marks_for(image, ctx.target)
         if not marks.found:
-            marks = self._marks_on_more_frames(ctx, image, marks, want)
+            marks = self._marks_on_more_frames(ctx, image, marks, frame.exposure_ms)
         board = None
         if frame.exposure_ms is not None:
             board = board_grey(image, marks, ctx.target)
             self.exposure.saw_board(board, frame.exposure_ms)
         return Before(capture_time_s=float(frame.capture_time_s), data=frame.data,
-                      state=BeforeState(image, marks, frame.exposure_ms, expected, board, asked_ms=want))
+                      state=BeforeState(image, marks, frame.exposure_ms, expected, board))
 
     def _marks_on_more_frames(self, ctx, image, failed, exposure_ms=None):
         """The marks sought once more on the mean of this frame and :data:`MARKS_MEAN_FRAMES` − 1 more
@@ -225,7 +225,7 @@ class CameraSensor:
         :class:`MeasurementError` as :meth:`before` does."""
         if self._recent and before.state is not None and self._recent[-1] is before.state[0]:
             self._recent.pop()
-        new = self.before(ctx, getattr(before.state, "asked_ms", None))
+        new = self.before(ctx, getattr(before.state, "exposure_ms", None))
         if reading.state is None:  # no after image to judge again (the reading failed before the vision)
             return new, reading
         return new, self._judge(ctx, new, reading.state, reading.frames, reading.capture_time_s)
@@ -234,7 +234,7 @@ class CameraSensor:
         frames, images, reason, message, refused = [], [], None, "", []
         for _ in range(ctx.settings.after_frames):
             try:
-                f, img = self._grab(ctx, getattr(before.state, "asked_ms", None))
+                f, img = self._grab(ctx, getattr(before.state, "exposure_ms", None))
                 frames.append(f)
                 images.append(img)
             except MeasurementError as err:
