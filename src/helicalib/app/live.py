@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from helicalib.campaign.field import WEATHER_POLL_S
 from helicalib.campaign.loop import CampaignRunner
 from helicalib.devices.clock import ClockJumpError
-from helicalib.devices.modbus import quiet_pymodbus
+from helicalib.devices.modbus_link import quiet_pymodbus
 from helicalib.devices.protocols import Clock, PlantUnreachableError
 from helicalib.errors import HelicalibError
 
