@@ -477,6 +477,9 @@ class Camera(_Model):
     kind: Literal["http", "stream", "genicam"] = "http"
     exposure_url: str | None = None
     genicam: GenICam | None = None
+    # a stream or GenICam camera's delay from exposure to arrival [ms]: its frames' capture time is
+    # their arrival less this (measure it once: docs/cameras.md); an HTTP camera says its own time
+    latency_ms: float = Field(default=0.0, ge=0, le=10000)
 
     @field_validator("resolution_px")
     @classmethod
