@@ -23,7 +23,7 @@ PLANTS = {"plant-interface-1": dict(protocol="modbus", register_map=None),
           "scs-b": dict(protocol="modbus", register_map="scs-b"),
           "opcua": dict(protocol="opcua", register_map=None)}
 IDS = ["H0001", "H0002"]
-DAYS = 1.0
+DAYS = 0.5
 
 
 def _rows(db, sql):
