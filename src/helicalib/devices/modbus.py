@@ -12,6 +12,9 @@ A heliostat command is written as the map's handshake asks: the command fields, 
 either a sequence number different from the one in the register (``sequence``: the plant acts on
 the change) or 1 to the execute register (``execute``: the plant acts, sets it back to 0 and counts
 the command); a still-set execute register refuses the command (the plant has not taken the last one).
+The execute write is sent once, never retried: if its answer is lost, the counter is read once and
+the command counts as taken only if the counter shows it; otherwise a :class:`PlantError` says it may
+or may not have been taken (a second execute would be a second command).
 
 The client is the field's stow gate: once it has sent STOW ALL, it refuses every move and track
 command (:class:`~helicalib.devices.protocols.FieldStowedError`) until it sends RESUME TRACKING.
@@ -28,7 +31,7 @@ from collections.abc import Callable, Sequence
 
 from helicalib.devices.guard import CommandGuard
 from helicalib.devices.modbus_link import ModbusLink, quiet_pymodbus
-from helicalib.devices.protocols import HeliostatStatus, Weather
+from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, plan_reads, raw_of, state_name
 from helicalib.devices.registers import FaultCode, FieldCommand, FieldState, HeliostatCommand, HeliostatState
 from helicalib.devices.regmap import load_register_map, register_map_of
@@ -153,11 +156,12 @@ class ModbusPlant:
                 image[(table, start + k)] = v
         return {q.path: [image.get((q.table, m.address(q, index) + k), 0) for k in range(q.width)] for q in qs}
 
-    def _write(self, table: str, address: int, values: list[int], what: str) -> None:
+    def _write(self, table: str, address: int, values: list[int], what: str, retry: bool = True) -> None:
+        kw = {} if retry else {"retry": False}
         if table == "holding":
-            self.scs.write(address, values, what)
+            self.scs.write(address, values, what, **kw)
         else:
-            self.scs.write(address, values, what, table=table)
+            self.scs.write(address, values, what, table=table, **kw)
 
     def _value(self, q: Q, regs: list[int], who: str) -> float:
         v = decode(q, regs)
@@ -314,9 +318,33 @@ class ModbusPlant:
             for q, values in fields:
                 self._write(q.table, self.map.address(q, index), values, f"{label} {q.meaning or q.path}")
             self._write(mq.table, self.map.address(mq, index), encode_raw(mq, mode), f"{label} command {command.name}")
-            self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}")
+            if self._hs.kind == "sequence":   # a retried write rewrites the same number: no second command
+                self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}")
+            else:                             # the plant acts on every execute write: sent once
+                try:
+                    self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", retry=False)
+                except PlantUnreachableError:
+                    self._check_taken(index, token, what)
             self._last_sent[index] = token
         return token
+
+    def _check_taken(self, index: int, token: int, what: str) -> None:
+        """After an execute write without an answer: returns if the plant's counter shows ``token``
+        (it took the command), else raises; the command is never sent again."""
+        dq, eq = self.map.q[HANDSHAKE + "done"], self.map.q[HANDSHAKE + "execute"]
+        where = self._where(eq, index)
+        try:
+            regs = self._block(index, [dq, eq])
+        except PlantUnreachableError as exc:
+            raise PlantUnreachableError(f"plant {self.scs.name}: {what}: no answer to the execute write at {where} "
+                                        f"and none to the check of its counter ({exc}); the command may or may not "
+                                        "have been taken; not resent") from None
+        done = int(decode_raw(dq, regs[dq.path]))
+        if done != token:
+            execute = int(decode_raw(eq, regs[eq.path]))
+            raise PlantError(f"plant {self.scs.name}: {what}: no answer to the execute write at {where}; "
+                             f"the counter {self._where(dq, index)} shows {done}, not {token}, execute {execute}: "
+                             "the command may or may not have been taken; not resent")
 
     def _pair(self, index: int, key: str, values, limits=None) -> list[tuple[Q, list[int]]]:
         """The two registers (actuator 1, 2) of ``heliostats.command.<key>``, written as one request

@@ -102,13 +102,15 @@ class ModbusLink:
         self.down_s = min(self.down_s, 1.0)
         self._down_until = min(self._down_until, self._monotonic() + self.down_s)
 
-    def _call(self, what: str, fn: Callable[[ModbusTcpClient], object]):
+    def _call(self, what: str, fn: Callable[[ModbusTcpClient], object], retry: bool = True):
+        """One request, attempted up to ``retries + 1`` times (once without ``retry``: a request the
+        plant must not take twice; its failure then leaves the down window closed)."""
         if self._monotonic() < self._down_until:
             raise PlantUnreachableError(f"plant {self.name}: {what} not sent: the plant did not answer a moment ago "
                              f"({self._down_reason})")
         delay = self.backoff_s
         last = "no attempt"
-        attempts = min(2, self.retries + 1) if self._hurry else self.retries + 1
+        attempts = 1 if not retry else min(2, self.retries + 1) if self._hurry else self.retries + 1
         for attempt in range(attempts):
             if attempt and not self._hurry:
                 self._sleep(delay)
@@ -117,7 +119,7 @@ class ModbusLink:
                 try:
                     rr = fn(self._connected())
                 except (ModbusException, ConnectionError, OSError, TimeoutError) as exc:
-                    last = f"{type(exc).__name__}: {exc}".strip()
+                    last = " ".join(f"{type(exc).__name__}: {exc}".split())   # one line: pymodbus's text may hold newlines
                     log.debug("%s: %s failed (attempt %d): %s", self.name, what, attempt + 1, last)
                     self._drop()
                     continue
@@ -131,8 +133,9 @@ class ModbusLink:
                 raise PlantError(f"plant {self.name}: {what} refused: Modbus exception {code} ({name})")
             self._down_until = -math.inf
             return rr
-        self._down_until = self._monotonic() + self.down_s
-        self._down_reason = last
+        if retry:
+            self._down_until = self._monotonic() + self.down_s
+            self._down_reason = last
         raise PlantUnreachableError(f"plant {self.name}: {what} failed after {attempts} attempt{'s' * (attempts > 1)} ({last})")
 
     def read(self, address: int, count: int, what: str, table: str = "holding") -> list[int]:
@@ -151,21 +154,27 @@ class ModbusLink:
             raise PlantError(f"plant {self.name}: read of {what} ({where}) answered {len(regs)} of {count} registers")
         return regs[:count]
 
-    def write(self, address: int, values: Sequence[int], what: str, table: str = "holding") -> None:
-        """Write holding registers (function 6 for one, 16 for several) or coils (5, 15)."""
+    def write(self, address: int, values: Sequence[int], what: str, table: str = "holding",
+              retry: bool = True) -> None:
+        """Write holding registers (function 6 for one, 16 for several) or coils (5, 15).
+
+        ``retry=False``: one attempt only, for a write the plant acts on every time (an execute
+        handshake): a lost answer must not become a second command; the caller finds out whether
+        the plant took it.
+        """
         values = [int(v) & 0xFFFF for v in values]
         where = f"address {address}" if table == "holding" else f"{table} address {address}"
         label = f"write of {what} ({where})"
         if table == "coil":
             bits = [bool(v) for v in values]
             if len(bits) == 1:
-                self._call(label, lambda c: c.write_coil(address, bits[0], device_id=self.unit))
+                self._call(label, lambda c: c.write_coil(address, bits[0], device_id=self.unit), retry)
             else:
-                self._call(label, lambda c: c.write_coils(address, bits, device_id=self.unit))
+                self._call(label, lambda c: c.write_coils(address, bits, device_id=self.unit), retry)
         elif len(values) == 1:
-            self._call(label, lambda c: c.write_register(address, values[0], device_id=self.unit))
+            self._call(label, lambda c: c.write_register(address, values[0], device_id=self.unit), retry)
         else:
-            self._call(label, lambda c: c.write_registers(address, values, device_id=self.unit))
+            self._call(label, lambda c: c.write_registers(address, values, device_id=self.unit), retry)
 
     def close(self) -> None:
         with self._lock:

@@ -1,9 +1,11 @@
 """The simulated plant's Modbus TCP server: a pymodbus server context backed by
-:class:`~helicalib.sim.modbus_map.PlantRegisters`, with injected faults (dropped or slow answers)."""
+:class:`~helicalib.sim.modbus_map.PlantRegisters`, with injected faults
+(dropped requests, slow answers, answers lost after the request was handled)."""
 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
@@ -52,23 +54,39 @@ class PlantContext(ModbusServerContext):
 
 
 class FaultyHandler(ServerRequestHandler):
-    """Drops or delays a request as the server's fault injector decides."""
+    """Drops, delays or answers nothing to a request as the server's fault injector decides (or the
+    server's :attr:`FaultyTcpServer.request_fault`, which picks the fault of one request)."""
+
+    _lose_answer = False
 
     async def handle_request(self):
-        faults = self.server.faults
-        if self.last_pdu and faults.happens(faults.modbus_drop_probability):
+        faults, pdu = self.server.faults, self.last_pdu
+        chosen = self.server.request_fault(pdu) if pdu and self.server.request_fault else None
+        if pdu and (chosen == "drop" or faults.happens(faults.modbus_drop_probability)):
             self.last_pdu = None
             self.close()           # the connection drops without an answer
             return
         if faults.happens(faults.modbus_slow_probability):
             await asyncio.sleep(faults.modbus_slow_s)
+        self._lose_answer = chosen == "lose_answer"
         await super().handle_request()
+
+    def server_send(self, pdu, addr):
+        if self._lose_answer:      # the request was handled; its answer is lost with the connection
+            self._lose_answer = False
+            self.close()
+            return
+        super().server_send(pdu, addr)
 
 
 class FaultyTcpServer(ModbusTcpServer):
     """A pymodbus TCP server whose connections go through :class:`FaultyHandler`."""
 
     faults: object  # helicalib.sim.server.FaultInjector
+    request_fault: Callable[[object], str | None] | None = None
+    """The fault of one request (its pdu: ``function_code``, ``address``, ...): ``"drop"`` (the
+    connection drops before the request is handled), ``"lose_answer"`` (the request is handled, then
+    the connection drops without its answer) or None (the fault injector decides)."""
 
     def callback_new_connection(self):
         return FaultyHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
