@@ -163,10 +163,11 @@ class ModbusPlant:
         else:
             self.scs.write(address, values, what, table=table, **kw)
 
-    def _value(self, q: Q, regs: list[int], who: str) -> float:
+    def _value(self, q: Q, regs: list[int], who: str, index: int | None = None) -> float:
+        """The value of ``q`` (of heliostat ``index``, named ``who``); not finite: a PlantError naming its register."""
         v = decode(q, regs)
         if not math.isfinite(v):
-            raise PlantError(f"plant {self.scs.name}: {who} {q.path} = {v!r} at {q.table} {q.start}: not a finite number")
+            raise PlantError(f"plant {self.scs.name}: {who}: {v!r} at {self._where(q, index)}: not a finite number")
         return v
 
     # ------------------------------------------------------------------ reads
@@ -232,11 +233,14 @@ class ModbusPlant:
                              f"is not in the register map {self.map.name}")
         fraw = int(decode_raw(fq, regs[fq.path]))
         fname = state_name(fq, fraw)
-        fault = FaultCode[fname.upper()].value if fname is not None else fraw
+        if fname is None:  # passed on raw, a plant's own code could read as one of helicalib's
+            raise PlantError(f"plant {self.scs.name}: {self._label(index)} fault code {fraw} at "
+                             f"{self._where(fq, index)} is not in the register map {self.map.name} ({sorted(fq.values)})")
+        fault = FaultCode[fname.upper()].value
         who = self._label(index)
-        s = tuple(self._value(q[f"heliostats.status.strokes_mm[{k}]"], regs[f"heliostats.status.strokes_mm[{k}]"], who)
-                  for k in (0, 1))
-        clean = self._value(q["heliostats.status.cleanliness"], regs["heliostats.status.cleanliness"], who)
+        s = tuple(self._value(q[f"heliostats.status.strokes_mm[{k}]"], regs[f"heliostats.status.strokes_mm[{k}]"], who,
+                              index) for k in (0, 1))
+        clean = self._value(q["heliostats.status.cleanliness"], regs["heliostats.status.cleanliness"], who, index)
         done = int(decode_raw(q[HANDSHAKE + "done"], regs[HANDSHAKE + "done"]))
         return HeliostatStatus(index=int(index), state=HeliostatState[name.upper()], sequence_done=done,
                                fault=fault, strokes_mm=s, cleanliness=clean)
