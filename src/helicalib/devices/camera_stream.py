@@ -16,9 +16,10 @@ times are late by that much.
 Exposure. A stream cannot carry one; a camera with ``exposure_url`` sets it there
 (``GET <exposure_url>?exposure_ms=4.5`` answers with ``X-Exposure-Ms: <applied>``, the contract of
 PLANT_INTERFACE 1.1 on the control URL). After a change, ``grab`` hands out the first frame that
-arrived one frame period after the control answered (a frame exposed before the change is never
-handed out as one after it). Without ``exposure_url`` the request is ignored and
-``Frame.exposure_ms`` is None.
+arrived ``latency_s`` plus :data:`SETTLE_PERIODS` frame periods after the control answered: a
+frame exposed before the change arrives up to ``latency_s`` later, one in exposure at the change
+a period after that, and neither is handed out as one after it. Without ``exposure_url`` the
+request is ignored and ``Frame.exposure_ms`` is None.
 
 Failures raise :class:`~helicalib.devices.camera_http.CameraError` with the HTTP camera's reason
 codes: ``camera_unreachable`` (the stream cannot be opened within the deadline),
@@ -48,6 +49,10 @@ PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1]
 """Fast lossless PNG (level 1): a frame is encoded in milliseconds."""
 FALLBACK_PERIOD_S = 0.2
 """Frame period assumed before two frames have arrived [real s]."""
+SETTLE_PERIODS = 2
+"""Frame periods waited after an exposure change beyond the camera's latency: the frame being
+exposed at the change (old setting, or a mix) and one more for a camera that applies a new
+setting at the frame after next."""
 FFMPEG_OPTIONS_ENV = "OPENCV_FFMPEG_CAPTURE_OPTIONS"
 FFMPEG_OPTIONS = "rtsp_transport;tcp|fflags;nobuffer|analyzeduration;0|probesize;32"
 """FFmpeg's options for opening a stream: RTSP over TCP (no frame lost to a dropped UDP datagram),
@@ -137,7 +142,8 @@ class StreamCamera:
     exposure_url : str, optional
         The HTTP control URL that sets the exposure (``cameras[].exposure_url``).
     latency_s : float
-        Real seconds from exposure to a frame's arrival (subtracted from capture times).
+        Real seconds from exposure to a frame's arrival (``cameras[].latency_ms``): subtracted
+        from capture times, and waited after an exposure change.
     open_capture : callable
         ``(url, open_timeout_s, read_timeout_s) -> VideoCapture``, injected (:func:`open_stream`).
     monotonic : callable
@@ -176,7 +182,7 @@ class StreamCamera:
 
             clock = SystemClock()
         return cls(cam.url, clock=clock, timeout_s=timeout_s, expected_size_px=expected_size_px,
-                   exposure_url=cam.exposure_url)
+                   exposure_url=cam.exposure_url, latency_s=float(cam.latency_ms) / 1000.0)
 
     # -- the reader's side -------------------------------------------------------------------
 
@@ -269,7 +275,7 @@ class StreamCamera:
         if self.exposure_url is not None:
             if exposure_ms is not None and (self.exposure_ms is None or not math.isclose(exposure_ms, self.exposure_ms)):
                 self.exposure_ms = self._control(exposure_ms, end)
-                after = self._monotonic() + self.frame_period_s
+                after = self._monotonic() + self.latency_s + SETTLE_PERIODS * self.frame_period_s
             elif self.exposure_ms is None:
                 self.exposure_ms = self._control(None, end)
         while True:
