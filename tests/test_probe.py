@@ -1,7 +1,9 @@
 """``helicalib probe FIELD`` against the simulated plant served on loopback (its real Modbus TCP
 server and HTTP cameras): a healthy plant passes every check; a count mismatch, a camera that
 fails, a camera whose clock is off and implausible read-backs exit non-zero with a line naming
-the heliostat, camera or quantity; nothing is ever written to the plant, also with ``--arm``.
+the heliostat, camera or quantity; nothing is ever written to the plant, also with ``--arm``;
+a camera's exposure (the simulated plant's stream cameras keep one) is set back after probe tried
+another one.
 """
 
 from __future__ import annotations
@@ -22,10 +24,9 @@ from helicalib.cli import main
 SECTIONS = ("plant", "clock", "weather", "heliostats", "cameras")
 
 
-@pytest.fixture(scope="module")
-def served(demo_field_path):
-    """The demo field's simulated plant on loopback at 200× plant time, in daylight; yields
-    (server, the parsed demo config pointing at it)."""
+def _serve(demo_field_path, kind: str = "http"):
+    """The demo field's simulated plant on loopback at 200× plant time, in daylight, its cameras of
+    ``kind`` (``http`` snapshot or ``stream``); yields (server, the parsed demo config pointing at it)."""
     from helicalib.app.simulated import default_start_s
     from helicalib.config import load_field_config
     from helicalib.sim.clock import RateClock
@@ -34,6 +35,7 @@ def served(demo_field_path):
     from helicalib.sim.server import PlantServer
 
     cfg = load_field_config(demo_field_path)
+    cfg = cfg.model_copy(update={"cameras": tuple(c.model_copy(update={"kind": kind}) for c in cfg.cameras)})
     start = default_start_s(cfg) + 9 * 3600
     sim = SimulatedPlant(cfg, Scenario(seed=3), start_s=start, rate=200.0)
     server = PlantServer(sim, RateClock(start, 200.0, time.monotonic, time.sleep), modbus_port=0, camera_port=0)
@@ -42,7 +44,20 @@ def served(demo_field_path):
         data["plant"]["scs"]["port"] = server.modbus_port
         for cam in data["cameras"]:
             cam["url"] = server.camera_url(cam["id"])
+            if kind == "stream":
+                cam.update(kind="stream", exposure_url=server.streams.exposure_url(cam["id"]))
         yield server, data
+
+
+@pytest.fixture(scope="module")
+def served(demo_field_path):
+    yield from _serve(demo_field_path)
+
+
+@pytest.fixture(scope="module")
+def streamed(demo_field_path):
+    """The same plant with its cameras as streams (HTTP MJPEG and an exposure control URL)."""
+    yield from _serve(demo_field_path, "stream")
 
 
 @pytest.fixture()
@@ -114,6 +129,8 @@ def test_json_lists_every_check_with_its_values(field, capsys):
     assert rate == pytest.approx(200.0)
     exposure = next(c for c in doc["checks"] if c["name"] == "C1 exposure")
     assert exposure["found"].startswith("exposure 1.1: yes") and exposure["values"]["applied_ms"] is not None
+    assert exposure["found"].endswith(f"set back to {exposure['values']['exposure_ms']:g} ms")
+    assert exposure["values"]["restored_ms"] == exposure["values"]["exposure_ms"]
 
 
 def test_one_heliostat_more_than_the_plant_serves_is_a_count_mismatch(field, capsys):
@@ -281,3 +298,45 @@ def test_a_second_camera_of_a_target_is_a_warning_not_a_failure(field, capsys):
     row = next(c for c in doc["checks"] if c["name"] == "C3 frame")
     assert code == 0 and row["status"] == "warning" and "watched by C1" in row["found"]
     assert doc["summary"]["warning"] == 1
+
+
+def test_probe_sets_a_stream_cameras_exposure_back_to_what_it_was(streamed, tmp_path, capsys):
+    server, data = streamed
+    cams = server.streams.cameras
+    cams["C1"].set_exposure(1.5)  # not the nominal one: probe must restore this, not a default
+    before = {cid: cam.exposure_ms for cid, cam in cams.items()}
+    path = tmp_path / "field.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    code = main(["probe", str(path), "--json", "--heliostats", "H0001"])
+    doc = json.loads(capsys.readouterr().out)
+    assert {cid: cam.exposure_ms for cid, cam in cams.items()} == before
+    assert code == 0, [c for c in doc["checks"] if c["status"] != "ok"]
+    exposure = {c["name"]: c for c in doc["checks"] if c["name"].endswith(" exposure")}
+    assert set(exposure) == {f"{cid} exposure" for cid in cams}
+    c1 = exposure["C1 exposure"]
+    assert c1["values"]["exposure_ms"] == 1.5 and c1["values"]["applied_ms"] == 3.0
+    assert c1["found"].endswith("set back to 1.5 ms") and c1["status"] == "ok"
+    assert c1["values"]["restored_ms"] == 1.5
+
+
+def test_an_exposure_not_set_back_is_a_warning_naming_why():
+    """A camera whose control fails after the asked exposure took (a dropped link, say): the row
+    says it was not set back, and why (a stand-in camera: the failure needs a timed fault)."""
+    from helicalib.app.probe import _exposure
+    from helicalib.devices.camera_http import CameraError
+    from helicalib.devices.protocols import Frame
+
+    class Camera:
+        def __init__(self):
+            self.asked = []
+
+        def grab(self, exposure_ms=None):
+            self.asked.append(exposure_ms)
+            if len(self.asked) > 1:
+                raise CameraError("camera_unreachable", "camera http://cam/1: connection refused", True)
+            return Frame(data=b"", capture_time_s=0.0, source="http://cam/1", exposure_ms=exposure_ms)
+
+    cam = Camera()
+    check = _exposure("C1", cam, 1.5)
+    assert cam.asked == [3.0, 1.5] and check.status == "warning" and check.values["restored_ms"] is None
+    assert check.found.endswith("not set back to 1.5 ms (camera http://cam/1: connection refused)")

@@ -4,7 +4,8 @@ Builds the plant client unarmed (whatever the command line says: probe never wri
 cameras as a run would, then reads, in this order: the heliostat count and the field state, the
 plant clock, the weather, every heliostat's state, fault code, strokes and cleanliness, and one
 frame from every camera (its size, its capture time against the plant time read right before and
-after the grab, and its exposure control). Each reading is judged by
+after the grab, and its exposure control: asked once for another exposure, then set back to the
+one it had). Each reading is judged by
 :mod:`helicalib.app.probe_checks`; :mod:`helicalib.app.probe_view` prints the table or the JSON.
 
 Exit status: 0 every check passed (warnings allowed), :data:`EXIT_MISMATCH` a check failed,
@@ -17,7 +18,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from helicalib.app.probe_checks import (MISMATCH, OK, WARNING, Check, capture_time_check, clock_checks,
                                         count_check, exposure_check, frame_check, heliostat_check, skipped_check,
@@ -184,14 +185,36 @@ def camera_checks(cam_cfg, camera, plant_now, clock_slack_s, max_skew_s: float) 
 
 def _exposure(cid: str, camera, current_ms: float | None) -> Check:
     """Ask for an exposure once (twice the present one, or :data:`PROBE_EXPOSURE_MS`) and say
-    whether it was applied."""
-    asked = 2.0 * current_ms if current_ms is not None and math.isfinite(current_ms) and current_ms > 0 \
-        else PROBE_EXPOSURE_MS
+    whether it was applied; a camera whose present exposure is known is set back to it (a stream
+    or GenICam camera keeps a setting, and probe leaves the plant as it found it)."""
+    known = current_ms is not None and math.isfinite(current_ms) and current_ms > 0
+    asked = 2.0 * current_ms if known else PROBE_EXPOSURE_MS
+    applied, error, restored = None, None, None
     try:
-        frame = camera.grab(exposure_ms=asked)
+        applied = camera.grab(exposure_ms=asked).exposure_ms
     except (MeasurementError, PlantError) as err:
-        return exposure_check(cid, current_ms, asked, None, str(err))
-    return exposure_check(cid, current_ms, asked, frame.exposure_ms)
+        error = str(err)
+    finally:  # changed, or perhaps changed before the grab failed: set the present exposure again
+        if known and (error is not None or (applied is not None and not math.isclose(applied, current_ms))):
+            restored = _restore(camera, current_ms)
+    check = exposure_check(cid, current_ms, asked, applied, error)
+    if restored is None:
+        return check
+    back_ms, why = restored
+    values = {**check.values, "restored_ms": back_ms}
+    if back_ms is not None and math.isclose(back_ms, current_ms, rel_tol=0.01):
+        return replace(check, found=f"{check.found}; set back to {back_ms:g} ms", values=values)
+    found = f"{check.found}; not set back to {current_ms:g} ms ({why})"
+    return replace(check, found=found, status=WARNING if check.status == OK else check.status, values=values)
+
+
+def _restore(camera, exposure_ms: float) -> tuple[float | None, str]:
+    """Grab once at ``exposure_ms``: the exposure the camera then reports, and why not when it failed."""
+    try:
+        back = camera.grab(exposure_ms=exposure_ms).exposure_ms
+    except (MeasurementError, PlantError) as err:
+        return None, str(err)
+    return back, "it reports none" if back is None else f"it reports {back:g} ms"
 
 
 def _plant_time(plant_now) -> float | None:
