@@ -244,6 +244,8 @@ BROKEN = [  # (edits, the key path and words the one-line message must hold)
     ([("plant.clock.time.parts.0.parts", [{"address": 0}, {"address": 1}])],
      "plant.clock.time.parts[0].parts: parts cannot have parts"),
     ([("readable", [{"table": "input", "first": 9, "last": 3}])], "readable[0].last: 3 is before first (9)"),
+    ([("heliostats.command.strokes_mm.1", {"parts": [{"offset": 3, "type": "i16"}, {"offset": 4, "scale": 0.01}]})],
+     "heliostats.command.strokes_mm[1].parts: a stroke demand is one register quantity"),
     ([("plant.heliostat_count", DELETE)], "plant.heliostat_count: missing required key"),
 ]
 

@@ -32,7 +32,7 @@ from collections.abc import Callable, Sequence
 from helicalib.devices.guard import CommandGuard
 from helicalib.devices.modbus_link import ModbusLink, quiet_pymodbus
 from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
-from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, plan_reads, raw_of, state_name
+from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, plan_reads, raw_within, state_name
 from helicalib.devices.registers import FaultCode, FieldCommand, FieldState, HeliostatCommand, HeliostatState
 from helicalib.devices.regmap import load_register_map, register_map_of
 from helicalib.devices.regschema import Q
@@ -280,16 +280,9 @@ class ModbusPlant:
     def _encode(self, index: int, q: Q, value: float, limits=None) -> list[int]:
         """``value`` in ``q``'s registers; a stroke rounded to the register's resolution stays inside ``limits``."""
         try:
-            if limits is None or q.type in ("f32", "f64") or q.parts:
+            if limits is None:
                 return encode(q, value)
-            lo, hi = (float(x) for x in limits)
-            up, down = (math.ceil, math.floor) if q.scale > 0 else (math.floor, math.ceil)
-            raw = raw_of(q, value)
-            if raw * q.scale + q.value_offset < lo:
-                raw = raw_of(q, lo, rounding=up)
-            elif raw * q.scale + q.value_offset > hi:
-                raw = raw_of(q, hi, rounding=down)
-            return encode_raw(q, raw)
+            return encode_raw(q, raw_within(q, value, *(float(x) for x in limits)))
         except ValueError as exc:
             raise PlantError(f"plant {self.scs.name}: {self._label(index)}: {q.path} at {self._where(q, index)}: "
                              f"{exc}") from None

@@ -29,11 +29,16 @@ CODED = {  # key path: (allowed names, required names, how the plant's values ar
 }
 
 
+STROKE_DEMANDS = ("heliostats.command.strokes_mm[0]", "heliostats.command.strokes_mm[1]")
+
+
 def check_map(m) -> list[str]:
     out: list[str] = []
     for path, q in m.q.items():
         out += _check_code(path, q)
     out += _check_handshake(m)
+    out += [f"{path}.parts: a stroke demand is one register quantity (parts are rounded apart: the sum "
+            "could leave the stroke range)" for path in STROKE_DEMANDS if path in m.q and m.q[path].parts]
     out += _check_writable(m)
     out += _check_overlaps(m)
     out += _check_blocks(m)
@@ -186,3 +191,24 @@ def check_count(m, n: int) -> list[str]:
         return [f"{key}: the {table} blocks of {n} heliostats end at address {last}, beyond 65535"]
     return [f"{q.path}.address: {q.start} lies inside the heliostat blocks ({q.table} {lo}..{ends[q.table]})"
             for q in m.q.values() if not q.block and q.table in ends and any(lo <= r <= ends[q.table] for r in q.registers)]
+
+
+def check_stroke_ranges(m, drives) -> list[str]:
+    """Problems of stroke demand registers that cannot hold a drive's whole stroke range (a u16 with
+    scale 0.01 ends at 655.35 mm); ``drives``: drive name → its actuators' ``(min, max)`` [mm]."""
+    out = []
+    for k, path in enumerate(STROKE_DEMANDS):
+        q = m.q.get(path)
+        if q is None or q.parts or q.type not in INT_RANGE:
+            continue                                  # floats hold any stroke; parts are refused above
+        raw_lo, raw_hi = (0, 1) if q.table == "coil" else INT_RANGE[q.type]
+        lo, hi = sorted((raw_lo * q.scale + q.value_offset, raw_hi * q.scale + q.value_offset))
+        for name, ranges in drives.items():
+            s_lo, s_hi = ranges[k]
+            if s_lo < lo or s_hi > hi:
+                scale = f" with scale {q.scale:g}" if q.scale != 1 else ""
+                offset = f" and value_offset {q.value_offset:g}" if q.value_offset else ""
+                out.append(f"{path}: a {q.type}{scale}{offset} holds {lo:g}..{hi:g} mm, drive {name}'s actuator {k + 1} "
+                           f"strokes {s_lo:g}..{s_hi:g} mm")
+                break
+    return out

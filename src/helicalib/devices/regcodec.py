@@ -13,6 +13,8 @@ import math
 import struct
 from collections.abc import Iterable, Mapping
 
+import numpy as np
+
 from helicalib.devices.regschema import BIT_PRIORITY, INT_RANGE, Q
 
 _FMT = {"u16": ">H", "i16": ">h", "u32": ">I", "i32": ">i", "f32": ">f", "f64": ">d"}
@@ -59,6 +61,28 @@ def raw_of(q: Q, value: float, *, clamp: bool = False, rounding=round) -> float 
                              f"{f' with scale {q.scale:g}' if q.scale != 1 else ''}")
         r = min(max(r, lo), hi)
     return r
+
+
+def raw_within(q: Q, value: float, lo: float, hi: float) -> float | int:
+    """The raw register value of ``value`` (inside ``lo..hi``) whose decoded value stays inside:
+    an integer rounded to the step on the inside at an edge; a float (f32 rounds 999.9 up to
+    999.9000244) stepped by ``nextafter`` toward the inside. ValueError if it does not fit."""
+    inside = lambda raw: lo <= float(raw) * q.scale + q.value_offset <= hi  # noqa: E731 - as decode() reads it
+    if q.type in ("f32", "f64"):
+        raw = (np.float32 if q.type == "f32" else np.float64)(raw_of(q, value))
+        for _ in range(8):   # one step at scale 1; a few where the scale spreads the steps
+            if inside(raw):
+                break
+            low = float(raw) * q.scale + q.value_offset < lo
+            raw = np.nextafter(raw, raw.dtype.type(math.inf if low == (q.scale > 0) else -math.inf))
+        return float(raw)
+    up, down = (math.ceil, math.floor) if q.scale > 0 else (math.floor, math.ceil)
+    raw = raw_of(q, value)
+    if raw * q.scale + q.value_offset < lo:
+        raw = raw_of(q, lo, rounding=up)
+    elif raw * q.scale + q.value_offset > hi:
+        raw = raw_of(q, hi, rounding=down)
+    return raw
 
 
 def encode(q: Q, value: float, *, clamp: bool = False) -> list[int]:

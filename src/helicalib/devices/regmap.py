@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from helicalib.devices.regcheck import check_count, check_map
+from helicalib.devices.regcheck import check_count, check_map, check_stroke_ranges
 from helicalib.devices.regschema import PLACES, Defaults, MapFile, Q, Reg, get_key, resolve, writable_key
 from helicalib.errors import ConfigError
 
@@ -43,10 +43,7 @@ class RegisterMap:
             reg = get_key(doc, path)
             if reg is not None:
                 self._add(path, reg, path.startswith("heliostats."), writable_key(path), d, problems)
-        problems += check_map(self)
-        if problems:
-            lines = [f"{source}: {p}" for p in problems]
-            raise ConfigError("\n".join(lines), problems=lines)
+        self._refuse(problems + check_map(self))
 
     @property
     def name(self) -> str:
@@ -96,7 +93,14 @@ class RegisterMap:
 
     def check_count(self, n: int) -> None:
         """Refuse a map that cannot address ``n`` heliostats (one line naming the key)."""
-        problems = check_count(self, n)
+        self._refuse(check_count(self, n))
+
+    def check_stroke_ranges(self, drives) -> None:
+        """Refuse a map whose stroke demand registers cannot hold a drive's stroke range (one line per
+        key naming the drive); ``drives``: drive name → its actuators' ``(min, max)`` [mm]."""
+        self._refuse(check_stroke_ranges(self, drives))
+
+    def _refuse(self, problems: list[str]) -> None:
         if problems:
             lines = [f"{self.source}: {p}" for p in problems]
             raise ConfigError("\n".join(lines), problems=lines)
@@ -166,4 +170,6 @@ def register_map_of(cfg, override: str | Path | None = None) -> RegisterMap:
     else:
         rmap = load_register_map(cfg.plant.register_map, cfg.base_dir)
     rmap.check_count(len(cfg.heliostats))
+    used = dict.fromkeys(h.drive for h in cfg.heliostats)
+    rmap.check_stroke_ranges({name: [a.stroke_range_mm for a in cfg.drives[name].actuators] for name in used})
     return rmap
