@@ -67,7 +67,7 @@ def raw_within(q: Q, value: float, lo: float, hi: float) -> float | int:
     """The raw register value of ``value`` (inside ``lo..hi``) whose decoded value stays inside:
     an integer rounded to the step on the inside at an edge; a float (f32 rounds 999.9 up to
     999.9000244) stepped by ``nextafter`` toward the inside. ValueError if it does not fit."""
-    inside = lambda raw: lo <= float(raw) * q.scale + q.value_offset <= hi  # noqa: E731 - as decode() reads it
+    inside = lambda raw: lo <= float(raw) * q.scale + q.value_offset <= hi  # as decode() reads it
     if q.type in ("f32", "f64"):
         raw = (np.float32 if q.type == "f32" else np.float64)(raw_of(q, value))
         for _ in range(8):   # one step at scale 1; a few where the scale spreads the steps
