@@ -10,8 +10,8 @@ Capture time. A stream carries no capture time the controller can trust, so a fr
 time is the plant time at which it arrived, less the camera's known latency: ``clock.now_s()`` at
 the grab, less the frame's age since its arrival plus ``latency_s``, both in real seconds times
 the clock's rate. The camera's own encoding and network delay (typically 50-300 ms for an IP
-camera; measure it once against a clock shown to the camera) is ``latency_s``; without it capture
-times are late by that much.
+camera; measure it once against a clock shown to the camera) is ``latency_s``
+(``cameras[].latency_ms``); without it capture times are late by that much.
 
 Exposure. A stream cannot carry one; a camera with ``exposure_url`` sets it there
 (``GET <exposure_url>?exposure_ms=4.5`` answers with ``X-Exposure-Ms: <applied>``, the contract of
