@@ -80,7 +80,7 @@ class LaggingCamera:
                 try:
                     while not camera.stopping.is_set():
                         level = min(255.0, LEVEL_PER_MS * camera.exposure_at(time.monotonic() - camera.latency_s))
-                        ok, jpeg = cv2.imencode(".jpg", np.full(SIZE[::-1], level, np.uint8))
+                        _, jpeg = cv2.imencode(".jpg", np.full(SIZE[::-1], level, np.uint8))
                         body = jpeg.tobytes()
                         self.wfile.write(f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
                                          f"Content-Length: {len(body)}\r\n\r\n".encode() + body + b"\r\n")
