@@ -226,6 +226,17 @@ def test_a_fault_code_maps_to_helicalibs(served, tmp_path):
      r"weather\.dni_wm2\.scale: .*scale of 0"),
     (lambda d: d["field"].pop("plant_time"), r"field\.plant_time: "),
     (lambda d: d["field"].update(heliostat_count="Plant.Count"), r"field\.heliostat_count: .*neither a node id"),
+    (lambda d: d["commands"]["move"].update(args=["sequence", "stroke_1_mm:Int32", "stroke_2_mm"]),
+     r"commands\.move\.args: .*'stroke_1_mm:Int32': an OPC UA method takes strokes in mm as Float or Double"),
+    (lambda d: d["commands"]["track"].update(args=["sequence", "correction_1_mm", "correction_2_mm:Int16"]),
+     r"commands\.track\.args: .*'correction_2_mm:Int16': an OPC UA method takes strokes in mm as Float or Double"),
+    (lambda d: d["commands"]["stow"].update(args=["sequence:Byte"]),
+     r"commands\.stow: .*sequence:Byte cannot carry sequence_modulus 65536: 65535 does not fit .*Byte \(0\.\.255\)"),
+    (lambda d: d["commands"]["stow"].update(args=["sequence:Double"]), r"commands\.stow\.args: .*sequence is an integer"),
+    (lambda d: d["commands"]["stow"].update(args=["sequence", "id:Int32"]),
+     r"commands\.stow\.args: .*'id:Int32': a heliostat's id is a String"),
+    (lambda d: d["commands"]["field"].update(args=["command:Byte"], values={"STOW_ALL": 300, "RESUME_TRACKING": 2}),
+     r"commands\.field: .*STOW_ALL: 300 does not fit .*Byte"),
 ])
 def test_a_bad_node_map_is_refused_naming_file_and_key(tmp_path, edit, expect):
     path = write_map(tmp_path, edit)
@@ -234,6 +245,15 @@ def test_a_bad_node_map_is_refused_naming_file_and_key(tmp_path, edit, expect):
     msg = str(err.value)
     assert msg.startswith(f"{path}: ") and "\n" not in msg
     assert re.search(expect, msg), msg
+
+
+def test_a_sequence_type_that_holds_the_modulus_is_taken(tmp_path):
+    def small(d):
+        d["commands"].update(sequence_modulus=256)
+        d["commands"]["stow"].update(args=["sequence:Byte", "index:Int16"])
+
+    nm = load_node_map(write_map(tmp_path, small))
+    assert nm.commands.stow.typed_args() == [("sequence", "Byte"), ("index", "Int16")]
 
 
 def test_a_shipped_map_is_named_by_its_bare_name():

@@ -18,7 +18,7 @@ import re
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, Field, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from helicalib.config import _Model, read_yaml, validation_error
 from helicalib.devices.registers import FaultCode, FieldCommand, FieldState, HeliostatState
@@ -32,8 +32,13 @@ PATH_PART = re.compile(r"\d+:[^/:]+")
 ARG_NAMES = {"sequence": "UInt32", "command": "Int32", "stroke_1_mm": "Double", "stroke_2_mm": "Double",
              "correction_1_mm": "Double", "correction_2_mm": "Double", "index": "Int32", "id": "String"}
 """What a method argument may carry, and its OPC UA type unless the map gives one (``sequence:UInt16``)."""
-ARG_TYPES = ("Boolean", "SByte", "Byte", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64", "Float",
-             "Double", "String")
+INT_RANGES = {"SByte": (-2**7, 2**7 - 1), "Byte": (0, 2**8 - 1), "Int16": (-2**15, 2**15 - 1),
+              "UInt16": (0, 2**16 - 1), "Int32": (-2**31, 2**31 - 1), "UInt32": (0, 2**32 - 1),
+              "Int64": (-2**63, 2**63 - 1), "UInt64": (0, 2**64 - 1)}
+"""The values each OPC UA integer type holds."""
+ARG_TYPES = (*INT_RANGES, "Float", "Double", "String")
+MM_ARGS = frozenset({"stroke_1_mm", "stroke_2_mm", "correction_1_mm", "correction_2_mm"})
+"""Arguments in mm: sent as Float or Double only (an integer type would truncate a range-checked stroke)."""
 
 
 def check_node(value: str, per_heliostat: bool | None) -> str:
@@ -194,6 +199,13 @@ class Method(_Model):
                 raise ValueError(f"argument {a!r}: not one of {', '.join(ARG_NAMES)}")
             if kind and kind not in ARG_TYPES:
                 raise ValueError(f"argument {a!r}: type {kind!r} not one of {', '.join(ARG_TYPES)}")
+            kind = kind or ARG_NAMES[name]
+            if name in MM_ARGS and kind not in ("Float", "Double"):
+                raise ValueError(f"argument {a!r}: an OPC UA method takes strokes in mm as Float or Double")
+            if name == "id" and kind != "String":
+                raise ValueError(f"argument {a!r}: a heliostat's id is a String")
+            if name in ("sequence", "command", "index") and kind not in INT_RANGES:
+                raise ValueError(f"argument {a!r}: {name} is an integer ({', '.join(INT_RANGES)})")
         return value
 
     def typed_args(self) -> list[tuple[str, str]]:
@@ -204,6 +216,18 @@ class Method(_Model):
             out.append((name, kind or ARG_NAMES[name]))
         return out
 
+    def type_of(self, name: str) -> str | None:
+        """The OPC UA type of argument ``name``; None if the method does not take it."""
+        return dict(self.typed_args()).get(name)
+
+
+def check_fits(kind: str | None, value: int, what: str) -> None:
+    """A ValueError unless the integer ``value`` fits the OPC UA type ``kind`` (None: not an argument)."""
+    if kind in INT_RANGES:
+        lo, hi = INT_RANGES[kind]
+        if not lo <= value <= hi:
+            raise ValueError(f"{what} {value} does not fit the argument's type {kind} ({lo}..{hi})")
+
 
 class FieldMethod(Method):
     object: PlantNode
@@ -213,28 +237,35 @@ class FieldMethod(Method):
 
     @model_validator(mode="after")
     def _values(self):
-        for name in self.values:
+        for name, raw in self.values.items():
             if name not in FieldCommand.__members__ or name == "NONE":
                 raise ValueError(f"values: {name!r} is not a field command (STOW_ALL, RESUME_TRACKING)")
+            check_fits(self.type_of("command"), raw, f"values: {name}:")
         return self
 
 
 class Commands(_Model):
     style: Literal["method"] = "method"
+    sequence_modulus: int = Field(default=65536, ge=2, le=2**32)
+    """Sequence numbers run 0..modulus-1 and wrap (declared first: the methods' check reads it)."""
     field: FieldMethod
     move: Method
     track: Method
     resume: Method | None = None
     """Track with the plant's own corrections (``track(i, None)``); absent: such a track is refused."""
     stow: Method
-    sequence_modulus: int = Field(default=65536, ge=2, le=2**32)
-    """Sequence numbers run 0..modulus-1 and wrap."""
 
     @field_validator("move", "track", "resume", "stow")
     @classmethod
-    def _sequence(cls, m: Method | None) -> Method | None:
-        if m is not None and "sequence" not in {a for a, _ in m.typed_args()}:
+    def _sequence(cls, m: Method | None, info: ValidationInfo) -> Method | None:
+        if m is None:
+            return m
+        kind = m.type_of("sequence")
+        if kind is None:
             raise ValueError("args: a heliostat command carries its sequence number (add 'sequence')")
+        modulus = info.data.get("sequence_modulus")
+        if modulus is not None:
+            check_fits(kind, modulus - 1, f"args: sequence:{kind} cannot carry sequence_modulus {modulus}:")
         return m
 
 
