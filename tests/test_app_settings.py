@@ -66,3 +66,15 @@ def test_simulation_options_default_as_the_simulate_command():
            (args.seed, args.planner, args.rate, args.fidelity, args.rota_days, args.keep_frames,
             args.spots_per_board, args.operate)
     assert "fidelity" in {f.name for f in fields(SimulationOptions)}
+
+
+@pytest.mark.parametrize("argv", [("run", "f.yaml"), ("operate", "f.yaml"), ("check", "f.yaml", "--heliostats", "H1")])
+def test_register_map_reaches_the_session(argv):
+    def settings(*extra):
+        args = _parse(*argv, *extra)
+        if argv[0] == "check":  # as `helicalib check` sets them
+            args.until, args.days, args.planner, args.recheck = None, args.hours / 24.0, "gaps", True
+        return LiveSettings.from_args(args, "check" if argv[0] == "check" else "live")
+
+    assert settings().register_map is None
+    assert settings("--register-map", "maps/ours.yaml").register_map == "maps/ours.yaml"

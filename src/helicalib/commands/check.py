@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from helicalib.commands._args import add_spots, add_console, positive_float
+from helicalib.commands._args import add_console, add_register_map, add_spots, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,6 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     names.add_argument("--heliostats", help="comma-separated heliostat ids (one or several)")
     names.add_argument("--heliostat", dest="heliostats", help=argparse.SUPPRESS)  # the old name, kept for scripts
     p.add_argument("--arm", action="store_true", help="allow writes to the plant")
+    add_register_map(p)
     p.add_argument("--hours", type=positive_float, default=2.0, help="give up after this many plant hours (default 2)")
     p.add_argument("--json", action="store_true",
                    help="JSON lines on stdout: one per event, a status line every 5 s, a final summary with each "
