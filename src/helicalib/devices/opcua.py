@@ -1,215 +1,46 @@
 """The plant over OPC UA (asyncua), through a node map: the only client-side asyncua user.
 
-:class:`OpcUaPlant` implements :class:`helicalib.devices.protocols.Plant` (and ``Hurries``) with a
-synchronous façade over an asyncua client living in its own event-loop thread
-(:class:`OpcUaLink`). A status read is one Read request of the heliostat's six nodes; a command is
-one Read of its ``sequence_done`` and one Call of the map's method with a new sequence number,
-which the plant's ``sequence_done`` shows once it took (or refused) the command.
+:class:`OpcUaPlant` implements :class:`helicalib.devices.protocols.Plant` (and ``Hurries``) over
+:class:`~helicalib.devices.opcua_link.OpcUaLink` (an asyncua client on its own event-loop
+thread). A status read is one Read request of the heliostat's six nodes; a command is one Read
+of its ``sequence_done`` and one Call of the map's method with a new sequence number, which the
+plant's ``sequence_done`` shows once it took (or refused) the command.
 
 Every request has the endpoint's timeout. A lost connection or a timeout is retried once after
-reconnecting; then :class:`~helicalib.devices.protocols.PlantUnreachableError`. A Bad status code
-of a node or a method (the server answered) is a one-line :class:`~helicalib.errors.PlantError`
-naming the node and the heliostat. Safety comes from :class:`~helicalib.devices.guard.CommandGuard`
-as for Modbus: no call without ``armed``, strokes range-checked before sending, the stow gate.
+reconnecting; then :class:`~helicalib.devices.protocols.PlantUnreachableError`. A command's Call
+is never sent twice: when its answer is lost, the heliostat's ``sequence_done`` says whether it
+was taken. A Bad status code of a node or a method (the server answered) is a one-line
+:class:`~helicalib.errors.PlantError` naming the node and the heliostat. Safety comes from
+:class:`~helicalib.devices.guard.CommandGuard` as for Modbus: no call without ``armed``, strokes
+range-checked before sending (and still inside the range as the argument's type carries them),
+the stow gate.
 """
 
 from __future__ import annotations
 
-import asyncio
-import logging
 import math
 import os
-import threading
-import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from datetime import datetime, timezone
 
-from asyncua import Client, ua
-from asyncua.crypto import security_policies, uacrypto
+import numpy as np
+from asyncua import ua
 
 from helicalib.devices.guard import CommandGuard
-from helicalib.devices.nodemap import Method, NodeMap, fill, is_node_id, load_node_map
+from helicalib.devices.nodemap import (
+    INT_RANGES,
+    Method,
+    NodeMap,
+    check_fits,
+    fill,
+    load_node_map,
+)
+from helicalib.devices.opcua_link import CallInDoubt, OpcUaLink, Security, quiet_asyncua
 from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.devices.registers import FieldCommand, FieldState, HeliostatCommand
 from helicalib.errors import ConfigError, PlantError
 
-LINK_CODES = frozenset(getattr(ua.StatusCodes, n) for n in (
-    "BadConnectionClosed", "BadSessionIdInvalid", "BadSessionClosed", "BadSecureChannelIdInvalid",
-    "BadSecureChannelClosed", "BadTimeout", "BadCommunicationError", "BadServerNotConnected",
-    "BadNotConnected", "BadSessionNotActivated", "BadRequestInterrupted", "BadShutdown",
-    "BadServerHalted", "BadDisconnect"))
-"""Status codes that say the link failed, not the plant: reconnect and retry."""
-
-
-@dataclass(frozen=True)
-class Security:
-    """How the client secures its channel and who it logs in as."""
-
-    policy: str = "None"
-    mode: str = "SignAndEncrypt"
-    certificate: str | None = None
-    private_key: str | None = None
-    server_certificate: str | None = None
-    username: str | None = None
-    password: str | None = None
-
-
-class _LinkDown(Exception):
-    """The link failed (not the plant's answer): reconnect and retry."""
-
-
-def quiet_asyncua() -> None:
-    """Silence asyncua's own log (its connection and session lines would reach stderr through
-    Python's last-resort handler): a failure is one :class:`PlantError` line of ours."""
-    logging.getLogger("asyncua").setLevel(logging.CRITICAL)
-
-
-def _status_name(code) -> str:
-    return ua.StatusCode(code).name if not isinstance(code, ua.StatusCode) else code.name
-
-
-class OpcUaLink:
-    """One OPC UA endpoint: an asyncua client on an event loop thread, connected on first use,
-    reconnected once per failed call (thread-safe).
-
-    ``down_s``: after a call failed every attempt, further calls fail at once for this many real
-    seconds (a tick asking 500 heliostats must not wait 500 timeouts).
-    """
-
-    def __init__(self, endpoint: str, timeout_s: float = 4.0, security: Security | None = None,
-                 down_s: float = 5.0, monotonic: Callable[[], float] = time.monotonic):
-        self.endpoint = endpoint
-        self.timeout_s = float(timeout_s)
-        self.security = security or Security()
-        self.down_s = down_s
-        self.attempts = 2
-        self._monotonic = monotonic
-        self._down_until = -math.inf
-        self._down_reason = ""
-        self._lock = threading.Lock()
-        self._client: Client | None = None
-        self._loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._loop.run_forever, name="opcua-client", daemon=True)
-        self._thread.start()
-        self._paths: dict[str, ua.NodeId] = {}
-
-    def _run(self, coro, timeout_s: float):
-        fut = asyncio.run_coroutine_threadsafe(coro, self._loop)
-        try:
-            return fut.result(timeout_s)
-        except TimeoutError:
-            fut.cancel()
-            raise
-
-    async def _open(self) -> Client:
-        s = self.security
-        client = Client(self.endpoint, timeout=self.timeout_s, watchdog_intervall=max(1.0, self.timeout_s))
-        client.application_uri = "urn:helicalib:client"
-        if s.policy != "None":
-            cert = await uacrypto.load_certificate(s.certificate)
-            uri = _certificate_uri(cert)
-            if uri:
-                client.application_uri = uri
-            await client.set_security(getattr(security_policies, f"SecurityPolicy{s.policy}"), s.certificate,
-                                      s.private_key, server_certificate=s.server_certificate,
-                                      mode=getattr(ua.MessageSecurityMode, s.mode))
-        if s.username is not None:
-            client.set_user(s.username)
-            client.set_password(s.password or "")
-        try:
-            await asyncio.wait_for(client.connect(), self.timeout_s)
-        except BaseException:
-            await self._close(client)
-            raise
-        return client
-
-    async def _close(self, client: Client) -> None:
-        try:
-            await asyncio.wait_for(client.disconnect(), 1.0)
-        except Exception:  # noqa: BLE001 - the link is gone either way
-            pass
-
-    def _drop(self) -> None:
-        client, self._client = self._client, None
-        self._paths.clear()
-        if client is not None:
-            try:
-                self._run(self._close(client), 2.0)
-            except Exception:  # noqa: BLE001
-                pass
-
-    def call(self, what: str, job: Callable[[Client, "OpcUaLink"], object]):
-        """Run ``job(client, link)`` (a coroutine function) on the loop; ``what`` names it in errors."""
-        with self._lock:
-            if self._monotonic() < self._down_until:
-                raise PlantUnreachableError(f"plant {self.endpoint}: {what} not tried: the plant did not answer "
-                                            f"moments ago ({self._down_reason})")
-            last = "no answer"
-            for _ in range(self.attempts):
-                try:
-                    if self._client is None:
-                        self._client = self._run(self._open(), self.timeout_s + 2.0)
-                    out = self._run(job(self._client, self), 2 * self.timeout_s + 1.0)
-                    self._down_until = -math.inf
-                    return out
-                except ua.UaStatusCodeError as exc:
-                    if exc.code not in LINK_CODES:
-                        if self._client is None:     # connecting was refused: a reachable plant said no
-                            raise PlantError(f"plant {self.endpoint}: connecting refused: {_status_name(exc.code)}") from None
-                        raise PlantError(f"plant {self.endpoint}: {what}: {_status_name(exc.code)}") from None
-                    last = _status_name(exc.code)
-                except (OSError, TimeoutError, asyncio.TimeoutError, ConnectionError, ua.UaError, _LinkDown) as exc:
-                    last = f"{type(exc).__name__}: {exc}".strip().rstrip(":")
-                self._drop()
-            self._down_until = self._monotonic() + self.down_s
-            self._down_reason = last
-            raise PlantUnreachableError(f"plant {self.endpoint}: {what} failed after {self.attempts} "
-                                        f"attempt{'s' * (self.attempts > 1)} ({last})")
-
-    async def node_ids(self, client: Client, refs: Sequence[str]) -> list[ua.NodeId]:
-        """Node ids of map references (browse paths from Objects resolved once, then kept)."""
-        out = []
-        for ref in refs:
-            if is_node_id(ref):
-                out.append(ua.NodeId.from_string(ref))
-                continue
-            nid = self._paths.get(ref)
-            if nid is None:
-                try:
-                    node = await client.nodes.objects.get_child([p for p in ref.strip("/").split("/")])
-                except ua.UaStatusCodeError as exc:
-                    if exc.code in LINK_CODES:
-                        raise
-                    raise PlantError(f"plant {self.endpoint}: browse path {ref} from Objects: "
-                                     f"{_status_name(exc.code)}") from None
-                nid = self._paths[ref] = node.nodeid
-            out.append(nid)
-        return out
-
-    def hurry(self) -> None:
-        """One attempt per call from now on and a 1 s down window (a stopping controller)."""
-        self.attempts = 1
-        self.down_s = min(self.down_s, 1.0)
-
-    def close(self) -> None:
-        with self._lock:
-            self._drop()
-        if self._loop.is_running():
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(5)
-
-
-def _certificate_uri(cert) -> str | None:
-    """The application URI in a certificate's subject alternative names (what servers check)."""
-    from cryptography import x509
-
-    try:
-        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    except x509.ExtensionNotFound:
-        return None
-    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
-    return uris[0] if uris else None
+__all__ = ["OpcUaPlant", "Security", "quiet_asyncua"]
 
 
 def _number(value, what: str) -> float:
@@ -315,7 +146,7 @@ class OpcUaPlant:
 
         async def job(client, link):
             nids = await link.node_ids(client, refs)
-            dvs = await client.uaclient.read_attributes(nids, ua.AttributeIds.Value)
+            dvs = await link.request(client.uaclient.read_attributes(nids, ua.AttributeIds.Value))
             out = []
             for ref, name, dv in zip(refs, names, dvs):
                 if not dv.StatusCode.is_good():
@@ -399,16 +230,27 @@ class OpcUaPlant:
 
     # ------------------------------------------------------------------ commands
     def _invoke(self, spec: Method, args: dict, what: str, index: int | None = None) -> None:
-        """Call the map's method with ``args`` in its argument order and types."""
+        """Call the map's method with ``args`` in its argument order and types; a value its type
+        cannot carry is a :class:`PlantError` before anything is sent. :class:`CallInDoubt` when the
+        Call may have reached the plant but its answer did not come back (it is not sent again)."""
         obj, method = (spec.object, spec.method) if index is None else \
             (fill(spec.object, index, self.ids[index]), fill(spec.method, index, self.ids[index]))
-        variants = [ua.Variant(args[name] if kind in ("String",) else _typed(args[name], kind),
-                               getattr(ua.VariantType, kind)) for name, kind in spec.typed_args()]
+        variants = []
+        for name, kind in spec.typed_args():
+            value = args[name]
+            if kind in INT_RANGES:
+                try:
+                    check_fits(kind, int(value), f"argument {name}")
+                except ValueError as exc:
+                    raise PlantError(f"plant {self.link.endpoint}: {what} not sent: {exc}") from None
+            elif kind in ("Float", "Double"):
+                value = float(value)
+            variants.append(ua.Variant(value, getattr(ua.VariantType, kind)))
 
         async def job(client, link):
             oid, mid = await link.node_ids(client, [obj, method])
-            (res,) = await client.uaclient.call([ua.CallMethodRequest(ObjectId=oid, MethodId=mid,
-                                                                      InputArguments=variants)])
+            request = ua.CallMethodRequest(ObjectId=oid, MethodId=mid, InputArguments=variants)
+            (res,) = await link.request(client.uaclient.call([request]), acts=True)
             if not res.StatusCode.is_good():
                 raise PlantError(f"plant {link.endpoint}: {what}: method {method} on {obj}: {res.StatusCode.name}")
 
@@ -422,8 +264,15 @@ class OpcUaPlant:
         spec = self.map.commands.field
         if cmd.name not in spec.values:
             raise PlantError(f"field command {cmd.name}: the node map's commands.field.values has no value for it")
+        what = f"field command {cmd.name}"
         with self.guard.lock:
-            self._invoke(spec, {"command": spec.values[cmd.name]}, f"field command {cmd.name}")
+            try:
+                self._invoke(spec, {"command": spec.values[cmd.name]}, what)
+            except CallInDoubt as exc:
+                if cmd == FieldCommand.STOW_ALL:      # it may have been taken: hold moves and tracks back
+                    self.guard.field_sent(cmd)
+                raise PlantError(f"plant {self.link.endpoint}: {what} may or may not have been taken; not resent "
+                                 f"(its answer was lost: {exc})") from None
             self.guard.field_sent(cmd)
 
     def _command(self, index: int, command: HeliostatCommand, spec: Method | None, args: dict) -> int:
@@ -435,23 +284,49 @@ class OpcUaPlant:
         self._check_index(index)
         with self.guard.lock:
             self.guard.gate(command, what)
-            ref = fill(self.map.heliostat.sequence_done, index, self.ids[index])
-            (done,) = self._read([ref], [f"{self._label(index)} sequence done"], f"{self._label(index)} sequence done")
+            done = self._sequence_done(index)
             mod = self.map.commands.sequence_modulus
-            done = int(_number(done, "sequence done")) % mod
             seq = (max(done, self._last_sent.get(index, done)) + 1) % mod
             while seq == done:
                 seq = (seq + 1) % mod
-            self._invoke(spec, {**args, "sequence": seq, "index": index, "id": self.ids[index]}, what, index)
+            try:
+                self._invoke(spec, {**args, "sequence": seq, "index": index, "id": self.ids[index]}, what, index)
+            except CallInDoubt as exc:
+                self._last_sent[index] = seq      # it may be in flight: never reuse its number
+                return self._settle(index, seq, what, str(exc))
             self._last_sent[index] = seq
         return seq
+
+    def _sequence_done(self, index: int) -> int:
+        """The last sequence number the heliostat processed, as the plant shows it (one Read)."""
+        ref = fill(self.map.heliostat.sequence_done, index, self.ids[index])
+        name = f"{self._label(index)} sequence done"
+        (done,) = self._read([ref], [name], name)
+        done = int(_number(done, f"plant {self.link.endpoint}: {name} (node {ref})"))
+        return done % self.map.commands.sequence_modulus
+
+    def _settle(self, index: int, seq: int, what: str, lost: str) -> int:
+        """A command whose answer was lost: ``seq`` if the plant's ``sequence_done`` shows it took it,
+        else a one-line error (never a second Call: the plant may be acting on the first)."""
+        head = f"plant {self.link.endpoint}: {what} (sequence {seq}) may or may not have been taken; not resent"
+        try:
+            done = self._sequence_done(index)
+        except PlantError as exc:
+            kind = PlantUnreachableError if isinstance(exc, PlantUnreachableError) else PlantError
+            raise kind(f"{head} (its answer was lost: {lost}; then {exc})") from None
+        if done == seq:
+            return seq
+        raise PlantError(f"{head} (its answer was lost: {lost}; sequence done reads {done})")
 
     def move_to(self, index: int, strokes_mm) -> int:
         """Command strokes (actuator 1, 2) [mm] and hold; returns the sequence number sent. Strokes
         outside the drive's range are refused before anything is sent."""
-        s = self.guard.strokes(index, strokes_mm)
-        return self._command(index, HeliostatCommand.MOVE, self.map.commands.move,
-                             {"stroke_1_mm": float(s[0]), "stroke_2_mm": float(s[1])})
+        s = [float(x) for x in self.guard.strokes(index, strokes_mm)]
+        spec, limits = self.map.commands.move, self.guard.stroke_limits_mm
+        for k, name in enumerate(("stroke_1_mm", "stroke_2_mm")):
+            if limits is not None and spec.type_of(name) == "Float":
+                s[k] = _float32_inside(s[k], limits[index, k])
+        return self._command(index, HeliostatCommand.MOVE, spec, {"stroke_1_mm": s[0], "stroke_2_mm": s[1]})
 
     def track(self, index: int, corrections_mm) -> int:
         """Return to tracking with these stroke corrections [mm]; ``None``: with the plant's own (the
@@ -467,5 +342,12 @@ class OpcUaPlant:
         return self._command(index, HeliostatCommand.STOW, self.map.commands.stow, {})
 
 
-def _typed(value, kind: str):
-    return float(value) if kind in ("Float", "Double") else (bool(value) if kind == "Boolean" else int(value))
+def _float32_inside(value: float, limits) -> float:
+    """The Float (32-bit) nearest ``value`` that stays inside ``limits`` (min, max): a range-checked
+    stroke rounded to a Float must not reach the drive outside its range."""
+    f = np.float32(value)
+    if f < limits[0]:
+        f = np.nextafter(f, np.float32(np.inf))
+    elif f > limits[1]:
+        f = np.nextafter(f, np.float32(-np.inf))
+    return float(f)

@@ -12,7 +12,9 @@ method Command), ``Objects/Plant/Weather`` (WindSpeed, WindDirection, DNI, Tempe
 and ``Objects/Plant/Heliostats/<id>`` (State, SequenceDone, Fault, Stroke1, Stroke2, Cleanliness,
 methods MoveTo, Track, Resume, Stow), all browse names in namespace 2; node ids are the map's (a
 map that names a node by browse path gets a numeric id). Optionally a security policy with the
-server's own certificate, and users with passwords.
+server's own certificate, and users with passwords. :meth:`OpcUaPlantService.lose_next_call`
+breaks the link at a method call (the answer lost, the request lost, or the plant gone), the
+faults a client must survive without executing a command twice.
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ from asyncua.common.callback import CallbackType
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.user_managers import UserManager
 
-from helicalib.devices.opcua import quiet_asyncua
 from helicalib.devices.nodemap import NodeMap, fill, is_node_id, load_node_map
+from helicalib.devices.opcua_link import quiet_asyncua
 from helicalib.devices.registers import FieldCommand, HeliostatCommand
 from helicalib.errors import ConfigError
 
@@ -39,6 +41,9 @@ LOOPBACK = "127.0.0.1"
 NAMESPACE = "urn:helicalib:simulated-plant"
 PATH = "helicalib"
 OPCUA = "OPC UA"
+LINK_FAULTS = ("answer", "request", "plant")
+"""What :meth:`OpcUaPlantService.lose_next_call` loses: the answer (the plant acted), the request
+(it did not), or the plant (it acted, then the server stopped)."""
 
 
 @dataclass(frozen=True)
@@ -93,6 +98,8 @@ class OpcUaPlantService:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._server: Server | None = None
+        self._faults: list[str] = []
+        self._halted = False
         self.ids = [h.id for h in plant.cfg.heliostats]
 
     @property
@@ -160,11 +167,35 @@ class OpcUaPlantService:
 
     def stop(self) -> None:
         """Close the listener and every session; returns when the server thread has ended."""
-        if self._loop is not None and self._loop.is_running():
+        if self._loop is not None and self._loop.is_running() and not self._halted:
             self._loop.call_soon_threadsafe(self._loop.stop)
         if self._thread is not None:
             self._thread.join(10)
         self._loop = None
+
+    def lose_next_call(self, what: str) -> None:
+        """Break the link at the next method call: ``"answer"`` acts on it and closes every
+        connection before the answer leaves; ``"request"`` closes them without acting;
+        ``"plant"`` acts, closes them and stops the server."""
+        if what not in LINK_FAULTS:
+            raise ValueError(f"lose_next_call: {what!r} is not one of {', '.join(LINK_FAULTS)}")
+        self._faults.append(what)
+
+    def _cut(self, stop: bool) -> None:
+        """Close every client connection (and with ``stop`` the server) from a method's worker thread;
+        returns once they are closed, so the method's answer has nowhere to go."""
+        loop, done = self._loop, threading.Event()
+
+        def cut():
+            for transport in list(self._server.iserver.asyncio_transports):
+                transport.close()
+            if stop:
+                self._halted = True
+                loop.stop()
+            done.set()
+
+        loop.call_soon_threadsafe(cut)
+        done.wait(5)
 
     def __enter__(self) -> OpcUaPlantService:
         return self.start()
@@ -263,7 +294,11 @@ class OpcUaPlantService:
             if len(values) != len(args):
                 return ua.StatusCode(ua.StatusCodes.BadArgumentsMissing if len(values) < len(args)
                                      else ua.StatusCodes.BadTooManyArguments)
-            act(*values)
+            fault = self._faults.pop(0) if self._faults else None
+            if fault != "request":
+                act(*values)
+            if fault is not None:
+                self._cut(stop=fault == "plant")
             return []
 
         await parent.add_method(self._nid(method, ns), ua.QualifiedName(name, ns), call, args, [])
