@@ -57,12 +57,14 @@ def test_a_too_bright_or_too_faint_reading_is_retaken_at_a_corrected_exposure(cf
     fixed, asked = _first_reading(cfg, tmp_path, scenario, False, "fixed")
     assert not fixed.valid and fixed.reason in refused, (fixed.reason, fixed.message)
     assert set(asked) == {None}  # a camera without exposure control is never asked
+    assert fixed.exposure_ms is None  # and its readings are stored without one
 
     first, asked = _first_reading(cfg, tmp_path, scenario, True, "exposure")
     assert first.valid, (first.reason, first.message)
     assert measure.EXPOSED in first.message and f"after a {fixed.reason} reading" in first.message
     retaken = [e for e in asked if e not in (None, 1.0)]  # the first visit: the camera's own (nominal) 1 ms
     assert retaken and all((e > 1.0) if longer else (e < 1.0) for e in retaken)
+    assert first.exposure_ms == pytest.approx(retaken[-1])  # stored: the exposure of the retaken frames
     # the flux factor follows the exposure: the power in the spot is the mirror's (relative to a clean 0.93)
     reflect = scenario.get("optics", {}).get("reflectivity", 0.93) / 0.93
     assert first.cleanliness_measured == pytest.approx(first.cleanliness * reflect, rel=0.1)

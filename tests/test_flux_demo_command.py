@@ -55,7 +55,7 @@ def campaign(tmp_path_factory):
     con = sqlite3.connect(out / "helicalib.db")
     rows = con.execute(
         "SELECT heliostat_id, capture_time_s, dni_wm2, cleanliness, cleanliness_measured, before_frame_path, "
-        "after_frame_paths_json FROM observations WHERE target_id = 'T1' AND valid = 1 "
+        "after_frame_paths_json, exposure_ms FROM observations WHERE target_id = 'T1' AND valid = 1 "
         "AND cleanliness_measured IS NOT NULL ORDER BY id").fetchall()
     con.close()
     assert len(rows) >= 3, "the campaign measured too few cleanliness values to compare"
@@ -68,10 +68,10 @@ def test_documented_flux_line_agrees_with_the_campaign_and_the_truth(campaign, c
     assert words[:2] == ["helicalib", "flux"]
     monkeypatch.chdir(ROOT)                    # the line names field_config/ relative to the checkout
     found = []
-    for hid, t_s, dni, truth, in_loop, before, afters in rows:
+    for hid, t_s, dni, truth, in_loop, before, afters, exposure in rows:
         iso = datetime.fromtimestamp(t_s, tz=timezone.utc).isoformat(timespec="milliseconds")
         values = {"BEFORE": str(out / "images" / before), "AFTER": str(out / "images" / json.loads(afters)[-1]),
-                  "H": hid, "ISO": iso, "DNI": repr(dni)}
+                  "H": hid, "ISO": iso, "DNI": repr(dni), "EXP": repr(exposure)}
         argv = [values.get(w, w) for w in words[1:]]
         assert not set(values) & set(argv), "a placeholder of the documented line was left unfilled"
         assert main(argv) == 0

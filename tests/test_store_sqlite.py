@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import csv
 import os
 import signal
@@ -80,17 +82,20 @@ def test_version_1_database_is_migrated_in_place_and_keeps_its_rows(tmp_path):
     conn.execute("ALTER TABLE observations DROP COLUMN approach_1")
     conn.execute("ALTER TABLE observations DROP COLUMN approach_2")
     conn.execute("DROP TABLE operator_actions")
+    conn.execute("ALTER TABLE observations DROP COLUMN exposure_ms")
     conn.execute("UPDATE schema_version SET version = 1")
     conn.commit()
     conn.close()
     s = Store.open(path)
     old = s.observations()
     assert len(old) == 1 and old[0].approach is None and old[0].strokes_read_mm == pytest.approx((812.4, 640.3))
-    s.record_observation(_obs(cid, vid, 1))
+    assert old[0].exposure_ms is None
+    s.record_observation(replace(_obs(cid, vid, 1), exposure_ms=2.5))
     assert [o.approach for o in s.observations()] == [None, (1, -1)]
+    assert [o.exposure_ms for o in s.observations()] == [None, 2.5]
     s.close()
     conn = sqlite3.connect(path)
-    assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == SCHEMA_VERSION == 3
+    assert conn.execute("SELECT version FROM schema_version").fetchone()[0] == SCHEMA_VERSION == 4
     assert conn.execute("SELECT COUNT(*) FROM operator_actions").fetchone()[0] == 0  # version 3 made it
     conn.close()
 

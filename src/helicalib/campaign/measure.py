@@ -91,6 +91,7 @@ def measure(ctx: VisitContext, before: Before, strokes_cmd, strokes_read, aim, i
         wind_ms=getattr(weather, "wind_ms", None), wind_direction_deg=getattr(weather, "wind_direction_deg", None),
         dni_wm2=getattr(weather, "dni_wm2", None), temperature_c=getattr(weather, "temperature_c", None),
         cleanliness=getattr(status, "cleanliness", None),
+        exposure_ms=getattr(before.state, "exposure_ms", None),
     )
     extra = {}
     if reading.spot_px is not None:

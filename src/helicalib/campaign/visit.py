@@ -109,7 +109,8 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
             if p.placements >= ctx.settings.max_iterations:
                 out.end("not_converged", f"still {obs.error_mrad:.2f} mrad after {p.placements} placements")
                 break
-            if not correct(ctx, p, obs, read):
+            # the read-back of the hold measured (an exposure retake holds again)
+            if not correct(ctx, p, obs, obs.strokes_read_mm if obs.strokes_read_mm is not None else read):
                 out.end("refused", "the corrected strokes lie outside the drive's range")
                 break
         out.iterations = p.placements

@@ -38,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--time", type=iso_time, help="capture instant, ISO 8601 with offset (cleanliness: sun position)")
     p.add_argument("--dni-wm2", type=positive_float, help="DNI at the capture time [W/m²] (cleanliness)")
     p.add_argument("--intercept", type=float_in(0.0, 1.0, open_lo=True), default=1.0, help="fraction of the beam on the board (default 1)")
+    p.add_argument("--exposure-ms", type=positive_float, default=None,
+                   help="the frames' exposure [ms] (an observation's exposure_ms): Fe is scaled from the "
+                        "FLUX.yaml's exposure_ms to it (default: the frames were taken at FLUX.yaml's exposure)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", help="write the 3-D surface and colour map to this PNG")
     p.set_defaults(func=run)
@@ -118,6 +121,10 @@ def run(args) -> int:
     from helicalib.vision.marks import find_marks
 
     fc = load_flux_calibration(args.calibration)
+    if args.exposure_ms is not None and fc.exposure_ms is None:
+        raise ConfigError(f"--exposure-ms {args.exposure_ms:g}: {args.calibration} has no exposure_ms (the exposure "
+                          "at which its Fe holds), so Fe cannot be scaled to the frames' exposure")
+    exposure_scale = 1.0 if args.exposure_ms is None else fc.exposure_ms / args.exposure_ms
     target, cams, cfg = _resolve(args)
     camera = _pick_camera(cams, args.camera_id or fc.camera)
     data = load_correction_data(fc)
@@ -150,7 +157,7 @@ def run(args) -> int:
     if nl is not None and nl.view_deg is not None and camera is not None and camera.position_enu_m is not None:
         view = view_angles_deg(grid, target.center_enu_m, target.frame_enu, camera.position_enu_m)
     res = measure_flux(
-        before, after, marks.homography, grid, fc.fe_wm2_per_grey(cam_k),
+        before, after, marks.homography, grid, fc.fe_wm2_per_grey(cam_k) * exposure_scale,
         dark_grey=data.dark_grey, response=data.response, flat_factors=data.flat_factors,
         camera_matrix=cam_k if fc.corrections.distortion else None,
         distortion=dist if fc.corrections.distortion else None,

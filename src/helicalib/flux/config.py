@@ -148,6 +148,9 @@ class FluxCalibration(_Model):
     corrections: Corrections = Corrections()
     errors: ComponentErrors = ComponentErrors()
     cleanliness: CleanlinessModel | None = None
+    exposure_ms: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    """The camera's exposure at which ``fe`` holds [ms] (a camera that sets its exposure,
+    PLANT_INTERFACE 1.1): frames taken at another exposure scale Fe by its ratio."""
 
     _source: Path | None = PrivateAttr(default=None)
 

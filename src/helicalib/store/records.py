@@ -106,6 +106,9 @@ class Observation:
     cleanliness_measured : float or None
         The mirror's cleanliness measured from this observation's spot (measured against expected
         power, :func:`helicalib.flux.visit.cleanliness_from_visit`) [-]; None when not estimated.
+    exposure_ms : float or None
+        The exposure the camera applied to the reading's frames [ms] (PLANT_INTERFACE 1.1); None for
+        a camera that cannot set its exposure.
     valid : bool
         Whether the spot gave a usable tracking error.
     reason : str
@@ -148,6 +151,7 @@ class Observation:
     temperature_c: float | None = None
     cleanliness: float | None = None
     cleanliness_measured: float | None = None
+    exposure_ms: float | None = None
     offset_u_m: float | None = None
     offset_v_m: float | None = None
     spot_x_px: float | None = None

@@ -1,11 +1,12 @@
-"""The SQLite schema of a campaign database (version 3) and its creation.
+"""The SQLite schema of a campaign database (version 4) and its creation.
 
 One file holds every campaign run against it. Times are plant time in UTC seconds (REAL);
 vectors are stored one column per component; JSON columns hold dictionaries and lists.
 The ``schema_version`` table holds one row; a database of a newer version is refused, one of an
 older version is brought up to date in place (:data:`MIGRATIONS`: version 2 added each
 observation's approach directions, ``approach_1`` / ``approach_2``, NULL in older rows; version 3
-the ``operator_actions`` table of the crew console, :mod:`helicalib.console`).
+the ``operator_actions`` table of the crew console, :mod:`helicalib.console`; version 4 each
+observation's camera exposure, ``exposure_ms``, NULL in older rows and for cameras without one).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import sqlite3
 
 from helicalib.errors import ConfigError, DataError
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 OPERATOR_ACTIONS = (
     """CREATE TABLE IF NOT EXISTS operator_actions (
@@ -96,6 +97,7 @@ CREATE TABLE IF NOT EXISTS observations (
     temperature_c REAL,
     cleanliness REAL,                -- the plant's register (PLANT_INTERFACE), NULL if it gave none
     cleanliness_measured REAL,       -- measured from the spot's power (flux.visit), NULL if not estimated
+    exposure_ms REAL,                -- the camera's exposure of the reading (interface 1.1), NULL if it has none
     valid INTEGER NOT NULL,
     reason TEXT NOT NULL,
     message TEXT NOT NULL,
@@ -158,6 +160,7 @@ MIGRATIONS: dict[int, tuple[str, ...]] = {
     2: ("ALTER TABLE observations ADD COLUMN approach_1 INTEGER",
         "ALTER TABLE observations ADD COLUMN approach_2 INTEGER"),
     3: OPERATOR_ACTIONS,
+    4: ("ALTER TABLE observations ADD COLUMN exposure_ms REAL",),
 }
 """Statements that take a database from the version before the key to the key's version."""
 
