@@ -43,6 +43,17 @@ METHODS = ("grlm", "grlm-centroid", "centroid")
 REASONS = ("ok", "no_spot", "clipped", "saturated", "low_contrast", "marks_not_found", "reprojection",
            "ambient_change", "jitter", "bad_frame")
 SATURATED_LEVEL = 250
+CORE_SHARES = (0.3, 0.4, 0.5, 0.6)
+"""Core thresholds [shares of the peak] tried, lowest first, on a spot whose region at ``T`` runs over
+the board's rim: the first whose region keeps off the rim (the same rule) is measured instead. The
+core of a centrally symmetric beam is centred on the beam, whatever of its skirt the rim cuts."""
+CORE_RIM_MARGIN_CELLS = 3
+"""A core must keep this many cells off the rim and off the dark marks: the rim's cells, sampled half
+on the board and half beside it, and a mark's cells (its albedo a few % of the board's) read darker
+than the spot there, so a core cut by either can look closed next to them."""
+DARK_MARK_SHARE = 0.5
+"""Board cells darker than this share of the board's median in the before frame are marks (where the
+spot's light is mostly lost, unless a dot board restores it)."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +80,9 @@ class SpotLimits:
     """More cells than this share of the spot's (and at least ``min_area_cells``) at least the threshold
     *below* the before frame → "ambient_change": light on the board in the before frame that is gone
     in the after frame, another beam crossing the board while the before frame was taken."""
+    core_shares: tuple[float, ...] = CORE_SHARES
+    """Core thresholds tried on a spot that runs over the rim (:func:`core_region`); () keeps every such
+    spot "clipped"."""
 
 
 @dataclass(frozen=True)
@@ -86,6 +100,9 @@ class FrameSpot:
     noise: float
     saturated_fraction: float
     clipped_cells: int
+    core_share: float | None = None
+    """The share of the peak ``threshold`` is at when the spot at ``T`` ran over the rim and its core
+    was measured (:data:`CORE_SHARES`); None when measured at ``T``."""
 
 
 @dataclass(frozen=True)
@@ -218,6 +235,43 @@ def window_centroid(I: np.ndarray, start_cell: np.ndarray, side: float, iteratio
     return c
 
 
+def core_region(Ddet: np.ndarray, inside: np.ndarray, T: float, peak: float, limits: SpotLimits,
+                blind: np.ndarray | None = None) -> tuple[float, float, np.ndarray] | None:
+    """The core of a spot whose region at ``T`` runs over the rim: (share, threshold, mask on the board).
+
+    The lowest of ``limits.core_shares`` × ``peak`` (above ``T``) whose region, grown by
+    :data:`CORE_RIM_MARGIN_CELLS`, has at most ``max_clipped_cells`` cells off ``inside`` or on
+    ``blind`` (board cells that do not show the spot's light: dark marks), with at least
+    ``min_area_cells`` cells and a side √S smaller than the grid; None when every core reaches the
+    rim or a mark (the spot stays "clipped").
+    """
+    import cv2
+
+    m = 2 * CORE_RIM_MARGIN_CELLS + 1
+    kernel = np.ones((m, m), np.uint8)
+    unseen = ~inside if blind is None else ~inside | blind
+    for share in limits.core_shares:
+        Tc = share * peak
+        if Tc <= T:
+            continue
+        above = Ddet >= Tc
+        S = int(np.count_nonzero(above & inside))
+        if S < limits.min_area_cells:
+            return None
+        near = cv2.dilate(above.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        off = int(np.count_nonzero(near.astype(bool) & unseen))
+        if off <= limits.max_clipped_cells and math.sqrt(S) < min(inside.shape):
+            return share, Tc, above & inside
+    return None
+
+
+def _off_frame_cells(above: np.ndarray, inside: np.ndarray) -> int:
+    """Cells of ``above`` off ``inside`` other than the board's rim (the grid's outer ring): where the
+    frame's edge cuts the board. A spot cut there stays "clipped"; the core rule is for the rim."""
+    off = above & ~inside
+    return int(np.count_nonzero(off[1:-1, 1:-1]))
+
+
 def intensity_centroid(I: np.ndarray) -> np.ndarray:
     """Intensity centroid (column, row) of all of ``I``."""
     tot = float(I.sum())
@@ -338,13 +392,24 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
                        f"{T:.0f} grey levels or more darker in the after frame (the spot has {S}): another beam "
                        "crossed the board while the before frame was taken.", partial, before_beam=True)
     side = math.sqrt(S)
+    core_share = None
     if clipped > limits.max_clipped_cells or side >= min(grid.shape):
-        # the visible part's centroid (biased toward the board): tells a search which way the beam lies
-        seen = intensity_centroid(Dm * mask)
-        partial = FrameSpot(seen, grid.cell_to_board(seen), T, S, side, np.full(2, np.nan), k, peak, noise, sat,
-                            clipped)
-        raise _Invalid("clipped", f"the spot runs over the edge of the board or the frame ({clipped} cells of it "
-                       "on the rim); its centre would be biased.", partial)
+        core = None
+        if _off_frame_cells(above, inside) <= limits.max_clipped_cells:  # cut by the board's rim, not the frame
+            dark = None
+            if fill is None:  # L marks: the spot's light on them is lost (a dot board's fill restores it)
+                dark = B < DARK_MARK_SHARE * float(np.median(B[inside]))
+            core = core_region(Ddet, inside, T, peak, limits, dark)
+        if core is None:
+            # the visible part's centroid (biased toward the board): tells a search which way the beam lies
+            seen = intensity_centroid(Dm * mask)
+            partial = FrameSpot(seen, grid.cell_to_board(seen), T, S, side, np.full(2, np.nan), k, peak, noise, sat,
+                                clipped)
+            raise _Invalid("clipped", f"the spot runs over the edge of the board or the frame ({clipped} cells of "
+                           "it on the rim); its centre would be biased.", partial)
+        core_share, T, mask = core  # its core keeps off the rim: measured on the core alone
+        S = int(np.count_nonzero(mask))
+        side = math.sqrt(S)
     if sat > limits.max_saturated_fraction:
         raise _Invalid("saturated", f"{100 * sat:.0f} % of the spot is saturated in the after frame "
                        f"(limit {100 * limits.max_saturated_fraction:.0f} %); close the aperture.", partial)
@@ -366,7 +431,8 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
     else:  # pragma: no cover - checked by measure_spot
         raise ValueError(method)
     centre, win_centre = centre + origin, win_centre + origin
-    return FrameSpot(centre, grid.cell_to_board(centre), T, S, win_side, win_centre, k, peak, noise, sat, clipped)
+    return FrameSpot(centre, grid.cell_to_board(centre), T, S, win_side, win_centre, k, peak, noise, sat, clipped,
+                     core_share)
 
 
 # ---------------------------------------------------------------------------- public
@@ -477,8 +543,11 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
     if jitter is not None and jitter > limits.max_jitter_m:
         return SpotResult(False, "jitter", f"the spot moved {jitter * 1000:.0f} mm RMS over {len(frames)} frames "
                           f"(limit {limits.max_jitter_m * 1000:.0f} mm; wind?).", **result, **base)
+    cores = [f.core_share for f in frames if f.core_share is not None]
     msg = (f"spot centre at u = {mean[0]:+.3f} m, v = {mean[1]:+.3f} m from the board centre ({method}"
-           + (f", {len(frames)} frames, jitter {jitter * 1000:.0f} mm RMS" if jitter is not None else "") + ").")
+           + (f", {len(frames)} frames, jitter {jitter * 1000:.0f} mm RMS" if jitter is not None else "")
+           + (f"; on its core above {100 * max(cores):.0f} % of the peak, the spot at the threshold running "
+              "over the rim" if cores else "") + ").")
     return SpotResult(True, "ok", msg, **result, **base)
 
 

@@ -1,0 +1,140 @@
+"""Spots cut by the board's rim: validity and centre error with and without the core threshold.
+
+Renders spots of known centre on the demo board (12 m, the demo camera's steep upward view,
+1280×1024) exposed as the simulated plant's cameras are (the white board at 25 grey levels, spot
+peaks 60–180, ``bench_spot.SPOT_EXPOSED``), placed near and across the board's rim (centres
+uniform over ±``--reach`` m, default 7 m, on a board of ±6 m) and of every size from small to
+board-sized (Gaussian σ 0.4–2.5 m, flat-topped semi-axes 0.8–5 m, aspect up to 1.6, any angle).
+Each pair of frames is measured twice by :func:`helicalib.vision.spot.measure_spot`: with
+``core_shares=()`` (a spot over the rim is ``clipped``) and with the default core thresholds
+(:data:`helicalib.vision.spot.CORE_SHARES`: a spot over the rim whose core keeps off the rim is
+measured on its core). Prints:
+
+* the share of spots by reason on each side;
+* the centre error [mm on the board] (RMS, 95th percentile) of the spots valid on both sides and
+  of the spots valid only with the core threshold, overall and by the centre's distance from the
+  board centre (the larger of |u|, |v|), and the error's component toward the board centre (a cut
+  skirt would pull the centre inward);
+* whether every spot valid on both sides measured the same centre bit for bit.
+
+    .venv/bin/python benchmarks/bench_clipped.py [--spots N] [--seed S] [--reach M]
+
+Writes ``benchmarks/out/bench_clipped.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from bench_spot import SPOT_EXPOSED, SPOT_EXPOSED_PEAK  # noqa: E402
+
+from helicalib.sim.render import DEMO_CAMERA_ENU_M, Spot, demo_target, look_at_pose, render_frame  # noqa: E402
+from helicalib.vision.marks import find_marks  # noqa: E402
+from helicalib.vision.spot import SpotLimits, measure_spot  # noqa: E402
+
+OUT = HERE / "out" / "bench_clipped.json"
+DISTANCE_BINS_M = (0.0, 3.0, 4.0, 5.0, 6.0, 99.0)
+"""Bins of the spot centre's distance from the board centre, max(|u|, |v|) [m]."""
+
+
+def random_spot(rng: np.random.Generator, reach_m: float) -> Spot:
+    """A spot anywhere within ±``reach_m`` of the board centre, small to board-sized."""
+    shape = str(rng.choice(["gaussian", "flat"]))
+    a = float(np.exp(rng.uniform(np.log(0.4), np.log(2.5)))) if shape == "gaussian" \
+        else float(np.exp(rng.uniform(np.log(0.8), np.log(5.0))))
+    size = (a, a / float(rng.uniform(1.0, 1.6)))
+    return Spot(tuple(rng.uniform(-reach_m, reach_m, 2)), size, peak=float(rng.uniform(*SPOT_EXPOSED_PEAK)),
+                shape=shape, angle_deg=float(rng.uniform(0.0, 180.0)))
+
+
+def _stats(err: np.ndarray) -> dict:
+    if len(err) == 0:
+        return {"n": 0, "rms_mm": None, "p95_mm": None}
+    return {"n": int(len(err)), "rms_mm": round(float(np.sqrt(np.mean(err ** 2))), 2),
+            "p95_mm": round(float(np.percentile(err, 95)), 2)}
+
+
+def run(n: int, seed: int = 2026, reach_m: float = 7.0) -> dict:
+    """Measure ``n`` random spots with and without the core threshold; the figures as a dict."""
+    target = demo_target()
+    pose = look_at_pose(DEMO_CAMERA_ENU_M, target, 5200, (1280, 1024))
+    rng = np.random.default_rng(seed)
+    marks = find_marks(render_frame(target, pose, (), SPOT_EXPOSED, rng=seed), target)
+    today, core = SpotLimits(core_shares=()), SpotLimits()
+    rows = []
+    for _ in range(n):
+        spot = random_spot(rng, reach_m)
+        s = int(rng.integers(1 << 30))
+        before = render_frame(target, pose, (), SPOT_EXPOSED, rng=s)
+        after = render_frame(target, pose, [spot], SPOT_EXPOSED, rng=s + 1)
+        a, b = (measure_spot(before, [after], target, marks=marks, limits=lim) for lim in (today, core))
+        truth = np.asarray(spot.center_m, dtype=float)
+        row = {"spot": {"center_m": list(spot.center_m), "size_m": list(spot.size_m), "shape": spot.shape,
+                        "peak": round(spot.peak, 1)},
+               "today": a.reason, "core": b.reason, "distance_m": float(np.max(np.abs(truth)))}
+        if b.valid:
+            d = b.offset_m - truth
+            row["err_mm"] = 1000.0 * float(np.linalg.norm(d))
+            inward = -truth / max(1e-9, float(np.linalg.norm(truth)))
+            row["inward_mm"] = 1000.0 * float(d @ inward)
+            row["core_share"] = b.frames[0].core_share
+        if a.valid:
+            row["same"] = bool(np.array_equal(a.offset_m, b.offset_m) and a.threshold == b.threshold
+                               and a.spot_area_px == b.spot_area_px and a.message == b.message)
+        rows.append(row)
+    return summarise(rows, n, seed, reach_m)
+
+
+def summarise(rows: list[dict], n: int, seed: int, reach_m: float) -> dict:
+    """Shares by reason, errors of both groups overall and by distance, the bit-for-bit check."""
+    out: dict = {"spots": n, "seed": seed, "reach_m": reach_m, "reasons_pct": {}}
+    for side in ("today", "core"):
+        counts: dict[str, int] = {}
+        for r in rows:
+            counts[r[side]] = counts.get(r[side], 0) + 1
+        out["reasons_pct"][side] = {k: round(100.0 * v / n, 2) for k, v in sorted(counts.items())}
+    both = [r for r in rows if r["today"] == "ok" and r["core"] == "ok"]
+    new = [r for r in rows if r["today"] == "clipped" and r["core"] == "ok"]
+    out["unchanged_bit_for_bit"] = f"{sum(r['same'] for r in both)} of {len(both)}"
+    out["newly_valid_core_shares"] = {str(k): sum(r.get("core_share") == k for r in new)
+                                      for k in sorted({r.get("core_share") for r in new})}
+    groups = {"valid_today": both, "newly_valid": new}
+    out["error"] = {g: _stats(np.array([r["err_mm"] for r in rs])) for g, rs in groups.items()}
+    out["inward_mean_mm"] = {g: round(float(np.mean([r["inward_mm"] for r in rs])), 2) if rs else None
+                             for g, rs in groups.items()}
+    out["by_distance"] = []
+    for lo, hi in zip(DISTANCE_BINS_M[:-1], DISTANCE_BINS_M[1:]):
+        row = {"distance_m": [lo, hi]}
+        for g, rs in groups.items():
+            row[g] = _stats(np.array([r["err_mm"] for r in rs if lo <= r["distance_m"] < hi]))
+        out["by_distance"].append(row)
+    out["rows"] = rows
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spots", type=int, default=600)
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--reach", type=float, default=7.0, help="spot centres within ± this [m] of the board centre")
+    ap.add_argument("--out", default=str(OUT))
+    args = ap.parse_args(argv)
+    out = run(args.spots, args.seed, args.reach)
+    print(json.dumps({k: v for k, v in out.items() if k != "rows"}, indent=2))
+    path = Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
