@@ -177,6 +177,7 @@ def test_a_version_2_database_gets_the_actions_table(tmp_path):
     Store.open(path).close()
     conn = sqlite3.connect(path)
     conn.execute("DROP TABLE operator_actions")
+    conn.execute("ALTER TABLE observations DROP COLUMN exposure_ms")  # as version 2 wrote it
     conn.execute("UPDATE schema_version SET version = 2")
     conn.commit()
     conn.close()

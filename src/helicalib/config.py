@@ -1139,7 +1139,7 @@ def parse_field_config(data: Any, source: str | Path | None = None) -> FieldConf
     return cfg
 
 
-def _is_map_name(value: str) -> bool:
+def is_map_name(value: str) -> bool:
     """A shipped map is named by a bare word (``scs-b``); anything with a folder or a suffix is a file."""
     return "/" not in value and "\\" not in value and not value.endswith((".yaml", ".yml"))
 
@@ -1157,7 +1157,7 @@ def _device_files(cfg: FieldConfig, base: Path) -> list[str]:
         if cam.genicam is not None and cam.genicam.cti is not None:
             files.append((f"cameras[{i}].genicam.cti", cam.genicam.cti))
     for key, value in files:
-        if value is None or (key.endswith(("register_map", "node_map")) and _is_map_name(value)):
+        if value is None or (key.endswith(("register_map", "node_map")) and is_map_name(value)):
             continue
         p = Path(value)
         if not (p if p.is_absolute() else base / p).is_file():

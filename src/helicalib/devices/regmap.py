@@ -138,14 +138,14 @@ def _shipped(name: str) -> RegisterMap:
 def load_register_map(value: str | Path | RegisterMap | None, base_dir: Path | None = None) -> RegisterMap:
     """A register map: None → the default; a bare name (``scs-b``) → the shipped map; else a YAML
     file (relative to ``base_dir``, the field config's folder, when not absolute)."""
-    from helicalib.config import _is_map_name, read_yaml
+    from helicalib.config import is_map_name, read_yaml
 
     if isinstance(value, RegisterMap):
         return value
     if value is None:
         return default_register_map()
     text = str(value)
-    if _is_map_name(text):
+    if is_map_name(text):
         if text not in shipped_maps():
             raise ConfigError(f"register map {text!r}: no shipped map of that name (shipped: {', '.join(shipped_maps())}; "
                               "or give a .yaml file)")

@@ -1,10 +1,13 @@
-"""Serve a :class:`SimulatedPlant` over the real plant interface: Modbus TCP + HTTP cameras.
+"""Serve a :class:`SimulatedPlant` over a plant's own interface: its SCS over Modbus TCP (a register
+map) or OPC UA (a node map), and its cameras by kind.
 
 ``PlantServer`` runs a pymodbus TCP server (its own asyncio loop in a thread) whose datastore is
-:class:`~helicalib.sim.modbus_map.PlantRegisters`, and one stdlib ``ThreadingHTTPServer`` per
-camera port answering ``GET <camera url path>`` with a PNG frame and ``X-Capture-Time``. Both bind
-to loopback only (a port of 0 picks a free one; see ``modbus_port`` / ``camera_ports``). Plant
-time comes from an injected clock. Faults (:class:`FaultInjector`) can be switched at run time.
+:class:`~helicalib.sim.modbus_map.PlantRegisters` speaking the register map, or an OPC UA server
+(:mod:`helicalib.sim.opcua_server`); one stdlib ``ThreadingHTTPServer`` per snapshot-camera port
+answering ``GET <camera url path>`` with a PNG frame and ``X-Capture-Time`` (and ``X-Exposure-Ms``),
+and stream cameras as MJPEG (:mod:`helicalib.sim.stream_server`). All bind to loopback only (a
+port of 0 picks a free one; see ``modbus_port`` / ``camera_ports``). Plant time comes from an
+injected clock. Faults (:class:`FaultInjector`) can be switched at run time.
 
 Not part of the interface but served for honest judging: ``GET /truth.json`` on a camera port
 returns the true state of every heliostat (strokes, state, true tracking error while holding).
@@ -23,7 +26,7 @@ from http.server import ThreadingHTTPServer
 from urllib.parse import urlparse
 
 import numpy as np
-from helicalib.config import Endpoint, OpcUa, _is_map_name
+from helicalib.config import Endpoint, OpcUa, is_map_name
 from helicalib.errors import ConfigError
 from helicalib.sim.camera import SimCamera
 from helicalib.sim.camera_server import make_http_handler
@@ -92,7 +95,7 @@ class FaultInjector:
 
 
 class PlantServer:
-    """Serve a simulated plant on loopback (Modbus TCP + HTTP cameras) until :meth:`stop`.
+    """Serve a simulated plant on loopback (Modbus TCP or OPC UA, and its cameras) until :meth:`stop`.
 
     Parameters
     ----------
@@ -139,7 +142,7 @@ class PlantServer:
                 opcua_port = urlparse(cfg.plant.opcua.endpoint).port if cfg.plant.opcua is not None else 0
             if node_map is None and cfg.plant.opcua is not None and cfg.plant.opcua.node_map is not None:
                 node_map = str(cfg.resolve_path(cfg.plant.opcua.node_map)) \
-                    if not _is_map_name(cfg.plant.opcua.node_map) else cfg.plant.opcua.node_map
+                    if not is_map_name(cfg.plant.opcua.node_map) else cfg.plant.opcua.node_map
             self.opcua = OpcUaPlantService(plant, clock, lock=self.registers.lock, port=opcua_port or 0,
                                            node_map=node_map, security=opcua_security)
         elif protocol != "modbus":
