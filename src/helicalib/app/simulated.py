@@ -223,7 +223,7 @@ def _network_plant(cfg, scenario, start_s, rate, stack, *, protocol: str = "modb
                          register_map=register_map, opcua_port=0,
                          faults=FaultInjector.from_scenario(scenario.faults, seed=scenario.seed))
     stack.enter_context(server)
-    served = server.served_config(cfg)  # the field config with the bound ports and the served map
+    served = server.served_config(cfg)  # the field config with the bound ports (the map is the server's)
     plant = plant_from_config(served, armed=True,
                               register_map=server.registers.map if protocol == "modbus" else None)
     if hasattr(plant, "close"):

@@ -40,7 +40,8 @@ class Weather:
 
 @dataclass(frozen=True)
 class HeliostatStatus:
-    """Read-back of one heliostat block."""
+    """Read-back of one heliostat: ``sequence_done`` is the token of the last command the plant took
+    or refused (the last sequence number processed, or its command counter)."""
 
     index: int
     state: HeliostatState
@@ -99,11 +100,13 @@ class Plant(Protocol):
     def status(self, index: int) -> HeliostatStatus: ...
 
     def move_to(self, index: int, strokes_mm: np.ndarray) -> int:
-        """Command strokes (mm, actuator 1 and 2) and hold; returns the sequence number sent."""
+        """Command strokes (mm, actuator 1 and 2) and hold; returns the command's token: the value
+        :meth:`status` shows in ``sequence_done`` once the plant took (or refused) it (the sequence
+        number sent, or the plant's command counter after it, by the plant's handshake)."""
         ...
 
     def track(self, index: int, corrections_mm: np.ndarray | None) -> int:
-        """Return to tracking with these stroke corrections [mm] (None: keep the plant's); returns the sequence number."""
+        """Return to tracking with these stroke corrections [mm] (None: keep the plant's); returns the token."""
         ...
 
     def stow(self, index: int) -> int: ...
