@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import copy
+import socket
+import time
 from pathlib import Path
 
 import pytest
@@ -16,6 +18,24 @@ settings.load_profile("helicalib")
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO_FIELD = ROOT / "field_config" / "demo_north.yaml"
+
+
+def free_port() -> int:
+    """A loopback port nobody listens on now (for a server a test starts in another process)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_port(port: int, timeout_s: float = 30.0) -> None:
+    """Return once something listens on loopback ``port``; AssertionError after ``timeout_s``."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.1)
+    raise AssertionError(f"nothing listens on {port} after {timeout_s:g} s")
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import sqlite3
 import subprocess
 import sys
@@ -18,27 +17,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import free_port, wait_port
 
 from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 
 IDS = "H0001,H0040"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _wait_port(port: int, timeout_s: float = 30.0) -> None:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.1)
-    raise AssertionError(f"nothing listens on {port}")
 
 
 def _rows(db: Path) -> list[tuple]:
@@ -68,7 +52,7 @@ def _wait_rows(db: Path, n: int, proc, timeout_s: float = 120.0) -> list[tuple]:
 def plant(tmp_path, demo_field_path):
     """A field config pointing at free loopback ports, and the simulated plant serving it."""
     data = yaml.safe_load(demo_field_path.read_text())
-    port, cam_port = _free_port(), _free_port()
+    port, cam_port = free_port(), free_port()
     data["plant"]["scs"]["port"] = port
     for cam in data["cameras"]:
         cam["url"] = f"http://127.0.0.1:{cam_port}/{cam['target']}.png"
@@ -82,8 +66,8 @@ def plant(tmp_path, demo_field_path):
                              "--start", iso, "--seed", "5"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)
     try:
-        _wait_port(port)
-        _wait_port(cam_port)
+        wait_port(port)
+        wait_port(cam_port)
         yield field, tmp_path
     finally:
         proc.send_signal(signal.SIGTERM)

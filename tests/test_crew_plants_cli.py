@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import sqlite3
 import subprocess
 import sys
@@ -16,32 +15,16 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import ROOT
+from conftest import ROOT, free_port, wait_port
 
 from helicalib.app.simulated import default_start_s
 from helicalib.config import load_field_config
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _wait_port(port: int, timeout_s: float = 30.0) -> None:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.1)
-    raise AssertionError(f"nothing listens on {port} after {timeout_s} s")
-
-
 def _field(tmp_path: Path, name: str) -> tuple[Path, int, int]:
     """``field_config/NAME.yaml`` on free ports, its database in ``tmp_path``."""
     data = yaml.safe_load((ROOT / "field_config" / f"{name}.yaml").read_text())
-    port, cam_port = _free_port(), _free_port()
+    port, cam_port = free_port(), free_port()
     if data["plant"].get("protocol") == "opcua":
         data["plant"]["opcua"]["endpoint"] = f"opc.tcp://127.0.0.1:{port}/helicalib"
     else:
@@ -76,8 +59,8 @@ def test_sim_plant_probe_and_run_on_a_plant_of_its_own(tmp_path, name):
     plant = subprocess.Popen([sys.executable, "-m", "helicalib", "sim-plant", str(field), "--rate", "300",
                               "--start", iso, "--seed", "2"], stdout=log, stderr=subprocess.STDOUT, text=True)
     try:
-        _wait_port(port)
-        _wait_port(cam_port)
+        wait_port(port)
+        wait_port(cam_port)
         probe = _helicalib("probe", str(field), "--json")
         assert probe.returncode == 0, probe.stdout[-2000:] + probe.stderr[-2000:]
         checks = json.loads(probe.stdout)["checks"]

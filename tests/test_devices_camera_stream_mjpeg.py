@@ -6,7 +6,6 @@ The ffmpeg test is skipped only when /usr/bin/ffmpeg is missing."""
 from __future__ import annotations
 
 import shutil
-import socket
 import subprocess
 import time
 import urllib.request
@@ -14,6 +13,7 @@ import urllib.request
 import cv2
 import numpy as np
 import pytest
+from conftest import free_port
 
 from helicalib.config import load_field_config
 from helicalib.devices.camera_http import CameraError
@@ -120,15 +120,9 @@ def test_cameras_from_config_builds_a_stream_camera(cfg, tmp_path):
     assert cam.exposure_url == "http://127.0.0.1:9/cam/exposure" and cam.timeout_s == 2.0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_ffmpeg_mjpeg_over_http_hands_out_the_newest_frame():
     assert shutil.which(FFMPEG), f"{FFMPEG} is not installed: `make test` installs Debian's ffmpeg (apt-get)"
-    url = f"http://127.0.0.1:{_free_port()}/cam"
+    url = f"http://127.0.0.1:{free_port()}/cam"
     source = "color=c=black:s=320x240:r=10,format=gray,geq=lum='if(bitand(N\\,pow(2\\,floor(X/32)))\\,255\\,0)'"
     proc = subprocess.Popen([FFMPEG, "-hide_banner", "-loglevel", "error", "-re", "-f", "lavfi", "-i", source,
                              "-c:v", "mjpeg", "-q:v", "3", "-f", "mpjpeg", "-listen", "1", url],

@@ -61,6 +61,12 @@ class CommandGuard:
         name = self.heliostat_ids[index] if self.heliostat_ids is not None and 0 <= index < len(self.heliostat_ids) else None
         return f"heliostat {index}" + (f" ({name})" if name else "")
 
+    @staticmethod
+    def check_index(index: int, count: int) -> None:
+        """A :class:`PlantError` for a heliostat index outside the plant's ``count`` blocks."""
+        if not 0 <= int(index) < count:
+            raise PlantError(f"heliostat index {index} outside the plant's 0..{count - 1}")
+
     def refuse_unarmed(self, what: str) -> None:
         if not self.armed:
             raise PlantError(f"read-only mode: not writing {what} (start with --arm to command the plant)")

@@ -131,9 +131,7 @@ class ModbusPlant:
         return self.guard.label(index)
 
     def _check_index(self, index: int) -> None:
-        n = self.heliostat_count()
-        if not 0 <= int(index) < n:
-            raise PlantError(f"heliostat index {index} outside the plant's 0..{n - 1}")
+        self.guard.check_index(index, self.heliostat_count())
 
     def _where(self, q: Q, index: int | None = None) -> str:
         """``input 10002 (heliostats.status.strokes_mm[0])``: a quantity's register in messages."""

@@ -160,9 +160,7 @@ class OpcUaPlant:
         return self.guard.label(index)
 
     def _check_index(self, index: int) -> None:
-        n = self.heliostat_count()
-        if not 0 <= int(index) < n:
-            raise PlantError(f"heliostat index {index} outside the plant's 0..{n - 1}")
+        self.guard.check_index(index, self.heliostat_count())
 
     def heliostat_count(self) -> int:
         """Heliostats the plant reports (checked once against the expected count)."""
