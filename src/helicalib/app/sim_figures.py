@@ -125,7 +125,7 @@ def commissioning_time(store: Store, campaign_id: int, n_heliostats: int) -> flo
 def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) -> dict:
     """The campaign's figures; ``true_sky_rms_mrad`` is the simulator's truth for the calibrated models
     over a year of sun positions, against the true geometry at ``end_s`` (after any drift)."""
-    from helicalib.sim.evaluate import evaluate_model
+    from helicalib.sim.evaluate import evaluate_models
 
     stats = runner.state.stats
     ids = runner.state.ids
@@ -143,13 +143,14 @@ def summarise(cfg, runner: CampaignRunner, sim, start_s: float, end_s: float) ->
 
     accepted_rows = [cfg.heliostat_index(hid) for hid in accepted]
 
-    evaluations = {}
+    # against the true geometry at the run's end: drift (slow, and the scenario's events) included;
+    # both backlash settings in one pass over the sky, over the campaign's heliostats only
+    evaluations = evaluate_models(sim.truth, params, backlash=("tracking", "none"), t_eval_s=end_s, rows=rows)
     # heliostats with an injected drift event that began during the run
     drifted_ids = {e.heliostat_id for e in sim.truth.drift_events if e.start_s < end_s}
 
     def sky_of(backlash: str) -> dict:
-        # against the true geometry at the run's end: drift (slow, and the scenario's events) included
-        ev = evaluations[backlash] = evaluate_model(sim.truth, params, backlash=backlash, t_eval_s=end_s)
+        ev = evaluations[backlash]
         with np.errstate(invalid="ignore"):
             errs = ev.errors_mrad[rows]
             flat = errs[np.isfinite(errs)]
@@ -295,11 +296,13 @@ def plant_tracking_errors(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_
     from helicalib.geometry.heliostat import tracking_approach
     from helicalib.sim.evaluate import TRACKING_LEAD_S
 
-    nominal = truth.nominal
-    calibrated = nominal.with_params(params)
+    rows = np.asarray(rows, dtype=int)
+    nominal = truth.nominal.subset(rows)  # row by row independent: only the heliostats asked for
+    calibrated = nominal.with_params(np.asarray(params, dtype=float)[rows])
     aim = np.asarray(cfg.tower.receiver_aim_enu_m, dtype=float)
     errs = []
     held: dict[float, np.ndarray] = {}  # the corrections of one refresh period serve each of its steps
+    strokes, approach_all = np.zeros((truth.n, 2)), np.zeros((truth.n, 2))  # the field's rows, for truth.beam
     for t in np.arange(t0_s, t1_s, step_s):
         sun = sun_table.vector_enu(t)
         if np.degrees(np.arcsin(sun[2])) < cfg.acceptance.low_band_deg[0]:
@@ -311,13 +314,13 @@ def plant_tracking_errors(cfg, truth, params: np.ndarray, rows, t0_s: float, t1_
             corr = held[float(t_ref)] = np.nan_to_num(tracking_corrections(
                 cfg, nominal, calibrated, sun_table.vector_enu(t_ref), sun_table.vector_enu(t_ref + TRACKING_LEAD_S)))
         nom = nominal.strokes_for_aim(sun, aim)
-        if not np.all(nom.in_range[rows]):
+        if not np.all(nom.in_range):
             continue
         # backlash as it sits while tracking: each actuator last moved the way its strokes go next
-        approach = tracking_approach(nom.strokes_mm,
-                                     nominal.strokes_for_aim(sun_table.vector_enu(t + TRACKING_LEAD_S), aim).strokes_mm)
-        beam = truth.beam(np.where(nom.in_range[:, None], nom.strokes_mm + corr, 0.0), sun, t, approach=approach,
-                          jitter=False)
+        approach_all[rows] = tracking_approach(
+            nom.strokes_mm, nominal.strokes_for_aim(sun_table.vector_enu(t + TRACKING_LEAD_S), aim).strokes_mm)
+        strokes[rows] = nom.strokes_mm + corr
+        beam = truth.beam(strokes, sun, t, approach=approach_all, jitter=False, rows=rows)
         want = optics.unit(aim - beam.origin_enu)
-        errs.append(1000.0 * optics.angle_between_rad(beam.direction_enu, want)[rows])
+        errs.append(1000.0 * optics.angle_between_rad(beam.direction_enu, want))
     return np.concatenate(errs) if errs else np.array([])
