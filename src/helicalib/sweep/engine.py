@@ -1,24 +1,24 @@
 """Run a sweep's runs on Dask distributed and gather them.
 
-:func:`embedded_cluster` starts a ``LocalCluster`` on 127.0.0.1 (worker processes with one thread
-each: a simulation holds the GIL most of the time, so threads would take turns); :func:`connect`
-joins an existing scheduler. :func:`run_sweep` skips finished runs, submits the others (one task
+The cluster is :mod:`helicalib.app.cluster`'s, the same a split ``simulate`` uses:
+:func:`embedded_cluster` starts a ``LocalCluster`` on 127.0.0.1, :func:`connect` joins an existing
+scheduler (:func:`cluster_for` picks one). :func:`run_sweep` skips finished runs, submits the others (one task
 = one whole simulation) and hands each outcome to a callback as it arrives, in completion order;
 nothing a run computes depends on that order.
 """
 
 from __future__ import annotations
 
-import logging
-import traceback
 import uuid
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from helicalib.errors import ConfigError
+from helicalib.app.cluster import check_workers, connect, embedded_cluster, failure_of
+from helicalib.app.cluster import cluster_for as _cluster_for
 from helicalib.sweep.spec import PROGRESS_EVERY, Run, Sweep
-from helicalib.sweep.task import RunFailed, finished_record, has_result, run_one
+from helicalib.sweep.task import finished_record, has_result, run_one
+
+__all__ = ["Outcome", "check_workers", "cluster_for", "connect", "embedded_cluster", "run_sweep"]
 
 
 @dataclass
@@ -30,65 +30,6 @@ class Outcome:
     skipped: int = 0        # finished before with the same settings
     stale: int = 0          # finished before with other settings: run again
     submitted: int = 0
-
-
-@contextmanager
-def embedded_cluster(workers: int) -> Iterator:
-    """A client of a fresh ``LocalCluster`` of ``workers`` processes on 127.0.0.1, no dashboard; the
-    cluster's own log is kept to critical messages (failed runs are reported by the sweep)."""
-    from dask.distributed import Client, LocalCluster
-
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
-        yield client
-
-
-@contextmanager
-def connect(address: str, timeout_s: float = 20.0) -> Iterator:
-    """A client of the scheduler at ``address`` whose workers can import helicalib."""
-    from dask.distributed import Client
-
-    try:
-        client = Client(address, timeout=timeout_s)
-    except (OSError, TimeoutError, ValueError) as err:
-        raise ConfigError(f"--scheduler {address}: cannot connect ({_one_line(err)})") from None
-    try:
-        try:
-            client.wait_for_workers(1, timeout=timeout_s)
-        except TimeoutError:
-            raise ConfigError(f"--scheduler {address}: no worker joined within {timeout_s:g} s") from None
-        try:
-            versions = client.run(_worker_check)
-        except Exception as err:  # noqa: BLE001 - whatever a worker raised, said in one line
-            raise ConfigError(f"--scheduler {address}: a worker cannot run helicalib ({type(err).__name__}: "
-                              f"{_one_line(err)}); install helicalib in the workers' environment") from None
-        check_workers(address, versions, client.nthreads())
-        yield client
-    finally:
-        client.close()
-
-
-def check_workers(address: str, versions: dict, nthreads: dict) -> None:
-    """Refuse workers that run another helicalib (their results would be taken for this version's)
-    or more than one thread (a simulation redirects its process's output to its own log)."""
-    from helicalib import __version__
-
-    other = sorted(w for w, v in versions.items() if v != __version__)
-    if other:
-        raise ConfigError(f"--scheduler {address}: worker {other[0]} runs helicalib {versions[other[0]]}, this is "
-                          f"{__version__}; install the same version on every worker")
-    many = sorted(w for w, n in nthreads.items() if n != 1)
-    if many:
-        raise ConfigError(f"--scheduler {address}: worker {many[0]} has {nthreads[many[0]]} threads; start the "
-                          "workers with --nthreads 1 (one simulation per worker process, docs/sweep.md)")
-
-
-def _worker_check() -> str:
-    import helicalib.sweep.task  # noqa: F401 - the module the tasks run
-
-    from helicalib import __version__
-
-    return __version__
 
 
 def run_sweep(sweep: Sweep, runs: list[Run], client, on_start: Callable[[int], None] | None = None,
@@ -141,16 +82,11 @@ def run_sweep(sweep: Sweep, runs: list[Run], client, on_start: Callable[[int], N
 
 def _failure(run: Run, future) -> tuple[str, str]:
     """(one line: cell, seed, exception type and message; the worker's traceback)."""
-    try:
-        exc = future.exception()
-    except Exception as err:  # noqa: BLE001 - a cancelled future raises here instead
-        exc = err
-    if isinstance(exc, RunFailed):
-        what, tb = str(exc), exc.traceback_text
-    else:  # the worker died (KilledWorker), the task was cancelled, ...
-        what, tb = f"{type(exc).__name__}: {_one_line(exc)}", "".join(traceback.format_exception(exc))
+    what, tb = failure_of(future)
     return f"cell {run.cell}, seed {run.seed}: {what}", tb
 
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or "(no message)"
+def cluster_for(scheduler: str | None, workers: int):
+    """The sweep's cluster: the scheduler's (its workers checked on the sweep's task module) or an
+    embedded one of ``workers`` processes."""
+    return _cluster_for(scheduler, workers, "helicalib.sweep.task")

@@ -20,6 +20,7 @@ import time
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
+from helicalib.app.cluster import TaskFailed, call_reporting
 from helicalib.outdir import prepare
 from helicalib.sweep.spec import Run, fidelity_supported
 
@@ -30,29 +31,15 @@ ACCEPTED_SHARE = 0.95
 """Share of the campaign's heliostats whose newest verdict must be an acceptance for ``days_to_95``."""
 
 
-class RunFailed(Exception):
-    """A run raised: the exception's type name, its message on one line and the worker's traceback
-    (made on the worker: an exception's own attributes, such as an OSError's file name, do not
-    always survive the trip to the client)."""
-
-    def __init__(self, kind: str, message: str, traceback_text: str = ""):
-        super().__init__(f"{kind}: {message}")
-        self.kind, self.message, self.traceback_text = kind, message, traceback_text
-
-    def __reduce__(self):
-        return RunFailed, (self.kind, self.message, self.traceback_text)
+class RunFailed(TaskFailed):
+    """A run raised (:class:`~helicalib.app.cluster.TaskFailed`: type, one-line message, the
+    worker's traceback)."""
 
 
 def run_one(run: Run, cfg, scenario) -> dict:
     """Run one simulation and return its record (also written to ``RUN_DIR/result.json``); any
     exception comes out as :class:`RunFailed`."""
-    try:
-        return _run(run, cfg, scenario)
-    except Exception as exc:
-        import traceback
-
-        raise RunFailed(type(exc).__name__, " ".join(str(exc).split()) or "(no message)",
-                        traceback.format_exc()) from None
+    return call_reporting(_run, run, cfg, scenario, failure=RunFailed)
 
 
 def _run(run: Run, cfg, scenario) -> dict:
