@@ -13,17 +13,47 @@ s = 1000·(ℓ − ℓ0) [mm].
 Every function comes with its inverse (``strokes_to_angles`` / ``angles_to_strokes``,
 ``angles_to_normal`` / ``normal_to_angles``). Nothing is clipped: impossible strokes give NaN
 angles, angles outside the linkage give NaN strokes, unreachable normals are flagged.
+
+For fewer than ``kernels.MAX_ROWS`` heliostats these four run the compiled kernels of
+:mod:`helicalib.geometry.kernels` (the same maths without numpy's per-call cost on tiny arrays);
+``reference=True`` forces the numpy code, the reference the kernels are tested against.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
 TWO_PI = 2.0 * np.pi
+_KERNELS: list[ModuleType] = []
+
+
+def kernels() -> ModuleType:
+    """:mod:`helicalib.geometry.kernels`, imported on first use (numba's import is not free)."""
+    if not _KERNELS:
+        from helicalib.geometry import kernels as k
+
+        _KERNELS.append(k)
+    return _KERNELS[0]
+
+
+def use_kernels(n_rows: int) -> bool:
+    """Whether ``n_rows`` heliostats are few enough for the compiled kernels."""
+    return 0 < n_rows < kernels().MAX_ROWS
+
+
+def kernel_rows(a, width: int, n_rows: int) -> np.ndarray | None:
+    """``a`` as a float (1 or ``n_rows``, ``width``) array for a kernel of ``n_rows`` heliostats, or
+    None when the kernels are not worth it or ``a``'s shape needs numpy's broadcasting."""
+    if not use_kernels(n_rows):
+        return None
+    r = kernels().rows2(a, width)
+    return r if r is not None and r.shape[0] in (1, n_rows) else None
 
 
 @dataclass(frozen=True)
@@ -94,7 +124,17 @@ class DriveArrays:
     def take(self, indices) -> DriveArrays:
         """Rows ``indices`` (any integer index array; repeats allowed) as a new DriveArrays."""
         idx = np.asarray(indices, dtype=int)
-        return DriveArrays(**{f.name: getattr(self, f.name)[idx] for f in dataclasses.fields(self)})
+        out = DriveArrays(**{f.name: getattr(self, f.name)[idx] for f in dataclasses.fields(self)})
+        if "packed" in self.__dict__:  # the rows of the packed form too, not packed again
+            out.__dict__["packed"] = self.packed[idx]
+        return out
+
+    @functools.cached_property
+    def packed(self) -> np.ndarray:
+        """The arrays as one (N, ``kernels.PACKED_WIDTH``) float array, the compiled kernels' input."""
+        return kernels().pack(self.axis1_enu, self.axis2_enu, self.normal0_enu, self.arm_fixed_m, self.arm_moving_m,
+                              self.gamma0_rad, self.sign, self.length_at_zero_m, self.stroke_min_mm,
+                              self.stroke_max_mm, self.mirror_offset_m)
 
     def replace(self, **changes) -> DriveArrays:
         return dataclasses.replace(self, **changes)
@@ -145,6 +185,18 @@ def _rotation_angle(axis: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarra
 
 
 # ---------------------------------------------------------------------------- linkage
+def _by_kernel(name: str, drives: DriveArrays, values) -> np.ndarray | None:
+    """``name`` (``strokes_to_angles``, ``angles_to_strokes`` or ``angles_to_normal``) of (1 or N, 2)
+    ``values`` by the compiled kernel; None where numpy's path applies."""
+    rows = kernel_rows(values, 2, len(drives))
+    if rows is None:
+        return None
+    k = kernels()
+    if name == "angles_to_normal":
+        return k.angles_to_normal(drives.packed, rows)
+    return k.linkage(drives.packed, k.NO_APPROACH, rows, k.NO_APPROACH, name == "strokes_to_angles")
+
+
 def gamma_rad(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
     """Triangle angle γ = γ0 + sign·θ, shape (N, 2) [rad]."""
     return drives.gamma0_rad + drives.sign * np.asarray(angles_rad, dtype=float)
@@ -157,8 +209,14 @@ def angle_interval_rad(drives: DriveArrays) -> tuple[np.ndarray, np.ndarray]:
     return np.minimum(a, b), np.maximum(a, b)
 
 
-def angles_to_strokes(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
+def angles_to_strokes(drives: DriveArrays, angles_rad: np.ndarray, reference: bool = False) -> np.ndarray:
     """Axis angles (N, 2) [rad] → actuator strokes (N, 2) [mm]; NaN where γ leaves (0, π)."""
+    out = None if reference else _by_kernel("angles_to_strokes", drives, angles_rad)
+    return _np_angles_to_strokes(drives, angles_rad) if out is None else out
+
+
+def _np_angles_to_strokes(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
+    """numpy reference of :func:`angles_to_strokes`."""
     g = gamma_rad(drives, angles_rad)
     ra, rb = drives.arm_fixed_m, drives.arm_moving_m
     length = np.sqrt(ra * ra + rb * rb - 2.0 * ra * rb * np.cos(g))
@@ -167,8 +225,14 @@ def angles_to_strokes(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray
     return np.where(bad, np.nan, strokes)
 
 
-def strokes_to_angles(drives: DriveArrays, strokes_mm: np.ndarray) -> np.ndarray:
+def strokes_to_angles(drives: DriveArrays, strokes_mm: np.ndarray, reference: bool = False) -> np.ndarray:
     """Actuator strokes (N, 2) [mm] → axis angles (N, 2) [rad]; NaN where no triangle exists."""
+    out = None if reference else _by_kernel("strokes_to_angles", drives, strokes_mm)
+    return _np_strokes_to_angles(drives, strokes_mm) if out is None else out
+
+
+def _np_strokes_to_angles(drives: DriveArrays, strokes_mm: np.ndarray) -> np.ndarray:
+    """numpy reference of :func:`strokes_to_angles`."""
     length = drives.length_at_zero_m + np.asarray(strokes_mm, dtype=float) / 1000.0
     ra, rb = drives.arm_fixed_m, drives.arm_moving_m
     cos_g = (ra * ra + rb * rb - length * length) / (2.0 * ra * rb)
@@ -191,8 +255,14 @@ def stroke_margin_mm(drives: DriveArrays, strokes_mm: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- axes ↔ normal
-def angles_to_normal(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
+def angles_to_normal(drives: DriveArrays, angles_rad: np.ndarray, reference: bool = False) -> np.ndarray:
     """Axis angles (N, 2) [rad] → unit mirror normal (N, 3), ENU: n = R(a1,θ1)·R(a2,θ2)·n0."""
+    out = None if reference else _by_kernel("angles_to_normal", drives, angles_rad)
+    return _np_angles_to_normal(drives, angles_rad) if out is None else out
+
+
+def _np_angles_to_normal(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
+    """numpy reference of :func:`angles_to_normal`."""
     th = np.asarray(angles_rad, dtype=float)
     n = rotate(drives.axis2_enu, th[..., 1], drives.normal0_enu)
     return rotate(drives.axis1_enu, th[..., 0], n)
@@ -204,7 +274,8 @@ def _wrap_into_interval(theta: np.ndarray, low: np.ndarray, high: np.ndarray) ->
     return theta + TWO_PI * np.round((centre - theta) / TWO_PI)
 
 
-def normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+def normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1e-12, reference: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Unit mirror normal (N, 3) → axis angles (N, 2) [rad] and ``reachable`` (N,) bool.
 
     Solves R(a1,θ1)·R(a2,θ2)·n0 = n in closed form (intersection of the two cones a2·c = a2·n0 and
@@ -214,6 +285,14 @@ def normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1
     ``reachable`` is False when no exact solution exists (angles NaN) or when the best solution
     leaves the linkage range (angles returned as found, so the caller can see how far off it is).
     """
+    rows = None if reference else kernel_rows(normal_enu, 3, len(drives))
+    if rows is not None:
+        return kernels().normal_to_angles(drives.packed, rows, float(tol))
+    return _np_normal_to_angles(drives, normal_enu, tol)
+
+
+def _np_normal_to_angles(drives: DriveArrays, normal_enu: np.ndarray, tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """numpy reference of :func:`normal_to_angles`."""
     n = _unit(np.asarray(normal_enu, dtype=float))
     a1, a2, n0 = drives.axis1_enu, drives.axis2_enu, drives.normal0_enu
     c12 = _dot(a1, a2)

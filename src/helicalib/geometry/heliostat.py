@@ -4,6 +4,10 @@ Forward: strokes → axis angles → normal → beam from the mirror centre → 
 Inverse: sun + aim point → the normal (with the mirror offset) → axis angles → strokes, solved
 exactly with the error model, so a model whose parameters equal a heliostat's true errors puts that
 heliostat's beam on the aim point.
+
+A model of fewer than ``kernels.MAX_ROWS`` heliostats (the controller's one-heliostat models) runs
+each method as one compiled kernel of :mod:`helicalib.geometry.kernels`; ``reference=True`` runs
+the numpy code, the reference those kernels are tested against and the path for large N.
 """
 
 from __future__ import annotations
@@ -19,10 +23,15 @@ from helicalib.geometry.drives import (
     DriveArrays,
     angles_to_normal,
     angles_to_strokes,
+    kernel_rows,
+    kernels,
     normal_to_angles,
     strokes_in_range,
     strokes_to_angles,
+    use_kernels,
 )
+
+_BACKLASH_COLS = [em.index(n) for n in em.BACKLASH]
 
 
 @dataclass(frozen=True)
@@ -62,7 +71,7 @@ class HeliostatModel:
     drives_eff : DriveArrays with the errors applied; ``pivots_eff_enu`` (N, 3) likewise
     """
 
-    __slots__ = ("ids", "pivots_enu", "drives", "params", "drives_eff", "pivots_eff_enu")
+    __slots__ = ("ids", "pivots_enu", "drives", "params", "drives_eff", "pivots_eff_enu", "_backlash_mm")
 
     def __init__(self, ids: Sequence[str], pivots_enu: np.ndarray, drives: DriveArrays, params: np.ndarray | None = None):
         n = len(drives)
@@ -72,7 +81,8 @@ class HeliostatModel:
             raise ValueError(f"{len(ids)} ids for {n} drives")
         eff, piv = em.apply(drives, pivots, p)
         for name, value in (("ids", tuple(ids)), ("pivots_enu", pivots), ("drives", drives), ("params", p),
-                            ("drives_eff", eff), ("pivots_eff_enu", piv)):
+                            ("drives_eff", eff), ("pivots_eff_enu", np.ascontiguousarray(piv)),
+                            ("_backlash_mm", np.ascontiguousarray(p[:, _BACKLASH_COLS]))):
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
             object.__setattr__(self, name, value)
@@ -110,7 +120,8 @@ class HeliostatModel:
         out = object.__new__(HeliostatModel)
         for name, value in (("ids", tuple(self.ids[i] for i in idx)), ("pivots_enu", self.pivots_enu[idx]),
                             ("drives", self.drives.take(idx)), ("params", self.params[idx]),
-                            ("drives_eff", self.drives_eff.take(idx)), ("pivots_eff_enu", self.pivots_eff_enu[idx])):
+                            ("drives_eff", self.drives_eff.take(idx)), ("pivots_eff_enu", self.pivots_eff_enu[idx]),
+                            ("_backlash_mm", self._backlash_mm[idx])):
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
             object.__setattr__(out, name, value)
@@ -125,7 +136,7 @@ class HeliostatModel:
     @property
     def has_dead_bands(self) -> bool:
         """Whether any heliostat has a non-zero backlash parameter (then ``approach`` matters)."""
-        return bool(np.any(self.params[:, [em.index(n) for n in em.BACKLASH]]))
+        return bool(np.any(self._backlash_mm))
 
     @property
     def mirror_offset_m(self) -> np.ndarray:
@@ -137,32 +148,57 @@ class HeliostatModel:
         them by half the dead band against the approach. ``approach`` None: no shift."""
         return np.asarray(strokes_mm, dtype=float) + em.backlash_shift_mm(self.params, approach)
 
-    def angles(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None) -> np.ndarray:
+    def _kernel_args(self, approach, *rows: tuple[np.ndarray, int]) -> list | None:
+        """The row arguments ``(value, width)`` and ``approach`` as kernel inputs (1 or N rows), or
+        None: too many heliostats for the kernels, or shapes that need numpy's broadcasting."""
+        n = len(self)
+        if not use_kernels(n):
+            return None
+        out = [kernel_rows(v, w, n) for v, w in rows]
+        out.append(kernels().NO_APPROACH if approach is None else kernel_rows(approach, 2, n))
+        return None if any(o is None for o in out) else out
+
+    def angles(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None, reference: bool = False
+               ) -> np.ndarray:
         """Effective axis angles (N, 2) [rad] for commanded strokes (N, 2) [mm]; NaN if impossible.
         ``approach``: the last motion of each actuator (±1), for the backlash parameters."""
-        return strokes_to_angles(self.drives_eff, self.effective_strokes(strokes_mm, approach))
+        k = None if reference else self._kernel_args(approach, (strokes_mm, 2))
+        if k is not None:
+            return kernels().linkage(self.drives_eff.packed, self._backlash_mm, k[0], k[1], True)
+        return strokes_to_angles(self.drives_eff, self.effective_strokes(strokes_mm, approach), reference=True)
 
-    def normal(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None) -> np.ndarray:
+    def normal(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None, reference: bool = False
+               ) -> np.ndarray:
         """Mirror normal (N, 3), ENU, for commanded strokes (N, 2) [mm], errors applied."""
-        return angles_to_normal(self.drives_eff, self.angles(strokes_mm, approach))
+        k = None if reference else self._kernel_args(approach, (strokes_mm, 2))
+        if k is not None:
+            return kernels().model_normal(self.drives_eff.packed, self._backlash_mm, *k)
+        return angles_to_normal(self.drives_eff, self.angles(strokes_mm, approach, reference=True), reference=True)
 
-    def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, approach: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
+    def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, approach: np.ndarray | None = None,
+             reference: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Reflected beam for strokes (N, 2) [mm] and sun (3,) or (N, 3).
 
         Returns ``(origin_enu (N, 3), direction_enu (N, 3))``: the mirror centre and unit direction.
         """
-        n = self.normal(strokes_mm, approach)
+        k = None if reference else self._kernel_args(approach, (strokes_mm, 2), (sun_enu, 3))
+        if k is not None:
+            return kernels().model_beam(self.drives_eff.packed, self.pivots_eff_enu, self._backlash_mm, *k)
+        n = self.normal(strokes_mm, approach, reference=True)
         s = optics.unit(_rows(sun_enu, len(self), 3))
         return optics.mirror_centre(self.pivots_eff_enu, n, self.mirror_offset_m), optics.reflect(s, n)
 
     def spot_on_target(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, target,
-                       approach: np.ndarray | None = None) -> np.ndarray:
+                       approach: np.ndarray | None = None, reference: bool = False) -> np.ndarray:
         """Beam centre on the target plane(s), target frame (u, v), shape (N, 2) [m]; NaN if missed.
 
         ``target`` is one ``config.Target`` or a sequence of N of them (one per heliostat).
         """
-        origin, direction = self.beam(strokes_mm, sun_enu, approach)
+        k = None if reference else self._kernel_args(approach, (strokes_mm, 2), (sun_enu, 3))
+        planes = None if k is None else _planes(target, len(self))
+        if planes is not None:
+            return kernels().model_spot(self.drives_eff.packed, self.pivots_eff_enu, self._backlash_mm, *k, *planes)
+        origin, direction = self.beam(strokes_mm, sun_enu, approach, reference=True)
         if isinstance(target, Sequence) and not isinstance(target, str):
             uv = np.full((len(self), 2), np.nan)
             for t in {id(t): t for t in target}.values():
@@ -172,28 +208,55 @@ class HeliostatModel:
         return optics.intersect_target(origin, direction, target)[0]
 
     # -- inverse ------------------------------------------------------------------------
-    def normal_to_strokes(self, normal_enu: np.ndarray, approach: np.ndarray | None = None
+    def normal_to_strokes(self, normal_enu: np.ndarray, approach: np.ndarray | None = None, reference: bool = False
                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Normal (N, 3) → (strokes_mm (N, 2), angles_rad (N, 2), reachable (N,)), errors applied:
         the strokes to command, arriving in ``approach`` (±1 per actuator; None: no backlash)."""
-        angles, reachable = normal_to_angles(self.drives_eff, normal_enu)
-        strokes = angles_to_strokes(self.drives_eff, angles) - em.backlash_shift_mm(self.params, approach)
+        k = None if reference else self._kernel_args(approach, (normal_enu, 3))
+        if k is not None:
+            return kernels().model_normal_to_strokes(self.drives_eff.packed, self._backlash_mm, *k)
+        angles, reachable = normal_to_angles(self.drives_eff, normal_enu, reference=True)
+        strokes = (angles_to_strokes(self.drives_eff, angles, reference=True)
+                   - em.backlash_shift_mm(self.params, approach))
         reachable = reachable & np.all(np.isfinite(strokes), axis=-1)
         return strokes, angles, reachable
 
-    def strokes_for_aim(self, sun_enu: np.ndarray, aim_enu: np.ndarray, approach: np.ndarray | None = None
-                        ) -> AimSolution:
+    def strokes_for_aim(self, sun_enu: np.ndarray, aim_enu: np.ndarray, approach: np.ndarray | None = None,
+                        reference: bool = False) -> AimSolution:
         """Strokes that put the beam on ``aim_enu`` ((3,) or (N, 3) [m]) for the sun (3,) or (N, 3),
         with each actuator arriving in ``approach`` ((N, 2) or (2,) of ±1; None: the backlash
         parameters are left out, as for the middle of the dead band)."""
+        k = None if reference else self._kernel_args(approach, (sun_enu, 3), (aim_enu, 3))
+        if k is not None:
+            strokes, angles, normal, in_range, reachable = kernels().model_strokes_for_aim(
+                self.drives_eff.packed, self.pivots_eff_enu, self._backlash_mm, *k, optics.AIM_ITERATIONS)
+            return AimSolution(strokes_mm=strokes, angles_rad=angles, normal_enu=normal, in_range=in_range,
+                               reachable=reachable)
         n_rows = len(self)
         s = optics.unit(_rows(sun_enu, n_rows, 3))
         t = _rows(aim_enu, n_rows, 3)
-        normal = optics.aim_normal(self.pivots_eff_enu, s, t, self.mirror_offset_m)
-        strokes, angles, reachable = self.normal_to_strokes(normal, approach)
+        normal = optics.aim_normal(self.pivots_eff_enu, s, t, self.mirror_offset_m, reference=True)
+        strokes, angles, reachable = self.normal_to_strokes(normal, approach, reference=True)
         in_range = reachable & np.all(strokes_in_range(self.drives, strokes), axis=-1)
         return AimSolution(strokes_mm=strokes, angles_rad=angles, normal_enu=normal, in_range=in_range,
                            reachable=reachable)
+
+
+def _planes(target, n_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(centres (T, 3), frames (T, 3, 3), which (N,)) of one target or a sequence of ``n_rows``
+    targets (one per heliostat), for ``kernels.model_spot``; None for a sequence of another length."""
+    if isinstance(target, Sequence) and not isinstance(target, str):
+        if len(target) != n_rows:
+            return None
+        unique = list({id(t): t for t in target}.values())
+        pos = {id(t): i for i, t in enumerate(unique)}
+        which = np.array([pos[id(t)] for t in target], dtype=np.int64)
+    else:
+        unique = [target]
+        which = np.zeros(n_rows, dtype=np.int64)
+    centres = np.array([t.center_enu_m for t in unique], dtype=float).reshape(-1, 3)
+    frames = np.ascontiguousarray(np.array([t.frame_enu for t in unique], dtype=float).reshape(-1, 3, 3))
+    return centres, frames, which
 
 
 def tracking_approach(strokes_now_mm: np.ndarray, strokes_later_mm: np.ndarray) -> np.ndarray:

@@ -4,11 +4,16 @@ Conventions (``FIELD_CONFIG.md``, "Optics"): the sun vector ``s`` points from th
 sun; the reflected direction is ``r = 2 (s·n) n − s``; reflected rays leave the mirror centre
 ``M = P + mirror_offset_m · n``; the normal that puts the beam on the aim point T solves the fixed
 point ``n = unit(s + unit(T − M(n)))``. All functions broadcast over leading dimensions ``(...)``.
+
+:func:`aim_normal` on a few rows runs the compiled kernel of :mod:`helicalib.geometry.kernels`
+(``reference=True``: the numpy code, the reference it is tested against).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from helicalib.geometry.drives import kernel_rows, kernels, use_kernels
 
 AIM_ITERATIONS = 6
 """Fixed-point steps of :func:`aim_normal`; each shrinks the error by ≈ offset / (2·|T − P|) (~1e-3)."""
@@ -34,7 +39,7 @@ def mirror_centre(pivot_enu: np.ndarray, normal_enu: np.ndarray, mirror_offset_m
 
 
 def aim_normal(pivot_enu: np.ndarray, sun_enu: np.ndarray, aim_enu: np.ndarray, mirror_offset_m,
-               iterations: int = AIM_ITERATIONS) -> np.ndarray:
+               iterations: int = AIM_ITERATIONS, reference: bool = False) -> np.ndarray:
     """Mirror normal (..., 3) that reflects the sun from the mirror centre onto the aim point.
 
     Parameters
@@ -45,7 +50,32 @@ def aim_normal(pivot_enu: np.ndarray, sun_enu: np.ndarray, aim_enu: np.ndarray, 
     mirror_offset_m : (...) [m]
     iterations : fixed-point steps of ``n = unit(s + unit(T − M(n)))``, starting from the
         pivot-based bisector.
+    reference : the numpy code, never the compiled kernel.
     """
+    if not reference:
+        n = _aim_normal_kernel(pivot_enu, sun_enu, aim_enu, mirror_offset_m, iterations)
+        if n is not None:
+            return n
+    return _np_aim_normal(pivot_enu, sun_enu, aim_enu, mirror_offset_m, iterations)
+
+
+def _aim_normal_kernel(pivot_enu, sun_enu, aim_enu, mirror_offset_m, iterations: int) -> np.ndarray | None:
+    """:func:`aim_normal` by the kernel for (3,) or (K, 3) rows (K few), else None (numpy's case)."""
+    off = np.asarray(mirror_offset_m, dtype=float)
+    if off.ndim > 1:
+        return None
+    ins = [np.asarray(a, dtype=float) for a in (pivot_enu, sun_enu, aim_enu)]
+    k = max([a.shape[0] if a.ndim == 2 else 1 for a in ins] + [off.shape[0] if off.ndim == 1 else 1])
+    rows = [kernel_rows(a, 3, k) for a in ins]
+    if any(r is None for r in rows) or not use_kernels(k) or (off.ndim == 1 and off.shape[0] not in (1, k)):
+        return None
+    n = kernels().aim_normal(rows[0], rows[1], rows[2], off.reshape(-1), int(iterations))
+    return n if off.ndim == 1 or any(a.ndim == 2 for a in ins) else n[0]
+
+
+def _np_aim_normal(pivot_enu: np.ndarray, sun_enu: np.ndarray, aim_enu: np.ndarray, mirror_offset_m,
+                   iterations: int = AIM_ITERATIONS) -> np.ndarray:
+    """numpy reference of :func:`aim_normal`."""
     p = np.asarray(pivot_enu, dtype=float)
     s = unit(sun_enu)
     t = np.asarray(aim_enu, dtype=float)
