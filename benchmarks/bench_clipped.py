@@ -5,17 +5,20 @@ Renders spots of known centre on the demo board (12 m, the demo camera's steep u
 peaks 60–180, ``bench_spot.SPOT_EXPOSED``), placed near and across the board's rim (centres
 uniform over ±``--reach`` m, default 7 m, on a board of ±6 m) and of every size from small to
 board-sized (Gaussian σ 0.4–2.5 m, flat-topped semi-axes 0.8–5 m, aspect up to 1.6, any angle).
-Each pair of frames is measured twice by :func:`helicalib.vision.spot.measure_spot`: with
-``core_shares=()`` (a spot over the rim is ``clipped``) and with the default core thresholds
-(:data:`helicalib.vision.spot.CORE_SHARES`: a spot over the rim whose core keeps off the rim is
-measured on its core). Prints:
+Each pair of frames is measured three times by :func:`helicalib.vision.spot.measure_spot`:
+``today`` with neither rim rule (``core_shares=()``, ``max_mirror_slope=None``: a spot over the rim
+is ``clipped``), ``core`` with the core thresholds only (:data:`helicalib.vision.spot.CORE_SHARES`:
+a spot over the rim whose core keeps off the rim is measured on its core), ``mirror`` with the
+default limits (besides, a spot over the rim whose every core reaches it is measured by the
+symmetry of its visible part, :mod:`helicalib.vision.mirror`). Prints:
 
 * the share of spots by reason on each side;
-* the centre error [mm on the board] (RMS, 95th percentile) of the spots valid on both sides and
-  of the spots valid only with the core threshold, overall and by the centre's distance from the
-  board centre (the larger of |u|, |v|), and the error's component toward the board centre (a cut
-  skirt would pull the centre inward);
-* whether every spot valid on both sides measured the same centre bit for bit.
+* the centre error [mm on the board] (RMS, 95th percentile) of the spots valid today
+  (``valid_today``), of those valid only with the core rule (``newly_valid``) and of those valid
+  only with the symmetry rule (``mirror_valid``), overall and by the centre's distance from the board
+  centre (the larger of |u|, |v|), and the error's component toward the board centre (a cut skirt
+  would pull the centre inward);
+* whether every spot valid today measured the same centre bit for bit on every side.
 
     .venv/bin/python benchmarks/bench_clipped.py [--spots N] [--seed S] [--reach M]
 
@@ -69,27 +72,29 @@ def run(n: int, seed: int = 2026, reach_m: float = 7.0) -> dict:
     pose = look_at_pose(DEMO_CAMERA_ENU_M, target, 5200, (1280, 1024))
     rng = np.random.default_rng(seed)
     marks = find_marks(render_frame(target, pose, (), SPOT_EXPOSED, rng=seed), target)
-    today, core = SpotLimits(core_shares=()), SpotLimits()
+    today = SpotLimits(core_shares=(), max_mirror_slope=None)
+    core, mirror = SpotLimits(max_mirror_slope=None), SpotLimits()
     rows = []
     for _ in range(n):
         spot = random_spot(rng, reach_m)
         s = int(rng.integers(1 << 30))
         before = render_frame(target, pose, (), SPOT_EXPOSED, rng=s)
         after = render_frame(target, pose, [spot], SPOT_EXPOSED, rng=s + 1)
-        a, b = (measure_spot(before, [after], target, marks=marks, limits=lim) for lim in (today, core))
+        a, b, c = (measure_spot(before, [after], target, marks=marks, limits=lim) for lim in (today, core, mirror))
         truth = np.asarray(spot.center_m, dtype=float)
         row = {"spot": {"center_m": list(spot.center_m), "size_m": list(spot.size_m), "shape": spot.shape,
                         "peak": round(spot.peak, 1)},
-               "today": a.reason, "core": b.reason, "distance_m": float(np.max(np.abs(truth)))}
-        if b.valid:
-            d = b.offset_m - truth
+               "today": a.reason, "core": b.reason, "mirror": c.reason, "distance_m": float(np.max(np.abs(truth)))}
+        if c.valid:
+            d = c.offset_m - truth
             row["err_mm"] = 1000.0 * float(np.linalg.norm(d))
             inward = -truth / max(1e-9, float(np.linalg.norm(truth)))
             row["inward_mm"] = 1000.0 * float(d @ inward)
-            row["core_share"] = b.frames[0].core_share
+            row["core_share"] = c.frames[0].core_share
+            row["mirror_slope"] = c.frames[0].mirror_slope
         if a.valid:
-            row["same"] = bool(np.array_equal(a.offset_m, b.offset_m) and a.threshold == b.threshold
-                               and a.spot_area_px == b.spot_area_px and a.message == b.message)
+            row["same"] = all(bool(np.array_equal(a.offset_m, x.offset_m) and a.threshold == x.threshold
+                                   and a.spot_area_px == x.spot_area_px and a.message == x.message) for x in (b, c))
         rows.append(row)
     return summarise(rows, n, seed, reach_m)
 
@@ -97,17 +102,20 @@ def run(n: int, seed: int = 2026, reach_m: float = 7.0) -> dict:
 def summarise(rows: list[dict], n: int, seed: int, reach_m: float) -> dict:
     """Shares by reason, errors of both groups overall and by distance, the bit-for-bit check."""
     out: dict = {"spots": n, "seed": seed, "reach_m": reach_m, "reasons_pct": {}}
-    for side in ("today", "core"):
+    for side in ("today", "core", "mirror"):
         counts: dict[str, int] = {}
         for r in rows:
             counts[r[side]] = counts.get(r[side], 0) + 1
         out["reasons_pct"][side] = {k: round(100.0 * v / n, 2) for k, v in sorted(counts.items())}
-    both = [r for r in rows if r["today"] == "ok" and r["core"] == "ok"]
-    new = [r for r in rows if r["today"] == "clipped" and r["core"] == "ok"]
+    both = [r for r in rows if r["today"] == "ok" and r["core"] == "ok" and r["mirror"] == "ok"]
+    new = [r for r in rows if r["today"] == "clipped" and r["core"] == "ok" and r["mirror"] == "ok"]
+    sym = [r for r in rows if r["core"] == "clipped" and r["mirror"] == "ok"]
     out["unchanged_bit_for_bit"] = f"{sum(r['same'] for r in both)} of {len(both)}"
     out["newly_valid_core_shares"] = {str(k): sum(r.get("core_share") == k for r in new)
                                       for k in sorted({r.get("core_share") for r in new})}
-    groups = {"valid_today": both, "newly_valid": new}
+    out["mirror_valid_slopes"] = sorted(round(r["mirror_slope"], 2) for r in sym)
+    out["still_clipped_peak_on_board"] = sum(r["mirror"] == "clipped" and r["distance_m"] < 6.0 for r in rows)
+    groups = {"valid_today": both, "newly_valid": new, "mirror_valid": sym}
     out["error"] = {g: _stats(np.array([r["err_mm"] for r in rs])) for g, rs in groups.items()}
     out["inward_mean_mm"] = {g: round(float(np.mean([r["inward_mm"] for r in rs])), 2) if rs else None
                              for g, rs in groups.items()}

@@ -159,6 +159,7 @@ def main(argv=None) -> int:
     ap.add_argument("--only", choices=("fixed", "exposure"), default=None, help="run one side only")
     ap.add_argument("--spots", type=int, default=None, help="measure the spot accuracy on this many spots instead")
     ap.add_argument("--out", default=None, help="JSON (default benchmarks/out/bench_exposure[_spots].json)")
+    ap.add_argument("--keep", default=None, help="keep each run's database under this directory (<side>/helicalib.db)")
     args = ap.parse_args(argv)
     if args.spots:
         out = spot_accuracy(args.spots, args.seed)
@@ -177,11 +178,12 @@ def main(argv=None) -> int:
     start_s = float(to_unix_seconds([parse_time(args.start)])[0])
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
+        root = Path(args.keep) if args.keep else Path(tmp)
         for side, control in (("fixed", False), ("exposure", True)):
             if args.only not in (None, side):
                 continue
             scenario = base.model_copy(update={"camera": base.camera.model_copy(update={"exposure": control})})
-            r = run_one(cfg, "gaps", args.days, args.seed, scenario, ids, Path(tmp) / side, keep_frames=False,
+            r = run_one(cfg, "gaps", args.days, args.seed, scenario, ids, root / side, keep_frames=False,
                         start_s=start_s, fidelity="render")
             r["reasons"] = reasons(r["database"])
             r["retakes"] = retakes(r["database"])

@@ -51,6 +51,10 @@ CORE_RIM_MARGIN_CELLS = 3
 """A core must keep this many cells off the rim and off the dark marks: the rim's cells, sampled half
 on the board and half beside it, and a mark's cells (its albedo a few % of the board's) read darker
 than the spot there, so a core cut by either can look closed next to them."""
+MIRROR_MAX_SLOPE = 0.75
+"""Default :attr:`SpotLimits.max_mirror_slope`: a symmetric-region centre amplifies errors at most 4×."""
+MIRROR_MAX_ASYMMETRY = 0.025
+"""Default :attr:`SpotLimits.max_mirror_asymmetry`."""
 DARK_MARK_SHARE = 0.5
 """Board cells darker than this share of the board's median in the before frame are marks (where the
 spot's light is mostly lost, unless a dot board restores it)."""
@@ -83,6 +87,14 @@ class SpotLimits:
     core_shares: tuple[float, ...] = CORE_SHARES
     """Core thresholds tried on a spot that runs over the rim (:func:`core_region`); () keeps every such
     spot "clipped"."""
+    max_mirror_slope: float | None = MIRROR_MAX_SLOPE
+    """A spot over the rim whose every core reaches it is measured by the symmetry of its visible part
+    (:func:`~helicalib.vision.mirror.mirror_centre`) when the centroid's slope over the symmetric
+    region's centre is at most this on both axes (a centre error amplified at most 1 / (1 − slope)
+    times); None keeps every such spot "clipped", and so does ``core_shares=()`` (no rim rule at all)."""
+    max_mirror_asymmetry: float = MIRROR_MAX_ASYMMETRY
+    """... and when the spot in the symmetric region is symmetric about the centre found: its
+    :attr:`~helicalib.vision.mirror.MirrorCentre.asymmetry` at most this."""
 
 
 @dataclass(frozen=True)
@@ -103,6 +115,11 @@ class FrameSpot:
     core_share: float | None = None
     """The share of the peak ``threshold`` is at when the spot at ``T`` ran over the rim and its core
     was measured (:data:`CORE_SHARES`); None when measured at ``T``."""
+    mirror_slope: float | None = None
+    """The larger slope of the symmetric-region centre when the spot ran over the rim, no core kept off
+    it, and the centre was found from the symmetry of its visible part; None otherwise."""
+    mirror_asym: float | None = None
+    """The spot's asymmetry about that centre (:attr:`~helicalib.vision.mirror.MirrorCentre.asymmetry`)."""
 
 
 @dataclass(frozen=True)
@@ -278,6 +295,32 @@ def intensity_centroid(I: np.ndarray) -> np.ndarray:
     return np.array([I.sum(axis=0) @ np.arange(I.shape[1]) / tot, I.sum(axis=1) @ np.arange(I.shape[0]) / tot])
 
 
+def _mirror_spot(I: np.ndarray, inside: np.ndarray, blind: np.ndarray | None, limits: SpotLimits):
+    """The centre of a rim-cut spot from the symmetry of its visible part (:mod:`.mirror`), or None when
+    it is not well conditioned (a slope above ``limits.max_mirror_slope``), the spot there is not
+    symmetric about it (``limits.max_mirror_asymmetry``), the region holds fewer than
+    ``min_area_cells`` of the spot's cells, or the centre found is not on a cell that shows the spot."""
+    import cv2
+
+    from helicalib.vision.mirror import mirror_centre
+
+    seen = inside if blind is None else inside & ~blind
+    m = 2 * CORE_RIM_MARGIN_CELLS + 1
+    seen = cv2.erode(seen.astype(np.uint8), np.ones((m, m), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                     borderValue=0).astype(bool)
+    if not seen.any():
+        return None
+    peak_cell = np.array(np.unravel_index(int(np.argmax(np.where(seen, I, 0.0))), I.shape)[::-1], dtype=float)
+    got = mirror_centre(I, seen, peak_cell)
+    if got is None or got.area_cells < limits.min_area_cells or not np.all(got.slope <= limits.max_mirror_slope) \
+            or got.asymmetry > limits.max_mirror_asymmetry:
+        return None
+    col, row = np.rint(got.center_cell).astype(int)
+    if not (0 <= row < seen.shape[0] and 0 <= col < seen.shape[1] and seen[row, col]):
+        return None
+    return got
+
+
 # ---------------------------------------------------------------------------- one frame
 def _lowest_mode(r: np.ndarray, min_share: float = 0.1) -> float:
     """The lowest well-populated mode of after/before light ratios.
@@ -394,12 +437,22 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
     side = math.sqrt(S)
     core_share = None
     if clipped > limits.max_clipped_cells or side >= min(grid.shape):
-        core = None
+        core = mirror = None
         if _off_frame_cells(above, inside) <= limits.max_clipped_cells:  # cut by the board's rim, not the frame
             dark = None
             if fill is None:  # L marks: the spot's light on them is lost (a dot board's fill restores it)
                 dark = B < DARK_MARK_SHARE * float(np.median(B[inside]))
             core = core_region(Ddet, inside, T, peak, limits, dark)
+            if core is None and limits.core_shares and limits.max_mirror_slope is not None:
+                mirror = _mirror_spot(Dm * mask, inside, dark, limits)
+        if mirror is not None:
+            centre = mirror.center_cell
+            side = math.sqrt(mirror.area_cells)
+            if sat > limits.max_saturated_fraction:
+                raise _Invalid("saturated", f"{100 * sat:.0f} % of the spot is saturated in the after frame "
+                               f"(limit {100 * limits.max_saturated_fraction:.0f} %); close the aperture.", partial)
+            return FrameSpot(centre, grid.cell_to_board(centre), T, S, side, centre, k, peak, noise, sat, clipped,
+                             mirror_slope=float(mirror.slope.max()), mirror_asym=mirror.asymmetry)
         if core is None:
             # the visible part's centroid (biased toward the board): tells a search which way the beam lies
             seen = intensity_centroid(Dm * mask)
@@ -544,10 +597,13 @@ def measure_spot(before: np.ndarray, afters: Sequence[np.ndarray], target: Targe
         return SpotResult(False, "jitter", f"the spot moved {jitter * 1000:.0f} mm RMS over {len(frames)} frames "
                           f"(limit {limits.max_jitter_m * 1000:.0f} mm; wind?).", **result, **base)
     cores = [f.core_share for f in frames if f.core_share is not None]
+    mirrors = [f.mirror_slope for f in frames if f.mirror_slope is not None]
     msg = (f"spot centre at u = {mean[0]:+.3f} m, v = {mean[1]:+.3f} m from the board centre ({method}"
            + (f", {len(frames)} frames, jitter {jitter * 1000:.0f} mm RMS" if jitter is not None else "")
            + (f"; on its core above {100 * max(cores):.0f} % of the peak, the spot at the threshold running "
-              "over the rim" if cores else "") + ").")
+              "over the rim" if cores else "")
+           + (f"; from the symmetry of its visible part, the spot running over the rim, slope "
+              f"{max(mirrors):.2f}" if mirrors else "") + ").")
     return SpotResult(True, "ok", msg, **result, **base)
 
 
