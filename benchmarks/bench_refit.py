@@ -1,11 +1,13 @@
-"""Error-model refit cost: time per call of the campaign's refit, reference vs fast solver.
+"""Error-model refit cost: time per call of the campaign's refit, reference vs fast solver (numpy and compiled).
 
 Observations: ``tests/data/fit_observations.csv`` (a one-day simulated campaign of two demo
 heliostats). For K = 5, 20 and 60 points (60 = the recorded points of both visits' sun positions
 cycled, still real observations of one heliostat), the refit the campaign runs after a new point
 (``verdict.refit``: soft_l1, warm start from the fit without that point, no suggestions) is timed
-``--calls`` times per solver; reported: median and 90th percentile [ms], solver evaluations, and
-the largest difference between the two solvers' beams (sky grid) and parameters.
+``--calls`` times per solver: ``reference`` (``least_squares``), ``fast`` (the Gauss-Newton in numpy,
+``solver="numpy"``) and ``compiled`` (the same in numba, the default; compiled before timing);
+reported: median and 90th percentile [ms], solver evaluations, and the largest differences of
+the reference and fast solvers' beams (sky grid) and parameters, and of the fast and compiled ones.
 
 Run: ``.venv/bin/python benchmarks/bench_refit.py [--calls 200]``; writes
 ``benchmarks/out/bench_refit.json``.
@@ -22,6 +24,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 
+from helicalib.calibration import fit_kernels
 from helicalib.calibration.fit import sky_grid
 from helicalib.campaign import verdict
 from helicalib.config import load_field_config
@@ -30,6 +33,8 @@ from helicalib.geometry.heliostat import HeliostatModel
 
 ROOT = Path(__file__).resolve().parents[1]
 KS = (5, 20, 60)
+SOLVERS = {"reference": ("reference", None), "fast": ("fast", "numpy"), "compiled": ("fast", "compiled")}
+"""The timed solvers: (``method``, ``solver``) of :func:`helicalib.campaign.verdict.refit`."""
 HID = "H0001"
 
 
@@ -55,6 +60,7 @@ def main() -> None:
     ap.add_argument("--field", default=str(ROOT / "field_config" / "demo_north.yaml"))
     ap.add_argument("--calls", type=int, default=200, help="timed refits per solver and K")
     args = ap.parse_args()
+    fit_kernels.warm()  # compile time is an install's, not a refit's
     cfg = load_field_config(args.field)
     nominal = HeliostatModel.from_config(cfg, [HID])
     aim = np.asarray(cfg.target(cfg.heliostat(HID).target).center_enu_m)
@@ -65,18 +71,22 @@ def main() -> None:
         start, _fit = verdict.refit(nominal, points[:-1], nominal, method="reference")  # the model before the point
         result = {"k": k}
         models = {}
-        for method in ("reference", "fast"):
+        for method, (kind, solver) in SOLVERS.items():
             times, nfev = [], []
             for _ in range(args.calls):
                 t0 = time.perf_counter()
-                model, fit = verdict.refit(nominal, points, start, method=method)
+                model, fit = verdict.refit(nominal, points, start, method=kind, solver=solver)
                 times.append(time.perf_counter() - t0)
                 nfev.append(fit.nfev)
             models[method] = (model, fit)
             result[method] = {"median_ms": round(1000 * float(np.median(times)), 3),
                               "p90_ms": round(1000 * float(np.percentile(times, 90)), 3),
                               "evaluations": int(np.median(nfev))}
-        (ma, fa), (mb, fb) = models["reference"], models["fast"]
+        (ma, fa), (mb, fb), (mc, fc) = models["reference"], models["fast"], models["compiled"]
+        result["compiled_speed_up"] = round(result["fast"]["median_ms"] / result["compiled"]["median_ms"], 1)
+        result["compiled_max_beam_difference_mrad"] = float(f"{beam_difference_mrad(mb, mc, aim):.3g}")
+        result["compiled_max_param_difference_prior_sigma"] = float(
+            f"{np.max(np.abs(fb.params - fc.params) / em.PRIOR_SIGMA):.3g}")
         result["speed_up"] = round(result["reference"]["median_ms"] / result["fast"]["median_ms"], 1)
         result["max_beam_difference_mrad"] = float(f"{beam_difference_mrad(ma, mb, aim):.3g}")
         result["max_residual_difference_mrad"] = float(f"{np.max(np.abs(fa.residual_vec_mrad - fb.residual_vec_mrad)):.3g}")
@@ -85,12 +95,13 @@ def main() -> None:
         rows.append(result)
     print(f"refit of {HID} after one more point (warm start), {args.calls} calls each; times in ms")
     print(f"{'K':>4} {'reference med/p90':>19} {'evals':>6} {'fast med/p90':>15} {'evals':>6} {'speed-up':>9}"
-          f" {'beam diff':>10} {'param diff':>11}")
+          f" {'beam diff':>10} {'param diff':>11} {'compiled med/p90':>17} {'speed-up':>9} {'beam diff':>10}")
     for r in rows:
-        a, b = r["reference"], r["fast"]
+        a, b, c = r["reference"], r["fast"], r["compiled"]
         print(f"{r['k']:>4} {a['median_ms']:>9.2f}/{a['p90_ms']:<9.2f} {a['evaluations']:>6} {b['median_ms']:>7.2f}/"
               f"{b['p90_ms']:<7.2f} {b['evaluations']:>6} {r['speed_up']:>8.1f}x {r['max_beam_difference_mrad']:>10.2g}"
-              f" {r['max_param_difference_prior_sigma']:>11.2g}")
+              f" {r['max_param_difference_prior_sigma']:>11.2g} {c['median_ms']:>8.2f}/{c['p90_ms']:<8.2f}"
+              f" {r['compiled_speed_up']:>8.1f}x {r['compiled_max_beam_difference_mrad']:>10.2g}")
     dest = ROOT / "benchmarks" / "out"
     dest.mkdir(parents=True, exist_ok=True)
     out = {"heliostat": HID, "calls": args.calls, "rows": rows,

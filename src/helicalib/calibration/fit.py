@@ -17,8 +17,10 @@ The problem is solved in prior-whitened variables ``x = p / prior_sigma``; the p
 the nominal heliostat) enter as pseudo-observations ``x``; data residuals are divided by the
 measurement noise ``sigma_mrad``. A robust loss (default ``soft_l1``, scale ``f_scale_mrad``, the
 losses of ``scipy.optimize.least_squares``) keeps outliers from dragging the fit. The cost is
-minimised by a damped Gauss-Newton with the analytic Jacobian (:mod:`.fit_solver`, the default),
-or with ``method="reference"`` by ``least_squares`` (TRF) with a central-difference Jacobian.
+minimised by a damped Gauss-Newton with the analytic Jacobian (the default), compiled
+(:mod:`.fit_kernels`, ``solver="compiled"``) or in numpy (:mod:`.fit_solver`, ``solver="numpy"``, the
+reference the compiled one is tested against), or with ``method="reference"`` by ``least_squares``
+(TRF) with a central-difference Jacobian.
 The covariance is the Gauss-Newton ``(JᵀJ)⁻¹`` at the solution, inflated by the a-posteriori
 variance factor when the residuals are larger than ``sigma_mrad`` says.
 """
@@ -31,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from helicalib.calibration import fit_solver
+from helicalib.calibration import fit_kernels, fit_solver
 from helicalib.calibration.fit_solver import NAN_RESIDUAL_MRAD, beam_basis
 from helicalib.calibration.fit_inputs import (EPOCH, EPOCH_PARAMS, EPOCH_SIGMA, FIT_METHODS, SIGMA_MRAD,
                                               TILT, TILT_RATE_SIGMA_MRAD_PER_DAY, FitOptions, FitPoints, Unknowns,
@@ -41,6 +43,14 @@ from helicalib.calibration.uncertainty import beam_jacobians_mrad
 from helicalib.geometry import error_model as em
 from helicalib.geometry import optics
 from helicalib.geometry.drives import angles_to_normal, strokes_to_angles
+
+
+SOLVERS = ("compiled", "numpy")
+"""The fast method's implementations: ``"compiled"`` (:mod:`.fit_kernels`, numba) and ``"numpy"``
+(:mod:`.fit_solver`, the reference). Same steps and stopping rules; the compiled one covers the
+``"beam"`` residual (a ``"normal"`` fit runs the numpy one)."""
+FAST_SOLVER = "compiled"
+"""The default of :func:`fit_error_model`'s ``solver``."""
 
 
 @dataclass(frozen=True)
@@ -215,7 +225,8 @@ class _Problem:
 
 
 def fit_error_model(model, points: FitPoints, options: FitOptions = FitOptions(), *,
-                    start: np.ndarray | None = None, prior_mean: np.ndarray | None = None) -> FitResult:
+                    start: np.ndarray | None = None, prior_mean: np.ndarray | None = None,
+                    solver: str | None = None) -> FitResult:
     """Fit the error model of one heliostat to its observations.
 
     Parameters
@@ -232,11 +243,16 @@ def fit_error_model(model, points: FitPoints, options: FitOptions = FitOptions()
     prior_mean : (P,), optional
         Centre of the priors (default 0: the nominal heliostat). A heliostat known to have changed
         (a confirmed drift) is fitted with its earlier model as the centre.
+    solver : :data:`SOLVERS`, optional
+        The fast method's implementation (default :data:`FAST_SOLVER`, the compiled one).
     """
     if len(model) != 1:
         raise ValueError(f"fit_error_model fits one heliostat; got a model of {len(model)}")
     if options.method not in FIT_METHODS:
         raise ValueError(f"method must be one of {', '.join(FIT_METHODS)}, not {options.method!r}")
+    solver = FAST_SOLVER if solver is None else solver
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
     approach = points.approach
     if approach is not None and not np.any(np.asarray(approach, dtype=float)):
         approach = None
@@ -249,7 +265,8 @@ def fit_error_model(model, points: FitPoints, options: FitOptions = FitOptions()
     f_scale = options.f_scale_mrad / sigma_eff
     solved = None
     if options.method == "fast":
-        solved = _solve_fast(prob, u, x0, row_sigma, options.loss, f_scale)
+        solve = _solve_compiled if solver == "compiled" and prob.kind == "beam" else _solve_fast
+        solved = solve(prob, u, x0, row_sigma, options.loss, f_scale)
     if solved is None:
         plain = u.age is None and u.epoch is None
         solved = _solve_reference(prob, u.params_of if plain else u.rows_of, x0, row_sigma, options.loss, f_scale)
@@ -374,6 +391,29 @@ def _solve_fast(prob, u: Unknowns, x0, row_sigma, loss, f_scale):
     if not converged or not np.all(np.isfinite(x)):
         return None
     return x, j, (r[: 2 * prob.k] * row_sigma).reshape(-1, 2), True, "Gauss-Newton converged", nfev
+
+
+def _solve_compiled(prob, u: Unknowns, x0, row_sigma, loss, f_scale):
+    """:func:`_solve_fast` in one compiled call (:func:`.fit_kernels.solve`, the ``"beam"`` residual);
+    None if it does not converge."""
+    if loss not in fit_kernels.LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; known: {', '.join(fit_kernels.LOSSES)}")
+    k = prob.k
+    has_approach = prob.approach is not None
+    approach = prob.approach if has_approach else np.zeros((k, 2))
+    age = np.zeros(0) if u.age is None else np.asarray(u.age, dtype=float)
+    epoch = np.zeros(k, dtype=np.int64) if u.epoch is None else np.asarray(u.epoch, dtype=np.int64)
+    n_groups = 1 if u.epoch is None or not k else int(epoch.max()) + 1
+    ep_scale = np.ones(len(EPOCH)) if u.ep_scale is None else np.asarray(u.ep_scale, dtype=float)
+    x, r, j, converged, nfev = fit_kernels.solve(
+        np.asarray(x0, dtype=float), fit_kernels.LOSSES.index(loss), float(f_scale),
+        fit_kernels.pack_drive(prob.model.drives, prob.model.pivots_enu[0]), prob.strokes, approach, has_approach,
+        prob.sun, prob.spot, prob.basis, u.base, u.centre, u.free_idx.astype(np.int64), u.sig_prior,
+        1.0 / row_sigma, age, float(u.rate_scale), epoch, n_groups, EPOCH.astype(np.int64), ep_scale,
+        fit_kernels.XTOL, fit_kernels.FTOL, fit_kernels.MAX_ITER)
+    if not converged or not np.all(np.isfinite(x)):
+        return None
+    return x, j, (r[: 2 * k] * row_sigma).reshape(-1, 2), True, "Gauss-Newton converged", nfev
 
 
 def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndarray:

@@ -52,11 +52,16 @@ STALL_FTOL = 1e-10
 def beam_basis(d: np.ndarray) -> np.ndarray:
     """Two unit vectors (K, 2, 3) across unit directions d (K, 3): right (horizontal) and up (the
     two components of a beam-angle residual)."""
-    right = np.cross(d, [0.0, 0.0, 1.0])
-    small = np.linalg.norm(right, axis=-1) < 1e-9
-    right[small] = np.cross(d[small], [0.0, 1.0, 0.0])
+    d = np.asarray(d, dtype=float)
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    zero = np.zeros_like(x)
+    right = np.stack([y, -x, zero], axis=-1)  # d × up, written out (np.cross's own products, without its overhead)
+    small = np.sqrt(np.add.reduce(right * right, axis=-1)) < 1e-9
+    right[small] = np.stack([-z[small], zero[small], x[small]], axis=-1)  # d × north
     right = optics.unit(right)
-    return np.stack([right, np.cross(right, d)], axis=1)
+    rx, ry, rz = right[..., 0], right[..., 1], right[..., 2]
+    up = np.stack([ry * z - rz * y, rz * x - rx * z, rx * y - ry * x], axis=-1)
+    return np.stack([right, up], axis=-2)
 
 
 def rotation_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:

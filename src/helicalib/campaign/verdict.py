@@ -29,7 +29,8 @@ _BACKLASH = [em.index(n) for n in em.BACKLASH]
 
 # ---------------------------------------------------------------------------------- fit
 def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method: str = "fast",
-          prior_mean: np.ndarray | None = None, tilt_rate: bool = False, earlier: Earlier | None = None):
+          prior_mean: np.ndarray | None = None, tilt_rate: bool = False, earlier: Earlier | None = None,
+          solver: str | None = None):
     """Refit one heliostat's error model to its valid points; returns (model, FitResult or None).
 
     The solver starts from ``current``'s parameters (the priors stay centred on the nominal
@@ -42,7 +43,8 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
     of past seasons stay consistent with a settling foundation; the model returned is the heliostat
     as of the newest point. ``earlier`` (after a confirmed drift, :data:`.book.EPOCHS_AFTER_DRIFT`): the
     points from before it join the fit after ``points``, each with its epoch's own tilts and zero
-    offsets; the model returned is the heliostat of ``points``' epoch."""
+    offsets; the model returned is the heliostat of ``points``' epoch. ``solver``: the fast method's
+    implementation (:data:`helicalib.calibration.fit.SOLVERS`; default the compiled one)."""
     if not points:
         return current, None
     epoch = None
@@ -61,7 +63,7 @@ def refit(nominal: HeliostatModel, points: list, current: HeliostatModel, method
         age = (t.max() - t) / 86400.0
     fit = fit_error_model(model, FitPoints(strokes, sun, spot, approach=approach, age_days=age, epoch=epoch),
                           FitOptions(loss=FIT_LOSS, n_suggestions=0, method=method),
-                          start=start.params[0], prior_mean=prior_mean)
+                          start=start.params[0], prior_mean=prior_mean, solver=solver)
     if not np.all(np.isfinite(fit.params)):
         return current, None
     return fit.model, fit
