@@ -194,7 +194,7 @@ def _by_kernel(name: str, drives: DriveArrays, values) -> np.ndarray | None:
     k = kernels()
     if name == "angles_to_normal":
         return k.angles_to_normal(drives.packed, rows)
-    return k.linkage(drives.packed, k.NO_APPROACH, rows, k.NO_APPROACH, name == "strokes_to_angles")
+    return k.linkage(drives.packed, rows, k.NO_APPROACH, name == "strokes_to_angles")
 
 
 def gamma_rad(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:

@@ -71,7 +71,7 @@ class HeliostatModel:
     drives_eff : DriveArrays with the errors applied; ``pivots_eff_enu`` (N, 3) likewise
     """
 
-    __slots__ = ("ids", "pivots_enu", "drives", "params", "drives_eff", "pivots_eff_enu", "_backlash_mm")
+    __slots__ = ("ids", "pivots_enu", "drives", "params", "drives_eff", "pivots_eff_enu", "_backlash_mm", "_packed")
 
     def __init__(self, ids: Sequence[str], pivots_enu: np.ndarray, drives: DriveArrays, params: np.ndarray | None = None):
         n = len(drives)
@@ -81,11 +81,12 @@ class HeliostatModel:
             raise ValueError(f"{len(ids)} ids for {n} drives")
         eff, piv = em.apply(drives, pivots, p)
         for name, value in (("ids", tuple(ids)), ("pivots_enu", pivots), ("drives", drives), ("params", p),
-                            ("drives_eff", eff), ("pivots_eff_enu", np.ascontiguousarray(piv)),
-                            ("_backlash_mm", np.ascontiguousarray(p[:, _BACKLASH_COLS]))):
+                            ("drives_eff", eff), ("pivots_eff_enu", piv),
+                            ("_backlash_mm", p[:, _BACKLASH_COLS])):
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
             object.__setattr__(self, name, value)
+        object.__setattr__(self, "_packed", None)
 
     def __setattr__(self, name, value):
         raise AttributeError("HeliostatModel is immutable; use with_params() or subset()")
@@ -125,6 +126,7 @@ class HeliostatModel:
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
             object.__setattr__(out, name, value)
+        object.__setattr__(out, "_packed", None if self._packed is None else self._packed[idx])
         return out
 
     def repeat(self, counts) -> HeliostatModel:
@@ -149,14 +151,20 @@ class HeliostatModel:
         return np.asarray(strokes_mm, dtype=float) + em.backlash_shift_mm(self.params, approach)
 
     def _kernel_args(self, approach, *rows: tuple[np.ndarray, int]) -> list | None:
-        """The row arguments ``(value, width)`` and ``approach`` as kernel inputs (1 or N rows), or
-        None: too many heliostats for the kernels, or shapes that need numpy's broadcasting."""
+        """The packed model, the row arguments ``(value, width)`` and ``approach`` as kernel inputs
+        (1 or N rows), or None: too many heliostats for the kernels, or shapes that need numpy's
+        broadcasting."""
         n = len(self)
         if not use_kernels(n):
             return None
         out = [kernel_rows(v, w, n) for v, w in rows]
         out.append(kernels().NO_APPROACH if approach is None else kernel_rows(approach, 2, n))
-        return None if any(o is None for o in out) else out
+        if any(o is None for o in out):
+            return None
+        if self._packed is None:  # once per model: a one-heliostat model is asked many times
+            object.__setattr__(self, "_packed", kernels().pack_model(self.drives_eff.packed, self.pivots_eff_enu,
+                                                                     self._backlash_mm))
+        return [self._packed, *out]
 
     def angles(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None, reference: bool = False
                ) -> np.ndarray:
@@ -164,7 +172,7 @@ class HeliostatModel:
         ``approach``: the last motion of each actuator (±1), for the backlash parameters."""
         k = None if reference else self._kernel_args(approach, (strokes_mm, 2))
         if k is not None:
-            return kernels().linkage(self.drives_eff.packed, self._backlash_mm, k[0], k[1], True)
+            return kernels().linkage(*k, True)
         return strokes_to_angles(self.drives_eff, self.effective_strokes(strokes_mm, approach), reference=True)
 
     def normal(self, strokes_mm: np.ndarray, approach: np.ndarray | None = None, reference: bool = False
@@ -172,7 +180,7 @@ class HeliostatModel:
         """Mirror normal (N, 3), ENU, for commanded strokes (N, 2) [mm], errors applied."""
         k = None if reference else self._kernel_args(approach, (strokes_mm, 2))
         if k is not None:
-            return kernels().model_normal(self.drives_eff.packed, self._backlash_mm, *k)
+            return kernels().model_normal(*k)
         return angles_to_normal(self.drives_eff, self.angles(strokes_mm, approach, reference=True), reference=True)
 
     def beam(self, strokes_mm: np.ndarray, sun_enu: np.ndarray, approach: np.ndarray | None = None,
@@ -183,7 +191,7 @@ class HeliostatModel:
         """
         k = None if reference else self._kernel_args(approach, (strokes_mm, 2), (sun_enu, 3))
         if k is not None:
-            return kernels().model_beam(self.drives_eff.packed, self.pivots_eff_enu, self._backlash_mm, *k)
+            return kernels().model_beam(*k)
         n = self.normal(strokes_mm, approach, reference=True)
         s = optics.unit(_rows(sun_enu, len(self), 3))
         return optics.mirror_centre(self.pivots_eff_enu, n, self.mirror_offset_m), optics.reflect(s, n)
@@ -197,7 +205,7 @@ class HeliostatModel:
         k = None if reference else self._kernel_args(approach, (strokes_mm, 2), (sun_enu, 3))
         planes = None if k is None else _planes(target, len(self))
         if planes is not None:
-            return kernels().model_spot(self.drives_eff.packed, self.pivots_eff_enu, self._backlash_mm, *k, *planes)
+            return kernels().model_spot(*k, *planes)
         origin, direction = self.beam(strokes_mm, sun_enu, approach, reference=True)
         if isinstance(target, Sequence) and not isinstance(target, str):
             uv = np.full((len(self), 2), np.nan)
@@ -214,7 +222,7 @@ class HeliostatModel:
         the strokes to command, arriving in ``approach`` (±1 per actuator; None: no backlash)."""
         k = None if reference else self._kernel_args(approach, (normal_enu, 3))
         if k is not None:
-            return kernels().model_normal_to_strokes(self.drives_eff.packed, self._backlash_mm, *k)
+            return kernels().model_normal_to_strokes(*k)
         angles, reachable = normal_to_angles(self.drives_eff, normal_enu, reference=True)
         strokes = (angles_to_strokes(self.drives_eff, angles, reference=True)
                    - em.backlash_shift_mm(self.params, approach))
@@ -229,7 +237,7 @@ class HeliostatModel:
         k = None if reference else self._kernel_args(approach, (sun_enu, 3), (aim_enu, 3))
         if k is not None:
             strokes, angles, normal, in_range, reachable = kernels().model_strokes_for_aim(
-                self.drives_eff.packed, self.pivots_eff_enu, self._backlash_mm, *k, optics.AIM_ITERATIONS)
+                *k, optics.AIM_ITERATIONS)
             return AimSolution(strokes_mm=strokes, angles_rad=angles, normal_enu=normal, in_range=in_range,
                                reachable=reachable)
         n_rows = len(self)

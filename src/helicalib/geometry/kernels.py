@@ -9,8 +9,12 @@ rounding (tests hold them within 1e-9 rad and 1e-9 mm). Callers use them for few
 
 A drive enters as one packed float array, shape (N, :data:`PACKED_WIDTH`), one row per heliostat
 (:func:`pack`, cached as ``DriveArrays.packed``); the columns are the ``DriveArrays`` fields in the
-order of the ``_C_*`` offsets below. Row arguments (strokes, sun, aim, approach, normals) have 1 row
-(used for every heliostat) or N rows. ``approach`` with 0 rows means "no backlash shift".
+order of the ``_C_*`` offsets below. A heliostat model's kernels (``model_*``) take that array with
+the effective pivot and the two backlash parameters appended (:data:`MODEL_WIDTH` columns,
+:func:`pack_model`). Row arguments (strokes, sun, aim, approach, normals) have 1 row (used for every
+heliostat) or N rows. ``approach`` with 0 rows means "no backlash shift". Every array passed is
+writable and C-contiguous (:func:`rows2`), so each kernel has one compiled signature, the one
+:func:`warm` compiles.
 
 Compiled with ``cache=True``: the machine code lands in ``__pycache__`` on first use; :func:`warm`
 compiles every kernel once (at install time), so no run pays the compile.
@@ -29,6 +33,9 @@ _C_RA, _C_RB, _C_G0, _C_SG, _C_L0, _C_SMIN, _C_SMAX = 9, 11, 13, 15, 17, 19, 21
 _C_OFF = 23
 PACKED_WIDTH = 24
 """Columns of a packed drive: a1, a2, n0 (3 each), ra, rb, γ0, sign, ℓ0, stroke min, max (2 each), offset."""
+_C_PIV, _C_BL = 24, 27
+MODEL_WIDTH = 29
+"""Columns of a packed model: the packed drive, then the effective pivot (3) and backlash_1, _2 [mm]."""
 
 MAX_ROWS = 64
 """Most rows for which callers use the kernels (numpy at or above it; bench_kernels.py measures it)."""
@@ -53,15 +60,22 @@ def pack(axis1_enu, axis2_enu, normal0_enu, arm_fixed_m, arm_moving_m, gamma0_ra
         stroke_min_mm, stroke_max_mm, np.asarray(mirror_offset_m, dtype=float).reshape(-1, 1)], axis=1), dtype=float)
 
 
+def pack_model(drive_packed: np.ndarray, pivots_enu: np.ndarray, backlash_mm: np.ndarray) -> np.ndarray:
+    """A packed drive (N, PACKED_WIDTH) with pivots (N, 3) and backlash (N, 2): (N, MODEL_WIDTH)."""
+    return np.ascontiguousarray(np.concatenate([drive_packed, pivots_enu, backlash_mm], axis=1), dtype=float)
+
+
 def rows2(a, width: int) -> np.ndarray | None:
-    """``a`` as a C-contiguous float (m, width) array if it is (width,) or (m, width), else None
-    (then the caller takes the numpy path, which broadcasts anything)."""
+    """``a`` as a writable C-contiguous float (m, width) array if it is (width,) or (m, width), else
+    None (then the caller takes the numpy path, which broadcasts anything)."""
     a = np.asarray(a, dtype=float)
     if a.ndim == 1 and a.shape[0] == width:
-        return a.reshape(1, width)
-    if a.ndim == 2 and a.shape[1] == width:
-        return np.ascontiguousarray(a)
-    return None
+        a = a.reshape(1, width)
+    elif a.ndim == 2 and a.shape[1] == width:
+        a = np.ascontiguousarray(a)
+    else:
+        return None
+    return a if a.flags.writeable else a.copy()
 
 
 # ---------------------------------------------------------------------------- scalar helpers
@@ -144,14 +158,14 @@ def _normal_of_angles(d, i, th1, th2):
 
 
 @_jit
-def _shift(backlash, approach, i, j):
+def _shift(d, approach, i, j):
     """Commanded → effective stroke shift [mm]: −backlash/2 · sign(approach); 0 without approach."""
     m = approach.shape[0]
     if m == 0:
         return 0.0
     a = approach[i if m > 1 else 0, j]
     sg = 1.0 if a > 0.0 else (-1.0 if a < 0.0 else (a if a != a else 0.0))
-    return -0.5 * backlash[i, j] * sg
+    return -0.5 * d[i, _C_BL + j] * sg
 
 
 @_jit
@@ -226,7 +240,7 @@ def _aim_normal_row(px, py, pz, sx, sy, sz, tx, ty, tz, off, iterations):
 
 # ---------------------------------------------------------------------------- drives
 @_jit
-def linkage(d, backlash, values, approach, to_angles):
+def linkage(d, values, approach, to_angles):
     """Push-rod triangles of N packed rows for values (1 or N, 2): commanded strokes [mm] → axis
     angles [rad] (``to_angles``; the backlash shift for ``approach`` applied first, as
     ``HeliostatModel.angles``; ``drives.strokes_to_angles`` without approach), or axis angles → strokes
@@ -238,7 +252,7 @@ def linkage(d, backlash, values, approach, to_angles):
         r = i if m > 1 else 0
         for j in range(2):
             if to_angles:
-                out[i, j] = _stroke_to_angle(d, i, j, values[r, j] + _shift(backlash, approach, i, j))
+                out[i, j] = _stroke_to_angle(d, i, j, values[r, j] + _shift(d, approach, i, j))
             else:
                 out[i, j] = _angle_to_stroke(d, i, j, values[r, j])
     return out
@@ -303,53 +317,40 @@ def _intersect_row(ox, oy, oz, dx, dy, dz, centre, frame):
             _dot(hx, hy, hz, frame[1, 0], frame[1, 1], frame[1, 2]))
 
 
-@_jit
-def intersect_target(origin, direction, centre, frame):
-    """Target-frame (u, v) (K, 2) of rays (1 or K, 3) on one plane (``optics.intersect_target``'s uv)."""
-    k = max(origin.shape[0], direction.shape[0])
-    out = np.empty((k, 2))
-    for i in range(k):
-        o = i if origin.shape[0] > 1 else 0
-        r = i if direction.shape[0] > 1 else 0
-        out[i, 0], out[i, 1] = _intersect_row(origin[o, 0], origin[o, 1], origin[o, 2],
-                                              direction[r, 0], direction[r, 1], direction[r, 2], centre, frame)
-    return out
-
-
 # ---------------------------------------------------------------------------- the heliostat model
 @_jit
-def _normal_commanded(d, backlash, i, strokes, r, approach):
+def _normal_commanded(d, i, strokes, r, approach):
     """Normal of packed row i for commanded strokes row r, the backlash shift applied."""
-    th1 = _stroke_to_angle(d, i, 0, strokes[r, 0] + _shift(backlash, approach, i, 0))
-    th2 = _stroke_to_angle(d, i, 1, strokes[r, 1] + _shift(backlash, approach, i, 1))
+    th1 = _stroke_to_angle(d, i, 0, strokes[r, 0] + _shift(d, approach, i, 0))
+    th2 = _stroke_to_angle(d, i, 1, strokes[r, 1] + _shift(d, approach, i, 1))
     return _normal_of_angles(d, i, th1, th2)
 
 
 @_jit
-def model_normal(d, backlash, strokes, approach):
+def model_normal(d, strokes, approach):
     """``HeliostatModel.normal``: normals (N, 3) for commanded strokes (1 or N, 2)."""
     n = d.shape[0]
     m = strokes.shape[0]
     out = np.empty((n, 3))
     for i in range(n):
-        out[i, 0], out[i, 1], out[i, 2] = _normal_commanded(d, backlash, i, strokes, i if m > 1 else 0, approach)
+        out[i, 0], out[i, 1], out[i, 2] = _normal_commanded(d, i, strokes, i if m > 1 else 0, approach)
     return out
 
 
 @_jit
-def model_beam(d, pivots, backlash, strokes, sun, approach):
+def model_beam(d, strokes, sun, approach):
     """``HeliostatModel.beam``: (mirror centres (N, 3), unit beam directions (N, 3))."""
     n = d.shape[0]
     origin = np.empty((n, 3))
     direction = np.empty((n, 3))
     for i in range(n):
-        nx, ny, nz = _normal_commanded(d, backlash, i, strokes, i if strokes.shape[0] > 1 else 0, approach)
+        nx, ny, nz = _normal_commanded(d, i, strokes, i if strokes.shape[0] > 1 else 0, approach)
         s = i if sun.shape[0] > 1 else 0
         sx, sy, sz = _unit(sun[s, 0], sun[s, 1], sun[s, 2])
         off = d[i, _C_OFF]
-        origin[i, 0] = pivots[i, 0] + off * nx
-        origin[i, 1] = pivots[i, 1] + off * ny
-        origin[i, 2] = pivots[i, 2] + off * nz
+        origin[i, 0] = d[i, _C_PIV] + off * nx
+        origin[i, 1] = d[i, _C_PIV + 1] + off * ny
+        origin[i, 2] = d[i, _C_PIV + 2] + off * nz
         k = 2.0 * _dot(sx, sy, sz, nx, ny, nz)
         direction[i, 0] = k * nx - sx
         direction[i, 1] = k * ny - sy
@@ -358,10 +359,10 @@ def model_beam(d, pivots, backlash, strokes, sun, approach):
 
 
 @_jit
-def model_spot(d, pivots, backlash, strokes, sun, approach, centres, frames, which):
+def model_spot(d, strokes, sun, approach, centres, frames, which):
     """``HeliostatModel.spot_on_target``: (u, v) (N, 2) on target ``which[i]`` of ``centres`` (T, 3)
     and ``frames`` (T, 3, 3); NaN where the beam misses its plane."""
-    origin, direction = model_beam(d, pivots, backlash, strokes, sun, approach)
+    origin, direction = model_beam(d, strokes, sun, approach)
     n = d.shape[0]
     out = np.empty((n, 2))
     for i in range(n):
@@ -372,20 +373,20 @@ def model_spot(d, pivots, backlash, strokes, sun, approach, centres, frames, whi
 
 
 @_jit
-def _strokes_of_normal(d, backlash, i, nx, ny, nz, approach, strokes, angles, reachable):
+def _strokes_of_normal(d, i, nx, ny, nz, approach, strokes, angles, reachable):
     """Row i of ``HeliostatModel.normal_to_strokes`` written into the output arrays."""
     th1, th2, ok = _normal_to_angles_row(d, i, nx, ny, nz, 1e-12)
     angles[i, 0] = th1
     angles[i, 1] = th2
-    s1 = _angle_to_stroke(d, i, 0, th1) - _shift(backlash, approach, i, 0)
-    s2 = _angle_to_stroke(d, i, 1, th2) - _shift(backlash, approach, i, 1)
+    s1 = _angle_to_stroke(d, i, 0, th1) - _shift(d, approach, i, 0)
+    s2 = _angle_to_stroke(d, i, 1, th2) - _shift(d, approach, i, 1)
     strokes[i, 0] = s1
     strokes[i, 1] = s2
     reachable[i] = ok and math.isfinite(s1) and math.isfinite(s2)
 
 
 @_jit
-def model_normal_to_strokes(d, backlash, normal, approach):
+def model_normal_to_strokes(d, normal, approach):
     """``HeliostatModel.normal_to_strokes``: (strokes (N, 2), angles (N, 2), reachable (N,))."""
     n = d.shape[0]
     m = normal.shape[0]
@@ -394,13 +395,13 @@ def model_normal_to_strokes(d, backlash, normal, approach):
     reachable = np.empty(n, dtype=np.bool_)
     for i in range(n):
         r = i if m > 1 else 0
-        _strokes_of_normal(d, backlash, i, normal[r, 0], normal[r, 1], normal[r, 2], approach, strokes, angles,
+        _strokes_of_normal(d, i, normal[r, 0], normal[r, 1], normal[r, 2], approach, strokes, angles,
                            reachable)
     return strokes, angles, reachable
 
 
 @_jit
-def model_strokes_for_aim(d, pivots, backlash, sun, aim, approach, iterations):
+def model_strokes_for_aim(d, sun, aim, approach, iterations):
     """``HeliostatModel.strokes_for_aim``: (strokes, angles, normal, in_range, reachable) for sun and
     aim rows (1 or N, 3); the stroke range is the packed one (the commanded strokes' range)."""
     n = d.shape[0]
@@ -413,12 +414,12 @@ def model_strokes_for_aim(d, pivots, backlash, sun, aim, approach, iterations):
         s = i if sun.shape[0] > 1 else 0
         t = i if aim.shape[0] > 1 else 0
         sx, sy, sz = _unit(sun[s, 0], sun[s, 1], sun[s, 2])
-        nx, ny, nz = _aim_normal_row(pivots[i, 0], pivots[i, 1], pivots[i, 2], sx, sy, sz,
+        nx, ny, nz = _aim_normal_row(d[i, _C_PIV], d[i, _C_PIV + 1], d[i, _C_PIV + 2], sx, sy, sz,
                                      aim[t, 0], aim[t, 1], aim[t, 2], d[i, _C_OFF], iterations)
         normal[i, 0] = nx
         normal[i, 1] = ny
         normal[i, 2] = nz
-        _strokes_of_normal(d, backlash, i, nx, ny, nz, approach, strokes, angles, reachable)
+        _strokes_of_normal(d, i, nx, ny, nz, approach, strokes, angles, reachable)
         ok = reachable[i]
         for j in range(2):
             sj = strokes[i, j]
@@ -429,7 +430,8 @@ def model_strokes_for_aim(d, pivots, backlash, sun, aim, approach, iterations):
 
 # ---------------------------------------------------------------------------- warming the cache
 def warm() -> dict[str, float]:
-    """Compile (or load from the cache) every kernel once; returns ``{"seconds": …, "kernels": k}``.
+    """Compile (or load from the cache) every kernel once; returns ``{"seconds": …, "kernels": k}``
+    (k public kernels ready).
 
     Called at install time so that no run pays the first-call compile."""
     t0 = time.perf_counter()
@@ -440,23 +442,23 @@ def warm() -> dict[str, float]:
     row3 = np.array([[0.0, 0.6, 0.8]])
     piv = np.array([[12.0, 150.0, 4.2]])
     aim = np.array([[0.0, 9.0, 120.0]])
-    back = np.zeros((1, 2))
+    m = pack_model(d, piv, np.zeros((1, 2)))
     frames = np.eye(3).reshape(1, 3, 3)
     which = np.zeros(1, dtype=np.int64)
     calls = (
-        lambda: linkage(d, NO_APPROACH, row2, NO_APPROACH, True), lambda: linkage(d, back, row2, row2, False),
+        lambda: linkage(d, row2, NO_APPROACH, True), lambda: linkage(m, row2, row2, True),
         lambda: angles_to_normal(d, row2), lambda: normal_to_angles(d, row3, 1e-12),
         lambda: aim_normal(piv, row3, aim, np.array([0.3]), AIM_ITERATIONS),
-        lambda: intersect_target(piv, row3, aim[0], frames[0]),
-        lambda: model_normal(d, back, row2, NO_APPROACH),
-        lambda: model_beam(d, piv, back, row2, row3, NO_APPROACH),
-        lambda: model_spot(d, piv, back, row2, row3, NO_APPROACH, aim, frames, which),
-        lambda: model_normal_to_strokes(d, back, row3, NO_APPROACH),
-        lambda: model_strokes_for_aim(d, piv, back, row3, aim, NO_APPROACH, AIM_ITERATIONS),
+        lambda: model_normal(m, row2, NO_APPROACH), lambda: model_beam(m, row2, row3, NO_APPROACH),
+        lambda: model_spot(m, row2, row3, NO_APPROACH, aim, frames, which),
+        lambda: model_normal_to_strokes(m, row3, NO_APPROACH),
+        lambda: model_strokes_for_aim(m, row3, aim, NO_APPROACH, AIM_ITERATIONS),
     )
     for call in calls:
         call()
-    return {"seconds": time.perf_counter() - t0, "kernels": len(calls)}
+    compiled = [k for k, v in globals().items()
+                if isinstance(v, numba.core.registry.CPUDispatcher) and v.signatures and not k.startswith("_")]
+    return {"seconds": time.perf_counter() - t0, "kernels": len(compiled)}
 
 
 if __name__ == "__main__":

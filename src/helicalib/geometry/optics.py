@@ -69,7 +69,7 @@ def _aim_normal_kernel(pivot_enu, sun_enu, aim_enu, mirror_offset_m, iterations:
     rows = [kernel_rows(a, 3, k) for a in ins]
     if any(r is None for r in rows) or not use_kernels(k) or (off.ndim == 1 and off.shape[0] not in (1, k)):
         return None
-    n = kernels().aim_normal(rows[0], rows[1], rows[2], off.reshape(-1), int(iterations))
+    n = kernels().aim_normal(rows[0], rows[1], rows[2], np.array(off, dtype=float).reshape(-1), int(iterations))
     return n if off.ndim == 1 or any(a.ndim == 2 for a in ins) else n[0]
 
 
