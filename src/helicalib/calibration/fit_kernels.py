@@ -413,3 +413,7 @@ def warm() -> float:
         solve(np.zeros(P), loss, 1.0, geo, strokes, approach, True, sun, spot, basis, np.zeros(P), np.zeros(P),
               free_idx, ones, np.ones(2 * k), np.zeros(0), 0.0, epoch, 1, ep_idx, np.ones(4), XTOL, FTOL, MAX_ITER)
     return time.perf_counter() - t0
+
+
+if __name__ == "__main__":  # an install's warm-up: python -m helicalib.calibration.fit_kernels
+    print(f"fit kernels ready in {warm():.1f} s")
