@@ -61,7 +61,9 @@ class SimulationOptions:
     ``operation`` or :data:`~helicalib.app.sim_figures.MONTH_DAYS` days and more): the plant's true
     tracking sampled every plant day, reported per 30 days (``monthly_plant_tracking_rms_mrad``);
     ``keep_frames``: every night delete the frames of all but each heliostat's newest N observations
-    and the rejected ones (as ``helicalib operate``; None: keep all).
+    and the rejected ones (as ``helicalib operate``; None: keep all); ``boards``: the targets whose
+    cameras the campaign may use (None: all; one group of a split simulation keeps its own, so no
+    board is lent across groups, :mod:`helicalib.app.split`).
 
     Over the network, ``protocol`` (``"modbus"`` or ``"opcua"``) is how the SCS is served and
     reached; ``register_map`` the Modbus map both sides speak (None: the field config's
@@ -88,6 +90,7 @@ class SimulationOptions:
     protocol: str = "modbus"
     register_map: str | None = None
     lockstep: bool = False
+    boards: tuple[str, ...] | None = None
 
 
 def simulate_campaign(cfg, out_dir: Path, options: SimulationOptions,
@@ -154,6 +157,8 @@ def _simulate(store, cfg, out_dir: Path, db_path: Path, o: SimulationOptions, pr
                 cameras = fast_sensors(sim, seed=seed)  # spot sensors: the runner uses them as they are
             else:
                 cameras = {t.id: SimCamera(sim, cfg.cameras_for(t.id)[0].id) for t in cfg.targets}
+        if o.boards is not None:
+            cameras = {tid: cam for tid, cam in cameras.items() if tid in set(o.boards)}
         if resumed is None:
             ids = o.heliostat_ids or [h.id for h in cfg.heliostats]
             campaign_id = store.start_campaign(

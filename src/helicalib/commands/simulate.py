@@ -1,14 +1,25 @@
-"""``helicalib simulate FIELD --days N --seed S --out DIR``: a whole campaign on the simulated plant."""
+"""``helicalib simulate FIELD --days N --seed S --out DIR``: a whole campaign on the simulated plant.
+
+With ``--workers N`` or ``--scheduler ADDR`` the campaign is split over a Dask cluster
+(:mod:`helicalib.app.split`; the cluster is :func:`helicalib.app.cluster.cluster_for`, the one
+``sweep`` uses): a line per group of boards as it ends, tasks done of all and the elapsed time
+while they run, then the merged summary as one run's. The exit status is then 1 when a group
+failed (the merged database holds the others; the summary's ``split.failed`` says which and why).
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from helicalib.commands._args import add_register_map, add_spots, float_in, iso_time, nonnegative_int, positive_float
+from helicalib.commands._args import (add_register_map, add_spots, float_in, int_in, iso_time, nonnegative_int,
+                                      positive_float)
+from helicalib.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -58,6 +69,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--report", action="store_true", help="also write the HTML report into OUT/report")
     add_spots(p)
+    p.add_argument("--workers", type=int_in(1, 4096), default=None, metavar="N",
+                   help="split the field into groups of boards run side by side on an embedded Dask cluster of N "
+                        "worker processes on 127.0.0.1, then merge them into one database (docs/simulator.md)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
+                   help="split the field over the workers of this existing Dask cluster instead")
+    p.add_argument("--groups", type=int_in(1, 100_000), default=None, metavar="K",
+                   help="with --workers/--scheduler: groups of boards (default: one per worker, at most one per board)")
     p.set_defaults(func=run)
 
 
@@ -100,19 +118,22 @@ def run(args) -> int:
 
     inputs = read_inputs(args)
     check(args.out, "simulate")
+    if args.workers or args.scheduler or args.groups:
+        check_split(args)
     if args.report:   # OUT/report is replaced after the campaign: a folder that may not be is refused now
         check(Path(args.out) / "report", "report", inputs=(args.field, args.scenario))
+    if args.workers or args.scheduler:
+        return run_split(args, inputs, prepare(args.out, "simulate"))
     return run_campaign(args, inputs, prepare(args.out, "simulate"))
 
 
 def run_campaign(args, inputs: Inputs, out: Path) -> int:
     """The campaign of ``args`` into ``out`` (checked and marked by the caller), then its summary and
     report."""
-    from helicalib.app.simulated import SimulationOptions, simulate_campaign
-    from helicalib.commands._progress import ProgressReporter, timed_step
-    from helicalib.outdir import prepare
+    from helicalib.app.simulated import simulate_campaign
+    from helicalib.commands._progress import ProgressReporter
 
-    cfg, scenario, start_s, ids = inputs.cfg, inputs.scenario, inputs.start_s, inputs.heliostat_ids
+    cfg = inputs.cfg
     with ProgressReporter("simulate", args.days * 86400.0, transient=args.json) as bar:
         state = {"t0": None}
 
@@ -122,38 +143,116 @@ def run_campaign(args, inputs: Inputs, out: Path) -> int:
             done = now_s - state["t0"]
             bar.update(done, lambda: _progress_text(done, args.days, out / "helicalib.db"))
 
-        options = SimulationOptions(args.days, seed=args.seed, scenario=scenario, start_s=start_s,
-                                    over_network=args.over_network, planner=args.planner, heliostat_ids=ids,
-                                    rate=args.rate, refine=args.refine, fidelity=args.fidelity, operation=args.operate,
-                                    rota_days=args.rota_days, keep_frames=args.keep_frames,
-                                    spots_per_board=args.spots_per_board, protocol=args.protocol,
-                                    register_map=args.register_map, lockstep=args.lockstep)
+        options = simulation_options(args, inputs)
         result = simulate_campaign(cfg, out, options, progress=progress)
-    (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
+    finish(args, result.summary, result.database, out)
+    return 0
+
+
+def finish(args, summary: dict, database: Path, out: Path) -> None:
+    """Write ``summary.json`` (and with ``--report`` the report of ``database``), then print the
+    summary: as JSON with ``--json``, else in a few lines."""
+    from helicalib.commands._progress import timed_step
+    from helicalib.outdir import prepare
+
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
     if args.report:
         from helicalib.report.build import build_report
 
         with timed_step("simulate", f"building the report in {out / 'report'}"):
-            build_report(result.database, prepare(out / "report", "report", replace=True))
+            build_report(database, prepare(out / "report", "report", replace=True))
     if args.json:
-        print(json.dumps(result.summary, indent=2))
-    else:
-        s = result.summary
-        print(f"{s['accepted']}/{s['heliostats']} heliostats accepted ({100 * s['acceptance_rate']:.0f} %) after "
-              f"{s['days']} days; {s['visits']} visits ({s['valid_visits']} valid), "
-              f"{s['visits_per_target_hour']} visits per target-hour")
-        print(f"first-shot RMS (last day) {s['first_shot_rms_mrad']} mrad; simulator truth: calibrated models "
-              f"{s['true_sky_rms_mrad']} mrad RMS over a year of sun, the plant's tracking {s['true_tracking_rms_mrad']} "
-              f"mrad (uncorrected {s['true_tracking_uncorrected_rms_mrad']}); gated {s['gated_hours']} h, "
-              f"stowed {s['stowed_hours']} h")
-        if s.get("monthly_plant_tracking_rms_mrad"):
-            print("the plant's true tracking per 30 days [mrad RMS]: "
-                  + ", ".join("-" if m is None else f"{m:.2f}" for m in s["monthly_plant_tracking_rms_mrad"]))
-        if args.operate:
-            print(f"operation: {s['checks']} checks; drift in {s['drifted']} heliostat(s), {s['drift_detected']} "
-                  f"detected ({s['drift_false_alarms']} false alarms), median {s['drift_median_days_to_fix']} days "
-                  f"to fix; board time after commissioning {s['board_time_share_after_commissioning']}")
-        print(f"written {out / 'summary.json'} and {result.database}")
+        print(json.dumps(summary, indent=2))
+        return
+    s = summary
+    print(f"{s['accepted']}/{s['heliostats']} heliostats accepted ({100 * s['acceptance_rate']:.0f} %) after "
+          f"{s['days']} days; {s['visits']} visits ({s['valid_visits']} valid), "
+          f"{s['visits_per_target_hour']} visits per target-hour")
+    print(f"first-shot RMS (last day) {s['first_shot_rms_mrad']} mrad; simulator truth: calibrated models "
+          f"{s['true_sky_rms_mrad']} mrad RMS over a year of sun, the plant's tracking {s['true_tracking_rms_mrad']} "
+          f"mrad (uncorrected {s['true_tracking_uncorrected_rms_mrad']}); gated {s['gated_hours']} h, "
+          f"stowed {s['stowed_hours']} h")
+    if s.get("monthly_plant_tracking_rms_mrad"):
+        print("the plant's true tracking per 30 days [mrad RMS]: "
+              + ", ".join("-" if m is None else f"{m:.2f}" for m in s["monthly_plant_tracking_rms_mrad"]))
+    if args.operate:
+        print(f"operation: {s['checks']} checks; drift in {s['drifted']} heliostat(s), {s['drift_detected']} "
+              f"detected ({s['drift_false_alarms']} false alarms), median {s['drift_median_days_to_fix']} days "
+              f"to fix; board time after commissioning {s['board_time_share_after_commissioning']}")
+    print(f"written {out / 'summary.json'} and {database}")
+
+
+def simulation_options(args, inputs: Inputs):
+    """The :class:`~helicalib.app.simulated.SimulationOptions` of ``args``."""
+    from helicalib.app.simulated import SimulationOptions
+
+    return SimulationOptions(args.days, seed=args.seed, scenario=inputs.scenario, start_s=inputs.start_s,
+                             over_network=args.over_network, planner=args.planner, heliostat_ids=inputs.heliostat_ids,
+                             rate=args.rate, refine=args.refine, fidelity=args.fidelity, operation=args.operate,
+                             rota_days=args.rota_days, keep_frames=args.keep_frames,
+                             spots_per_board=args.spots_per_board, protocol=args.protocol,
+                             register_map=args.register_map, lockstep=args.lockstep)
+
+
+# ---------------------------------------------------------------- split over a Dask cluster
+TASK_MODULE = "helicalib.app.split"
+"""The module a split's workers run (checked on every worker of ``--scheduler``)."""
+
+
+def check_split(args) -> None:
+    """Refuse options a split run cannot take, before any folder is touched."""
+    if args.workers and args.scheduler:
+        raise ConfigError("--workers sizes an embedded cluster; with --scheduler the cluster's own workers run")
+    if args.groups and not (args.workers or args.scheduler):
+        raise ConfigError("--groups splits the field over a cluster: add --workers N or --scheduler ADDR")
+    if args.over_network:
+        raise ConfigError("--over-network serves one plant on loopback; it cannot be split over --workers/--scheduler")
+    if (Path(args.out) / "helicalib.db").exists():
+        raise ConfigError(f"--out {args.out}: holds a database already; a split simulation does not resume "
+                          "(give a new or empty folder)")
+
+
+def run_split(args, inputs, out: Path) -> int:
+    """The split campaign of ``args`` into ``out`` (checked and marked by the caller)."""
+    from helicalib.app.cluster import cluster_for
+    from helicalib.app.split import simulate_split
+    from helicalib.commands._progress import ProgressReporter
+
+    workers = args.workers or len(os.sched_getaffinity(0))
+    options = simulation_options(args, inputs)
+    with ProgressReporter("simulate", None, transient=args.json) as bar, \
+            cluster_for(args.scheduler, workers, TASK_MODULE) as client:
+        n_groups = args.groups or (len(client.nthreads()) if args.scheduler else workers)
+        state = {"done": 0, "failed": 0, "total": 0}
+
+        def on_start(groups) -> None:
+            state["total"] = len(groups)
+            bar.note(f"simulate: {len(groups)} groups of boards ("
+                     + "; ".join(f"{', '.join(g.boards)}: {len(g.heliostats)} heliostats" for g in groups)
+                     + f") on {args.scheduler or f'{workers} local worker processes'}")
+            bar.update(0, f"0 of {len(groups)} groups done", total=len(groups))
+
+        def on_group(group, reason) -> None:
+            state["done"] += 1
+            if reason is not None:
+                state["failed"] += 1
+                bar.note(f"simulate: failed: {reason}")
+            failed = f", {state['failed']} failed" if state["failed"] else ""
+            bar.update(state["done"], f"{state['done']} of {state['total']} groups done{failed}")
+
+        result = simulate_split(inputs.cfg, args.field, out, options, client, n_groups,
+                                on_start=on_start, on_group=on_group)
+    if "accepted" in result.summary:
+        finish(args, result.summary, result.database, out)
+    else:  # no group finished: nothing to print but what is missing
+        (out / "summary.json").write_text(json.dumps(result.summary, indent=2))
+        if args.json:
+            print(json.dumps(result.summary, indent=2))
+    if result.failures:
+        print(f"simulate: {len(result.failures)} of {result.summary['split']['groups']} groups failed "
+              f"({result.summary['split']['missing_heliostats']} heliostats not simulated); their reasons are in "
+              f"{out / 'summary.json'} (split.failed), the tracebacks in {out / 'failed_groups.log'}", file=sys.stderr)
+        return 1
     return 0
 
 
