@@ -12,7 +12,7 @@ DEMO_OUT ?= demo_out
 # (apt-get, with sudo when not root); nothing is downloaded by selenium itself.
 SUDO    := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: demo test venv clean browser
+.PHONY: demo test venv clean browser warm
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -22,7 +22,11 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
-demo: $(STAMP)
+# the compiled kernels (numba, cached beside their source): compiled once here, not in a run or a test worker
+warm: $(STAMP)
+	$(BIN)/python -m helicalib.warm
+
+demo: $(STAMP) warm
 	$(BIN)/helicalib demo $(FIELD) --out $(DEMO_OUT)
 
 browser:
@@ -32,7 +36,7 @@ browser:
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium chromium-driver ffmpeg >/dev/null; \
 	fi
 
-test: $(STAMP) browser
+test: $(STAMP) browser warm
 	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 clean:
