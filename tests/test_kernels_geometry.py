@@ -193,20 +193,21 @@ def test_aim_normal_matches_numpy_in_every_shape(drawn, sun, offset):
         close(optics.aim_normal(*args), optics.aim_normal(*args, reference=True))
 
 
-def test_the_kernels_run_for_few_rows_and_numpy_for_many(monkeypatch):
+def test_the_kernels_run_below_max_rows_and_numpy_from_it(monkeypatch):
     calls = []
     real = kernels.model_strokes_for_aim
     monkeypatch.setattr(kernels, "model_strokes_for_aim", lambda *a: calls.append(len(a[0])) or real(*a))
     cfg = FIELDS[1]
-    big = HeliostatModel.from_config(cfg).repeat(kernels.MAX_ROWS // len(cfg.heliostats) + 1)
+    full = HeliostatModel.from_config(cfg)
     sun = sun_vector_from_angles(150.0, 40.0)
     aim = np.array(cfg.targets[0].center_enu_m)
-    one = big.subset([0])
-    _same_aim(one, sun, aim, None)
-    assert calls == [1]
-    big.strokes_for_aim(sun, aim)
-    assert calls == [1]  # MAX_ROWS rows or more: numpy's path
-    assert not dr.use_kernels(kernels.MAX_ROWS) and dr.use_kernels(1)
+    _same_aim(full.subset([0]), sun, aim, None)
+    _same_aim(full, sun, aim, None)
+    assert calls == [1, len(full)]
+    monkeypatch.setattr(kernels, "MAX_ROWS", len(full))
+    full.strokes_for_aim(sun, aim)
+    assert calls == [1, len(full)]  # MAX_ROWS rows or more: numpy's path
+    assert not dr.use_kernels(len(full)) and dr.use_kernels(1)
 
 
 def test_a_shape_the_kernels_do_not_take_goes_the_numpy_way():

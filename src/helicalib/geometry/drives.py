@@ -14,9 +14,10 @@ Every function comes with its inverse (``strokes_to_angles`` / ``angles_to_strok
 ``angles_to_normal`` / ``normal_to_angles``). Nothing is clipped: impossible strokes give NaN
 angles, angles outside the linkage give NaN strokes, unreachable normals are flagged.
 
-For fewer than ``kernels.MAX_ROWS`` heliostats these four run the compiled kernels of
-:mod:`helicalib.geometry.kernels` (the same maths without numpy's per-call cost on tiny arrays);
-``reference=True`` forces the numpy code, the reference the kernels are tested against.
+These four (and ``normal_to_angles``) run the compiled kernels of :mod:`helicalib.geometry.kernels`
+(the same maths without numpy's per-call cost on tiny arrays) below ``kernels.MAX_ROWS`` rows and
+for (2,) or (1 or N, k) inputs; ``reference=True`` forces the numpy code, the reference the kernels
+are tested against, which also takes every shape the kernels do not.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ def kernels() -> ModuleType:
 
 
 def use_kernels(n_rows: int) -> bool:
-    """Whether ``n_rows`` heliostats are few enough for the compiled kernels."""
+    """Whether ``n_rows`` heliostats go to the compiled kernels (below ``kernels.MAX_ROWS``)."""
     return 0 < n_rows < kernels().MAX_ROWS
 
 

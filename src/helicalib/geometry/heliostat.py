@@ -5,9 +5,9 @@ Inverse: sun + aim point → the normal (with the mirror offset) → axis angles
 exactly with the error model, so a model whose parameters equal a heliostat's true errors puts that
 heliostat's beam on the aim point.
 
-A model of fewer than ``kernels.MAX_ROWS`` heliostats (the controller's one-heliostat models) runs
-each method as one compiled kernel of :mod:`helicalib.geometry.kernels`; ``reference=True`` runs
-the numpy code, the reference those kernels are tested against and the path for large N.
+Each method runs as one compiled kernel of :mod:`helicalib.geometry.kernels` (below
+``kernels.MAX_ROWS`` heliostats, inputs of 1 or N rows); ``reference=True`` runs the numpy code,
+the reference those kernels are tested against, which also takes any other broadcasting.
 """
 
 from __future__ import annotations

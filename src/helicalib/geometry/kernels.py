@@ -4,8 +4,9 @@
 The numpy functions stay the reference (``reference=True`` on the wired functions, or the
 ``_np_*`` functions); these kernels follow them operation by operation (same conventions, same
 NaN and range semantics, same choice between the two gimbal solutions), so results agree to float
-rounding (tests hold them within 1e-9 rad and 1e-9 mm). Callers use them for few rows
-(:data:`MAX_ROWS`); above that numpy's vectorisation is as fast and stays in charge.
+rounding (tests hold them within 1e-9 rad and 1e-9 mm). Callers use them for every model size
+(:data:`MAX_ROWS`: they beat numpy's vectorisation at any N measured), numpy for shapes the kernels
+do not take (more than 2-D, or rows that need broadcasting).
 
 A drive enters as one packed float array, shape (N, :data:`PACKED_WIDTH`), one row per heliostat
 (:func:`pack`, cached as ``DriveArrays.packed``); the columns are the ``DriveArrays`` fields in the
@@ -37,8 +38,10 @@ _C_PIV, _C_BL = 24, 27
 MODEL_WIDTH = 29
 """Columns of a packed model: the packed drive, then the effective pivot (3) and backlash_1, _2 [mm]."""
 
-MAX_ROWS = 64
-"""Most rows for which callers use the kernels (numpy at or above it; bench_kernels.py measures it)."""
+MAX_ROWS = 1 << 40
+"""Callers use the kernels below this many rows, numpy at or above it. ``benchmarks/bench_kernels.py``
+found no crossover (the kernels 4× faster per heliostat than numpy at 65 536 rows for the aim, 2× for
+the normal, 15–140× on one heliostat), so the limit is no limit; it stays a knob for measurement."""
 
 NO_APPROACH = np.zeros((0, 2))
 """The ``approach`` argument meaning "no backlash shift" (numpy's ``approach=None``)."""

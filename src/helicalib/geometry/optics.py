@@ -5,8 +5,9 @@ sun; the reflected direction is ``r = 2 (s·n) n − s``; reflected rays leave t
 ``M = P + mirror_offset_m · n``; the normal that puts the beam on the aim point T solves the fixed
 point ``n = unit(s + unit(T − M(n)))``. All functions broadcast over leading dimensions ``(...)``.
 
-:func:`aim_normal` on a few rows runs the compiled kernel of :mod:`helicalib.geometry.kernels`
-(``reference=True``: the numpy code, the reference it is tested against).
+:func:`aim_normal` on (3,) or (K, 3) rows runs the compiled kernel of
+:mod:`helicalib.geometry.kernels` (``reference=True``, or other shapes: the numpy code, the
+reference it is tested against).
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def aim_normal(pivot_enu: np.ndarray, sun_enu: np.ndarray, aim_enu: np.ndarray, 
 
 
 def _aim_normal_kernel(pivot_enu, sun_enu, aim_enu, mirror_offset_m, iterations: int) -> np.ndarray | None:
-    """:func:`aim_normal` by the kernel for (3,) or (K, 3) rows (K few), else None (numpy's case)."""
+    """:func:`aim_normal` by the kernel for (3,) or (K, 3) rows, else None (numpy's case)."""
     off = np.asarray(mirror_offset_m, dtype=float)
     if off.ndim > 1:
         return None
