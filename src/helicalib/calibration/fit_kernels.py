@@ -50,15 +50,30 @@ def pack_drive(drives, pivot_enu) -> np.ndarray:
     """One heliostat's nominal drive (DriveArrays, N = 1) and pivot (3,) as the flat array (29,) the
     kernels read: a1, a2, n0, u (the canting-1 axis), w (the non-orthogonality axis), then ra, rb0,
     γ0, sign, ℓ0 per actuator, the mirror offset and the pivot."""
-    from helicalib.calibration.fit_solver import _unit_or
-    from helicalib.geometry.drives import cross3
+    geo = np.concatenate([drives.axis1_enu[0], drives.axis2_enu[0], drives.normal0_enu[0], np.zeros(6),
+                          drives.arm_fixed_m[0], drives.arm_moving_m[0], drives.gamma0_rad[0], drives.sign[0],
+                          drives.length_at_zero_m[0], drives.mirror_offset_m[:1], pivot_enu]).astype(float)
+    _fill_axes(geo)
+    return geo
 
-    a1, a2, n0 = drives.axis1_enu[0], drives.axis2_enu[0], drives.normal0_enu[0]
-    u = _unit_or(cross3(a2, n0), em.EAST)
-    w = _unit_or(cross3(a1, a2), em.UP)
-    return np.concatenate([a1, a2, n0, u, w, drives.arm_fixed_m[0], drives.arm_moving_m[0], drives.gamma0_rad[0],
-                           drives.sign[0], drives.length_at_zero_m[0], [float(drives.mirror_offset_m[0])],
-                           np.asarray(pivot_enu, dtype=float)]).astype(float)
+
+@numba.njit(cache=True, error_model="numpy")
+def _unit_or_into(x, y, z, fx, fy, fz, out):
+    norm = math.sqrt(x * x + y * y + z * z)
+    if norm > 1e-12:
+        out[0], out[1], out[2] = x / norm, y / norm, z / norm
+    else:
+        out[0], out[1], out[2] = fx, fy, fz
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _fill_axes(geo):
+    """u = unit(a2 × n0) (else east) and w = unit(a1 × a2) (else up) into ``geo`` (BeamJacobian's)."""
+    a1, a2, n0 = geo[0:3], geo[3:6], geo[6:9]
+    _unit_or_into(a2[1] * n0[2] - a2[2] * n0[1], a2[2] * n0[0] - a2[0] * n0[2], a2[0] * n0[1] - a2[1] * n0[0],
+                  1.0, 0.0, 0.0, geo[9:12])
+    _unit_or_into(a1[1] * a2[2] - a1[2] * a2[1], a1[2] * a2[0] - a1[0] * a2[2], a1[0] * a2[1] - a1[1] * a2[0],
+                  0.0, 0.0, 1.0, geo[12:15])
 
 
 # ---------------------------------------------------------------------------------- small algebra
@@ -83,23 +98,33 @@ def _mv(m, v):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _cross(a, b):
-    out = np.empty(3)
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-    return out
+def _rotate_into(axis, c, s, v, out):
+    """``v`` turned about unit ``axis`` by the angle of cosine c and sine s (``fit_solver._rotate_rows``),
+    written into ``out`` (3,) (not ``v`` itself)."""
+    d = axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2]
+    x = axis[1] * v[2] - axis[2] * v[1]
+    y = axis[2] * v[0] - axis[0] * v[2]
+    z = axis[0] * v[1] - axis[1] * v[0]
+    out[0] = v[0] * c + x * s + axis[0] * (d * (1.0 - c))
+    out[1] = v[1] * c + y * s + axis[1] * (d * (1.0 - c))
+    out[2] = v[2] * c + z * s + axis[2] * (d * (1.0 - c))
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _rotate(axis, c, s, v):
-    """``v`` turned about unit ``axis`` by the angle of cosine c and sine s (``_rotate_rows``)."""
-    cr = _cross(axis, v)
-    d = axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2]
-    out = np.empty(3)
-    for i in range(3):
-        out[i] = v[i] * c + cr[i] * s + axis[i] * (d * (1.0 - c))
-    return out
+def _triangle(p, geo, stroke, approach, has_approach, a):
+    """Actuator ``a``'s push-rod triangle at the held stroke: (length [m], moving arm [m], cos γ,
+    cos θ, sin θ); θ is NaN where the triangle cannot close (``drives.strokes_to_angles``)."""
+    so = p[SO1] if a == 0 else p[SO2]
+    arm = p[ARM1] if a == 0 else p[ARM2]
+    bl = p[BL1] if a == 0 else p[BL2]
+    ra, rb0, gamma0, sign, l0 = geo[15 + a], geo[17 + a], geo[19 + a], geo[21 + a], geo[23 + a]
+    st = stroke[a] + (-0.5 * bl * approach[a]) if has_approach else stroke[a]
+    length = (l0 + so / 1000.0) + st / 1000.0
+    rb = rb0 * (1.0 + arm)
+    cos_g = (ra * ra + rb * rb - length * length) / (2.0 * ra * rb)
+    ok = length > 0.0 and cos_g > -1.0 and cos_g < 1.0
+    theta = (math.acos(cos_g) - gamma0) / sign if ok else np.nan
+    return length, rb, cos_g, math.cos(theta), math.sin(theta)
 
 
 # ---------------------------------------------------------------------------------- forward beam
@@ -132,86 +157,83 @@ def _drive_pose(p, geo):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _observe(p, geo, pose, stroke, approach, has_approach, sun, spot, basis, want_jac, res, jac):
+def _observe(p, geo, pose, stroke, approach, has_approach, sun, spot, basis, want_jac, res, jac, work):
     """One observation's residual ``res`` (2,) [mrad] and, with ``want_jac``, its Jacobian ``jac``
-    (2, P) for parameter row ``p`` with its pose (:func:`_drive_pose`). A residual that is not finite
-    becomes NAN_RESIDUAL_MRAD with zero derivatives."""
-    ra = geo[15:17]
-    rb0, gamma0, sign, l0 = geo[17:19], geo[19:21], geo[21:23], geo[23:25]
+    (2, P) for parameter row ``p`` with its pose (:func:`_drive_pose`); ``work`` (17 + P, 3) scratch.
+    A residual that is not finite becomes NAN_RESIDUAL_MRAD with zero derivatives."""
     offset = geo[25]
-    so = (p[SO1], p[SO2])
-    arm = (p[ARM1], p[ARM2])
-    bl = (p[BL1], p[BL2])
-    length = np.empty(2)
-    rb = np.empty(2)
-    cos_g = np.empty(2)
-    c = np.empty(2)
-    s = np.empty(2)
-    for a in range(2):
-        st = stroke[a] + (-0.5 * bl[a] * approach[a]) if has_approach else stroke[a]
-        length[a] = (l0[a] + so[a] / 1000.0) + st / 1000.0
-        rb[a] = rb0[a] * (1.0 + arm[a])
-        cos_g[a] = (ra[a] * ra[a] + rb[a] * rb[a] - length[a] * length[a]) / (2.0 * ra[a] * rb[a])
-        ok = length[a] > 0.0 and cos_g[a] > -1.0 and cos_g[a] < 1.0
-        theta = (math.acos(cos_g[a]) - gamma0[a]) / sign[a] if ok else np.nan
-        c[a], s[a] = math.cos(theta), math.sin(theta)
+    # the push-rod triangles: (ℓ, rb, cos γ, cos θ, sin θ) per actuator
+    l_1, rb_1, cg_1, c_1, s_1 = _triangle(p, geo, stroke, approach, has_approach, 0)
+    l_2, rb_2, cg_2, c_2, s_2 = _triangle(p, geo, stroke, approach, has_approach, 1)
     a1e, a2e = pose[0], pose[1]
-    m0 = _rotate(a2e, c[1], s[1], pose[2])
-    m1 = _rotate(a2e, c[1], s[1], pose[3])
-    n = _rotate(a1e, c[0], s[0], m0)
+    m0, m1, n = work[14 + P], work[15 + P], work[16 + P]
+    _rotate_into(a2e, c_2, s_2, pose[2], m0)
+    _rotate_into(a2e, c_2, s_2, pose[3], m1)
+    _rotate_into(a1e, c_1, s_1, m0, n)
     pivot = pose[8]
-    mc = pivot + offset * n
-    to_spot = spot - mc
-    dist = math.sqrt(to_spot[0] * to_spot[0] + to_spot[1] * to_spot[1] + to_spot[2] * to_spot[2])
-    e = to_spot / dist
+    t0 = spot[0] - (pivot[0] + offset * n[0])
+    t1 = spot[1] - (pivot[1] + offset * n[1])
+    t2 = spot[2] - (pivot[2] + offset * n[2])
+    dist = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    e0, e1, e2 = t0 / dist, t1 / dist, t2 / dist
     sn = sun[0] * n[0] + sun[1] * n[1] + sun[2] * n[2]
-    diff = (2.0 * sn * n - sun) - e
-    bad = np.zeros(2, dtype=np.bool_)
+    f0 = (2.0 * sn * n[0] - sun[0]) - e0
+    f1 = (2.0 * sn * n[1] - sun[1]) - e1
+    f2 = (2.0 * sn * n[2] - sun[2]) - e2
+    bad0 = bad1 = False
     for i in range(2):
-        v = 1000.0 * (basis[i, 0] * diff[0] + basis[i, 1] * diff[1] + basis[i, 2] * diff[2])
-        if math.isfinite(v):
-            res[i] = v
+        v = 1000.0 * (basis[i, 0] * f0 + basis[i, 1] * f1 + basis[i, 2] * f2)
+        ok = math.isfinite(v)
+        res[i] = v if ok else NAN_RESIDUAL_MRAD
+        if i == 0:
+            bad0 = not ok
         else:
-            res[i] = NAN_RESIDUAL_MRAD
-            bad[i] = True
+            bad1 = not ok
     if not want_jac:
         return
-    # δn = Ω × n for the axes Ω carried to the observation's pose
-    omega = np.empty((7, 3))
+    # δn = Ω × n for the axes Ω carried to the observation's pose (scalar loops: no temporaries)
+    omega, t, dn = work[0:7], work[7:14], work[14:14 + P]
     omega[0] = a1e
-    omega[1] = _rotate(a1e, c[0], s[0], a2e)
+    _rotate_into(a1e, c_1, s_1, a2e, omega[1])
     omega[2], omega[3], omega[4] = pose[5], pose[6], pose[7]
-    omega[5] = _rotate(a1e, c[0], s[0], pose[4])
-    omega[6] = _rotate(a1e, c[0], s[0], m1)
-    t = np.empty((7, 3))
+    _rotate_into(a1e, c_1, s_1, pose[4], omega[5])
+    _rotate_into(a1e, c_1, s_1, m1, omega[6])
     for r in range(7):
-        t[r] = _cross(omega[r], n)
-    dn = np.zeros((P, 3))
+        t[r, 0] = omega[r, 1] * n[2] - omega[r, 2] * n[1]
+        t[r, 1] = omega[r, 2] * n[0] - omega[r, 0] * n[2]
+        t[r, 2] = omega[r, 0] * n[1] - omega[r, 1] * n[0]
+    dn[:] = 0.0
     for a in range(2):
-        sin_g = math.sqrt(max(1.0 - cos_g[a] * cos_g[a], 0.0))
-        dth_dl = length[a] / (ra[a] * rb[a] * sin_g * sign[a])
-        dth_drb = -(rb[a] * rb[a] - ra[a] * ra[a] + length[a] * length[a]) / (2.0 * ra[a] * rb[a] * rb[a] * sin_g * sign[a])
+        length, rb, cos_g = (l_1, rb_1, cg_1) if a == 0 else (l_2, rb_2, cg_2)
+        ra, sign = geo[15 + a], geo[21 + a]
+        sin_g = math.sqrt(max(1.0 - cos_g * cos_g, 0.0))
+        dth_dl = length / (ra * rb * sin_g * sign)
+        dth_drb = -(rb * rb - ra * ra + length * length) / (2.0 * ra * rb * rb * sin_g * sign)
         cols = (SO1, ARM1, BL1) if a == 0 else (SO2, ARM2, BL2)
-        coef = (dth_dl * 1e-3, dth_drb * rb0[a], dth_dl * (-0.5e-3 * approach[a]))
+        coef = (dth_dl * 1e-3, dth_drb * geo[17 + a], dth_dl * (-0.5e-3 * approach[a]))
         for j in range(3):
-            dn[cols[j]] = coef[j] * t[a]
-    dn[CAN2] = 1e-3 * t[1]
-    rot = (TE, TN, YAW, NONORTH, CAN1)
-    for j in range(5):
-        dn[rot[j]] = 1e-3 * t[2 + j]
+            for x in range(3):
+                dn[cols[j], x] = coef[j] * t[a, x]
+    rot = (CAN2, TE, TN, YAW, NONORTH, CAN1)
+    for j in range(6):
+        for x in range(3):
+            dn[rot[j], x] = 1e-3 * t[1 + j, x]
     for q in range(P):
         sdn = sun[0] * dn[q, 0] + sun[1] * dn[q, 1] + sun[2] * dn[q, 2]
-        dm = offset * dn[q]
+        d0, d1, d2 = offset * dn[q, 0], offset * dn[q, 1], offset * dn[q, 2]  # δM
         if q == PIV_E:
-            dm[0] += 1.0
+            d0 += 1.0
         elif q == PIV_N:
-            dm[1] += 1.0
+            d1 += 1.0
         elif q == PIV_U:
-            dm[2] += 1.0
-        edm = e[0] * dm[0] + e[1] * dm[1] + e[2] * dm[2]
-        dd = 2.0 * sdn * n + 2.0 * sn * dn[q] + (dm - edm * e) / dist
+            d2 += 1.0
+        edm = e0 * d0 + e1 * d1 + e2 * d2
+        dd0 = 2.0 * sdn * n[0] + 2.0 * sn * dn[q, 0] + (d0 - edm * e0) / dist
+        dd1 = 2.0 * sdn * n[1] + 2.0 * sn * dn[q, 1] + (d1 - edm * e1) / dist
+        dd2 = 2.0 * sdn * n[2] + 2.0 * sn * dn[q, 2] + (d2 - edm * e2) / dist
         for i in range(2):
-            jac[i, q] = 0.0 if bad[i] else 1000.0 * (basis[i, 0] * dd[0] + basis[i, 1] * dd[1] + basis[i, 2] * dd[2])
+            bad = bad0 if i == 0 else bad1
+            jac[i, q] = 0.0 if bad else 1000.0 * (basis[i, 0] * dd0 + basis[i, 1] * dd1 + basis[i, 2] * dd2)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -222,9 +244,10 @@ def beam_residuals(p, geo, strokes, approach, has_approach, sun, spot, basis, wa
     res = np.empty((k, 2))
     jac = np.zeros((k, 2, P))
     pose = _drive_pose(p, geo)
+    work = np.empty((17 + P, 3))
     for i in range(k):
         _observe(p, geo, pose, strokes[i], approach[i], has_approach, sun[i], spot[i], basis[i], want_jac,
-                 res[i], jac[i])
+                 res[i], jac[i], work)
     return res, jac
 
 
@@ -247,6 +270,7 @@ def fun_jac(x, geo, strokes, approach, has_approach, sun, spot, basis, base, cen
         p[free_idx[j]] = centre[free_idx[j]] + x[j] * sig_prior[j]
     res = np.empty((k, 2))
     jac = np.zeros((k, 2, P))
+    work = np.empty((17 + P, 3))
     for g in range(n_groups):
         pe = p.copy()
         if g > 0:
@@ -256,7 +280,7 @@ def fun_jac(x, geo, strokes, approach, has_approach, sun, spot, basis, base, cen
         for i in range(k):
             if epoch[i] == g:
                 _observe(pe, geo, pose, strokes[i], approach[i], has_approach, sun[i], spot[i], basis[i], True,
-                         res[i], jac[i])
+                         res[i], jac[i], work)
     rows = 2 * k + n_x
     r = np.zeros(rows)
     jj = np.zeros((rows, n_x))
@@ -396,7 +420,8 @@ def warm() -> float:
     t0 = time.perf_counter()
     k = 3
     geo = np.zeros(GEO_SIZE)
-    geo[0:3], geo[3:6], geo[6:9], geo[9:12], geo[12:15] = [0, 0, 1], [1, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 1]
+    geo[0:3], geo[3:6], geo[6:9] = [0, 0, 1], [1, 0, 0], [0, 1, 0]
+    _fill_axes(geo)
     geo[15:25] = [0.3, 0.3, 0.5, 0.5, 1.0, 1.0, 1.0, 1.0, 0.6, 0.6]
     geo[25] = 0.1
     strokes = np.full((k, 2), 10.0)
