@@ -40,7 +40,6 @@ import numpy as np
 from scipy.special import ndtr
 
 from helicalib.devices.protocols import Before, Reading
-from helicalib.devices.registers import HeliostatState
 from helicalib.sim.camera import spot_geometry, stopped_before
 from helicalib.vision.spot import SATURATED_LEVEL, SpotLimits
 
@@ -232,13 +231,12 @@ class FastSensor:
         board stops first. (Resting beams are on their own boards, at standby points kept off
         other boards by ``validate``, or on the receiver.)"""
         p = self.plant
-        rows = np.flatnonzero(p.state == int(HeliostatState.MOVING))
+        rows = p.moving_rows()
         rows = rows[rows != int(index)]
         if not rows.size:
             return ()
         sun, _ = p.sun(t_s)
-        beams = p.truth.beam(p.strokes_mm, sun, t_s, float(p.weather_model.wind_ms(t_s)), p.approach,
-                             p.stroke_noise_mm, True, rows=rows)
+        beams = p.true_beams_of(rows, t_s)
         uv, power, width, sigma, near = spot_geometry(
             self.target, self.optics, beams.origin_enu, beams.direction_enu, sun, beams.normal_enu,
             p.nominal.drives.mirror_size_m[rows], float(p.weather().dni_wm2), p.cleanliness_many(rows))

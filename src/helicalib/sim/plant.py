@@ -6,6 +6,10 @@ STOWED); stroke commands outside the range are refused (FAULT, code 1); during a
 stow every command but stow is refused (code 2); unknown commands give code 3 (state unchanged);
 offline heliostats never answer. Tracking = the *nominal* model's strokes for the aim point plus
 the written corrections. Nothing reads the wall clock: plant time moves by :meth:`advance_to`.
+
+Two motions, one behaviour: ``SimulatedPlant(..., lazy=True)`` (the default) is the closed-form
+:class:`~helicalib.sim.lazy_plant.LazyPlant`, whose heliostats are computed when read; ``lazy=False``
+is this module's reference, which steps every heliostat at every clock advance (≤ ``MAX_STEP_S``).
 """
 
 from __future__ import annotations
@@ -13,7 +17,13 @@ from __future__ import annotations
 import numpy as np
 
 from helicalib.devices.protocols import HeliostatStatus, Weather
-from helicalib.devices.registers import FaultCode, FieldCommand, FieldState, HeliostatCommand, HeliostatState
+from helicalib.devices.registers import (
+    FaultCode,
+    FieldCommand,
+    FieldState,
+    HeliostatCommand,
+    HeliostatState,
+)
 from helicalib.geometry.drives import strokes_in_range
 from helicalib.geometry.sun import SunTable
 from helicalib.sim.scenario import Scenario
@@ -47,10 +57,20 @@ class SimulatedPlant:
         Plant time rate reported at registers 12-13 (1.0 in-process; the server sets its own).
     zero_errors : bool
         A perfect field (no hidden errors or unmodelled effects) — for checks of the nominal model.
+    lazy : bool
+        True (default): a :class:`~helicalib.sim.lazy_plant.LazyPlant` (heliostats in closed form,
+        computed when read); False: this stepped reference.
     """
 
+    def __new__(cls, *args, lazy: bool = True, **kwargs):
+        if cls is SimulatedPlant and lazy:
+            from helicalib.sim.lazy_plant import LazyPlant
+
+            return super().__new__(LazyPlant)
+        return super().__new__(cls)
+
     def __init__(self, cfg, scenario: Scenario | None = None, start_s: float = 0.0, rate: float = 1.0,
-                 zero_errors: bool = False):
+                 zero_errors: bool = False, lazy: bool = True):
         self.cfg = cfg
         self.scenario = scenario or Scenario()
         self.rate = float(rate)
@@ -79,14 +99,11 @@ class SimulatedPlant:
         self.reg_strokes_cmd = np.zeros((n, 2))
         self.reg_corrections = np.zeros((n, 2))
         # state
-        self.state = np.full(n, int(S.TRACKING), dtype=np.int64)
         self.mode = np.full(n, MODE_TRACK, dtype=np.int64)
         self.sequence_done = np.zeros(n, dtype=np.int64)
         self.fault = np.zeros(n, dtype=np.int64)
         self.corrections_mm = np.zeros((n, 2))
         self.goal_cmd_mm = np.zeros((n, 2))
-        self.arrival_s = np.full(n, -np.inf)
-        self.approach = np.ones((n, 2))
         self.command_count = np.zeros(n, dtype=np.int64)
         self.stroke_noise_mm = np.zeros((n, 2))
         self.field_stow = False
@@ -98,9 +115,16 @@ class SimulatedPlant:
         self._cleanliness_cache: tuple[float, int, np.ndarray] | None = None
         self._weather_cache: tuple[float, Weather] | None = None
         self._drange = (d.stroke_min_mm, d.stroke_max_mm)
+        self._init_motion()
+        self.mode[self.offline] = MODE_IDLE
+
+    def _init_motion(self) -> None:
+        """Every heliostat tracking from the start (offline ones still, where tracking put them)."""
+        self.state = np.full(self.n, int(S.TRACKING), dtype=np.int64)
+        self.arrival_s = np.full(self.n, -np.inf)
+        self.approach = np.ones((self.n, 2))
         self.strokes_mm = self._goal(self.t_s)
         self.state[self.offline] = int(S.OFFLINE)
-        self.mode[self.offline] = MODE_IDLE
 
     # -- helpers ---------------------------------------------------------------------------
     def _stow_strokes(self) -> np.ndarray:
@@ -308,8 +332,7 @@ class SimulatedPlant:
             ok = bool(np.all(strokes_in_range(self.nominal.drives.take([i]), s[None, :])))
             if not ok:
                 self.fault[i] = FaultCode.STROKE_OUT_OF_RANGE
-                self.state[i] = int(S.FAULT)
-                self.mode[i] = MODE_IDLE
+                self._halt(i)
                 return
             self.goal_cmd_mm[i] = s
             self.fault[i] = FaultCode.NONE
@@ -321,6 +344,11 @@ class SimulatedPlant:
         else:
             self.fault[i] = FaultCode.NONE
             self._start(sel, MODE_STOW)
+
+    def _halt(self, i: int) -> None:
+        """Heliostat ``i`` stops where it is, in FAULT (a refused stroke command)."""
+        self.state[i] = int(S.FAULT)
+        self.mode[i] = MODE_IDLE
 
     def _next_sequence(self, index: int) -> int:
         return (int(self.reg_sequence[index]) + 1) & 0xFFFF
@@ -421,11 +449,19 @@ class SimulatedPlant:
     def true_beam_of(self, index: int, t_s: float | None = None, jitter: bool = True) -> TrueBeam:
         """The true beam of one heliostat (arrays of one row): what :meth:`true_beams` gives for its
         row, at the cost of one heliostat (a field of 10⁴ is not recomputed per measurement)."""
+        return self.true_beams_of(np.array([int(index)]), t_s, jitter)
+
+    def true_beams_of(self, rows: np.ndarray, t_s: float | None = None, jitter: bool = True) -> TrueBeam:
+        """The true beams of heliostats ``rows`` (k,): :meth:`true_beams`' rows, for the cost of k."""
         t = self.t_s if t_s is None else float(t_s)
         sun, _ = self.sun(t)
         wind = float(self.weather_model.wind_ms(t))
         return self.truth.beam(self.strokes_mm, sun, t, wind, self.approach, self.stroke_noise_mm, jitter,
-                               rows=np.array([int(index)]))
+                               rows=np.asarray(rows, dtype=np.int64))
+
+    def moving_rows(self) -> np.ndarray:
+        """Indices (ascending) of the heliostats MOVING now."""
+        return np.flatnonzero(self.state == S.MOVING)
 
     def true_tracking_error_mrad(self, aim_enu: np.ndarray | None = None, jitter: bool = False) -> np.ndarray:
         """True tracking error (N,) [mrad] against ``aim_enu`` (N, 3) (default each target's centre),

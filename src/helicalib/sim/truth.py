@@ -214,11 +214,21 @@ class TrueField:
             full call's rows, for the cost of k heliostats, not N.
         """
         sel = np.arange(self.n) if rows is None else np.asarray(rows, dtype=int)
-        s = np.asarray(strokes_mm, dtype=float)[sel]
+        return self.beam_of_rows(None if rows is None else sel, np.asarray(strokes_mm, dtype=float)[sel], sun_enu,
+                                 t_s, wind_ms, None if approach is None else np.asarray(approach)[sel],
+                                 None if stroke_noise_mm is None else np.asarray(stroke_noise_mm)[sel], jitter)
+
+    def beam_of_rows(self, rows: np.ndarray | None, strokes_mm: np.ndarray, sun_enu: np.ndarray, t_s: float,
+                     wind_ms: float = 0.0, approach: np.ndarray | None = None,
+                     stroke_noise_mm: np.ndarray | None = None, jitter: bool = True) -> TrueBeam:
+        """:meth:`beam` of the heliostats ``rows`` (k,) (None: all N) from their own rows (k, 2) of
+        strokes, approach and repeatability error: the same beams, without field-sized arguments."""
+        sel = np.arange(self.n) if rows is None else np.asarray(rows, dtype=int)
+        s = np.asarray(strokes_mm, dtype=float)
         if approach is not None:
-            s = s - 0.5 * self.backlash_mm[sel] * np.sign(np.asarray(approach)[sel])
+            s = s - 0.5 * self.backlash_mm[sel] * np.sign(np.asarray(approach))
         if stroke_noise_mm is not None:
-            s = s + np.asarray(stroke_noise_mm)[sel]
+            s = s + np.asarray(stroke_noise_mm)
         model = self.model_at(t_s) if rows is None else self.model_at(t_s).subset(sel)
         n = model.normal(s)
         # gravity sag: tilt the normal down toward the horizon by sag · sin(zenith of the normal)
