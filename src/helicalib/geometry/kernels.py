@@ -18,7 +18,9 @@ writable and C-contiguous (:func:`rows2`), so each kernel has one compiled signa
 :func:`warm` compiles.
 
 Compiled with ``cache=True``: the machine code lands in ``__pycache__`` on first use; :func:`warm`
-compiles every kernel once (at install time), so no run pays the compile.
+compiles every kernel once (at install time), so no run pays the compile. The helpers live in this
+one file on purpose: numba's cache checks only the calling function's own source file, so a helper
+edited in another module would leave stale machine code behind.
 """
 
 from __future__ import annotations
