@@ -6,8 +6,8 @@ its share, so neighbouring boards stay together. A board is never lent across gr
 campaign sees only its own boards' cameras). :func:`run_group` is one group's campaign, a plain
 function of picklable arguments that a remote worker runs: the SAME simulated plant (the whole
 field's, built from the field file, so every heliostat keeps its row and its row's seeds: its
-hidden truth, noise and drift are those of the unsplit run), the same weather, start and clock,
-with the campaign restricted to the group's heliostats and boards, into its own folder.
+hidden truth, jitter, soiling and drift are those of the unsplit run), the same weather, start
+and clock, with the campaign restricted to the group's heliostats and boards, into its own folder.
 :func:`simulate_split` submits the groups, reports each as it ends, merges the finished ones into
 one campaign of one database (:mod:`helicalib.store.merge`) and one summary
 (:mod:`.split_summary`); a group that failed is named with its reason in the summary and the
