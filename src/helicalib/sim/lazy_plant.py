@@ -16,7 +16,8 @@ beams, the sensors' truth, the whole-field arrays):
 * approach: the sign of the motion over the last clock step (as stepping sets it), else of the
   net motion since the base, else the base's.
 
-Reading a heliostat re-bases it at the read time (an exact restart of the same motion). Nothing
+Reading a heliostat re-bases it at the read time (an exact restart of the same motion; one at
+rest, holding, stowed, faulted or offline, is left as it is: nothing about it changes). Nothing
 is done per clock advance but the field-wide checks, O(1) each: the wind stow, and the sun
 crossing the horizon (the tracking goal jumps to the stow strokes and back), where the tracking
 heliostats are re-based once, vectorised, at the start of that clock step. The whole-field
@@ -47,6 +48,9 @@ _MOVED_MM = 1e-9
 """A motion below this does not change the approach (as the stepped plant's)."""
 _ARRIVED_MM = 1e-6
 """Arrived: every actuator this close to its goal (as the stepped plant's)."""
+_AT_REST = frozenset(int(x) for x in (S.HOLDING, S.STOWED, S.FAULT, S.OFFLINE, S.IDLE))
+"""States that stay until the next command unless tracking (strokes, state and approach unchanged)."""
+_AT_REST_ARRAY = np.array(sorted(_AT_REST), dtype=np.int64)
 
 
 class _WatchedMask(np.ndarray):
@@ -178,10 +182,16 @@ class LazyPlant(SimulatedPlant):
         return pos, state, approach, arrival
 
     def _sync(self, rows: np.ndarray) -> None:
-        """Re-base ``rows`` (distinct indices) at plant time now."""
-        rows = rows[self._base_t[rows] < self.t_s]
-        if not rows.size:
-            return
+        """Re-base ``rows`` (distinct indices) at plant time now (a row at rest stays as it is)."""
+        if rows.size == 1:  # one heliostat (a status, a measured beam): decided without arrays
+            i = int(rows[0])
+            if self._base_t[i] >= self.t_s or (self.mode[i] != MODE_TRACK and int(self._base_state[i]) in _AT_REST):
+                return
+        else:
+            rows = rows[(self._base_t[rows] < self.t_s)
+                        & ((self.mode[rows] == MODE_TRACK) | ~np.isin(self._base_state[rows], _AT_REST_ARRAY))]
+            if not rows.size:
+                return
         pos, state, approach, arrival = self._eval(rows)
         self._base_t[rows] = self.t_s
         self._base_mm[rows] = pos
@@ -215,6 +225,7 @@ class LazyPlant(SimulatedPlant):
     def _start(self, sel: np.ndarray, mode: int) -> None:
         idx = np.flatnonzero(sel) if np.asarray(sel).dtype == bool else np.asarray(sel, dtype=np.int64)
         self._sync(idx)
+        self._base_t[idx] = self.t_s
         self.mode[idx] = mode
         self._base_state[idx] = int(S.MOVING)
         self._arrival[idx] = np.nan
@@ -241,6 +252,7 @@ class LazyPlant(SimulatedPlant):
 
     def _halt(self, i: int) -> None:
         self._sync(np.array([i]))
+        self._base_t[i] = self.t_s
         self._base_state[i] = int(S.FAULT)
         self.mode[i] = MODE_IDLE
         self._pending.discard(int(i))
@@ -273,7 +285,7 @@ class LazyPlant(SimulatedPlant):
 
     def true_beams_of(self, rows: np.ndarray, t_s: float | None = None, jitter: bool = True) -> TrueBeam:
         rows = np.asarray(rows, dtype=np.int64).reshape(-1)
-        self._sync(np.unique(rows))
+        self._sync(rows if rows.size == 1 else np.unique(rows))
         t = self.t_s if t_s is None else float(t_s)
         sun, _ = self.sun(t)
         wind = float(self.weather_model.wind_ms(t))

@@ -16,23 +16,44 @@ _M2 = np.uint64(0x94D049BB133111EB)
 _TWO53 = float(2**53)
 
 
+_S30, _S27, _S31 = np.uint64(30), np.uint64(27), np.uint64(31)
+_add, _mul, _xor, _shr = np.add, np.multiply, np.bitwise_xor, np.right_shift
+
+
 def _mix(x: np.ndarray) -> np.ndarray:
-    """splitmix64 finaliser on uint64 arrays (wrapping arithmetic)."""
-    with np.errstate(over="ignore"):
-        z = x + _GOLDEN
-        z = (z ^ (z >> np.uint64(30))) * _M1
-        z = (z ^ (z >> np.uint64(27))) * _M2
-        return z ^ (z >> np.uint64(31))
+    """splitmix64 finaliser on uint64 arrays (wrapping arithmetic). Written as ufunc calls: they
+    wrap silently on numpy scalars too, so no ``errstate`` is entered per call (the same bits)."""
+    z = _add(x, _GOLDEN)
+    z = _mul(_xor(z, _shr(z, _S30)), _M1)
+    z = _mul(_xor(z, _shr(z, _S27)), _M2)
+    return _xor(z, _shr(z, _S31))
+
+
+_HEADS: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _head(seed: int, stream: int) -> np.ndarray:
+    """The mixed (seed, stream) that every hash of the stream starts from (remembered)."""
+    key = (seed, stream)
+    h = _HEADS.get(key)
+    if h is None:
+        if len(_HEADS) >= 1024:
+            _HEADS.clear()
+        h = _HEADS[key] = np.asarray(
+            _mix(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) ^ (np.uint64(stream & 0xFFFFFFFF) << np.uint64(32))),
+            dtype=np.uint64)
+    return h
 
 
 def hash_keys(seed: int, stream: int, *keys) -> np.ndarray:
     """uint64 hash of (seed, stream, keys...) broadcast over the key arrays."""
-    h = _mix(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) ^ (np.uint64(stream & 0xFFFFFFFF) << np.uint64(32)))
-    h = np.asarray(h, dtype=np.uint64)
+    h = _head(int(seed), int(stream))
+    if not keys:
+        return h.copy()
     for k in keys:
-        k = np.asarray(k).astype(np.int64).view(np.uint64) if np.asarray(k).dtype.kind == "i" \
-            else np.asarray(k, dtype=np.uint64)
-        h = _mix(h ^ _mix(k))
+        a = np.asarray(k)
+        a = a.astype(np.int64).view(np.uint64) if a.dtype.kind == "i" else np.asarray(a, dtype=np.uint64)
+        h = _mix(_xor(h, _mix(a)))
     return h
 
 

@@ -34,12 +34,20 @@ _S_EV_WHO, _S_EV_KIND, _S_EV_TIME, _S_EV_SIZE, _S_EV_DIR = 37, 38, 39, 40, 41
 DAY_S = 86400.0
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of 3-vectors (broadcast), with its very operations (the same bits), without
+    its per-call overhead (a measured heliostat is one row)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (N, 3) perpendicular to the unit normals ``n`` (N, 3) and to each other."""
-    t1 = np.cross(UP, n)
+    t1 = _cross(UP, n)
     norm = np.linalg.norm(t1, axis=-1, keepdims=True)
     t1 = np.where(norm > 1e-9, t1 / np.where(norm > 1e-9, norm, 1.0), np.array([1.0, 0.0, 0.0]))
-    return t1, np.cross(n, t1)
+    return t1, _cross(n, t1)
 
 
 @dataclass(frozen=True)
@@ -158,6 +166,7 @@ class TrueField:
             for name, value in e.delta.items():
                 self._ev_delta[i, em.index(name)] = value
         self._cache: tuple[tuple[int, int], HeliostatModel] | None = None
+        self._row_models: dict[int, HeliostatModel] = {}
 
     # -- hidden parameters -----------------------------------------------------------------
     def params_at(self, t_s: float) -> np.ndarray:
@@ -186,7 +195,19 @@ class TrueField:
             if late.any():
                 np.add.at(p, self._ev_rows[late], self._ev_delta[late])
             self._cache = ((hour, steps), self.nominal.with_params(p))
+            self._row_models.clear()
         return self._cache[1]
+
+    def _model_of_row(self, t_s: float, row: int) -> HeliostatModel:
+        """``model_at(t_s).subset([row])``, kept while that model holds (a visit reads its
+        heliostat many times within the plant hour)."""
+        model = self.model_at(t_s)
+        hit = self._row_models.get(row)
+        if hit is None:
+            if len(self._row_models) >= 256:
+                self._row_models.clear()
+            hit = self._row_models[row] = model.subset(np.array([row]))
+        return hit
 
     def repeat_noise_mm(self, command_count: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
         """Stroke repeatability error (k, 2) [mm] of the given command number of each heliostat."""
@@ -229,7 +250,12 @@ class TrueField:
             s = s - 0.5 * self.backlash_mm[sel] * np.sign(np.asarray(approach))
         if stroke_noise_mm is not None:
             s = s + np.asarray(stroke_noise_mm)
-        model = self.model_at(t_s) if rows is None else self.model_at(t_s).subset(sel)
+        if rows is None:
+            model = self.model_at(t_s)
+        elif sel.size == 1:
+            model = self._model_of_row(t_s, int(sel[0]))
+        else:
+            model = self.model_at(t_s).subset(sel)
         n = model.normal(s)
         # gravity sag: tilt the normal down toward the horizon by sag · sin(zenith of the normal)
         up_t = UP - n[:, 2:3] * n
