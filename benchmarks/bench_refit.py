@@ -6,7 +6,8 @@ cycled, still real observations of one heliostat), the refit the campaign runs a
 (``verdict.refit``: soft_l1, warm start from the fit without that point, no suggestions) is timed
 ``--calls`` times per solver: ``reference`` (``least_squares``), ``fast`` (the Gauss-Newton in numpy,
 ``solver="numpy"``) and ``compiled`` (the same in numba, the default; compiled before timing);
-reported: median and 90th percentile [ms], solver evaluations, and the largest differences of
+reported: median and 90th percentile [ms] of the wall time, the mean CPU time [ms] (steadier on a
+shared machine), solver evaluations, and the largest differences of
 the reference and fast solvers' beams (sky grid) and parameters, and of the fast and compiled ones.
 
 Run: ``.venv/bin/python benchmarks/bench_refit.py [--calls 200]``; writes
@@ -73,6 +74,7 @@ def main() -> None:
         models = {}
         for method, (kind, solver) in SOLVERS.items():
             times, nfev = [], []
+            cpu0 = time.process_time()
             for _ in range(args.calls):
                 t0 = time.perf_counter()
                 model, fit = verdict.refit(nominal, points, start, method=kind, solver=solver)
@@ -81,6 +83,7 @@ def main() -> None:
             models[method] = (model, fit)
             result[method] = {"median_ms": round(1000 * float(np.median(times)), 3),
                               "p90_ms": round(1000 * float(np.percentile(times, 90)), 3),
+                              "cpu_ms": round(1000 * (time.process_time() - cpu0) / args.calls, 3),
                               "evaluations": int(np.median(nfev))}
         (ma, fa), (mb, fb), (mc, fc) = models["reference"], models["fast"], models["compiled"]
         result["compiled_speed_up"] = round(result["fast"]["median_ms"] / result["compiled"]["median_ms"], 1)
@@ -93,7 +96,7 @@ def main() -> None:
         result["max_param_difference_prior_sigma"] = float(f"{np.max(np.abs(fa.params - fb.params) / em.PRIOR_SIGMA):.3g}")
         result["max_sigma_rel_difference"] = float(f"{np.max(np.abs(fa.sigma - fb.sigma) / fa.sigma):.3g}")
         rows.append(result)
-    print(f"refit of {HID} after one more point (warm start), {args.calls} calls each; times in ms")
+    print(f"refit of {HID} after one more point (warm start), {args.calls} calls each; times in ms (wall)")
     print(f"{'K':>4} {'reference med/p90':>19} {'evals':>6} {'fast med/p90':>15} {'evals':>6} {'speed-up':>9}"
           f" {'beam diff':>10} {'param diff':>11} {'compiled med/p90':>17} {'speed-up':>9} {'beam diff':>10}")
     for r in rows:
@@ -102,6 +105,8 @@ def main() -> None:
               f"{b['p90_ms']:<7.2f} {b['evaluations']:>6} {r['speed_up']:>8.1f}x {r['max_beam_difference_mrad']:>10.2g}"
               f" {r['max_param_difference_prior_sigma']:>11.2g} {c['median_ms']:>8.2f}/{c['p90_ms']:<8.2f}"
               f" {r['compiled_speed_up']:>8.1f}x {r['compiled_max_beam_difference_mrad']:>10.2g}")
+    print("mean CPU ms per refit: " + "; ".join(
+        f"K={r['k']}: " + ", ".join(f"{m} {r[m]['cpu_ms']:.2f}" for m in SOLVERS) for r in rows))
     dest = ROOT / "benchmarks" / "out"
     dest.mkdir(parents=True, exist_ok=True)
     out = {"heliostat": HID, "calls": args.calls, "rows": rows,
