@@ -21,6 +21,10 @@ Pipeline for one "before" frame (no beam) and one or more "after" frames (beam o
    ``centroid``       the intensity centroid of all of ``I``;
 6. with several after frames the mean centre and its jitter (RMS distance to the mean, T/GRLM 3.3).
 
+A spot whose region at ``T`` runs over the board's rim is "clipped", unless its core (30–60 % of the
+peak, :func:`core_region`) keeps off the rim, then measured on the core, or else the symmetry of its
+visible part pins its centre (:mod:`helicalib.vision.mirror`, :attr:`SpotLimits.max_mirror_slope`).
+
 Every result says valid or not, with a reason code (:data:`REASONS`) and one sentence.
 """
 
