@@ -471,8 +471,8 @@ def _identifiability(fitted, prob: _Problem, u: Unknowns, params, cov_x, sigma_e
     data_fraction = {n: float(v) for n, v in zip(free_names, frac)}
     sd = np.sqrt(var)
     corr = cov_x / np.outer(sd, sd)
-    pairs = tuple((free_names[a], free_names[b], float(corr[a, b]))
-                  for a in range(len(free_names)) for b in range(a + 1, len(free_names)) if abs(corr[a, b]) > 0.9)
+    rows, cols = np.nonzero(np.triu(np.abs(corr) > 0.9, k=1))  # row by row, as a double loop over a < b
+    pairs = tuple((free_names[a], free_names[b], float(corr[a, b])) for a, b in zip(rows, cols))
     suggestions: list[dict] = []
     if n_best <= 0:  # no suggestions asked for (the campaign's refits)
         return _identifiability_report(free_names, data_fraction, pairs, suggestions)
