@@ -17,7 +17,8 @@ from helicalib.geometry import error_model as em
 
 FIT_METHODS = ("fast", "reference")
 """Solvers of :func:`helicalib.calibration.fit.fit_error_model`: ``"fast"`` (analytic Jacobian,
-damped Gauss-Newton, :mod:`helicalib.calibration.fit_solver`) and ``"reference"``
+damped Gauss-Newton: compiled in :mod:`helicalib.calibration.fit_kernels` by default, numpy in
+:mod:`helicalib.calibration.fit_solver` with ``solver="numpy"``) and ``"reference"``
 (``scipy.optimize.least_squares``, TRF, with a central-difference Jacobian). Both minimise the same cost."""
 SIGMA_MRAD = 0.3
 """Default measurement noise of one beam-angle component [mrad] (``sigma_mrad`` of the fit)."""
