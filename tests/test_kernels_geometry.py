@@ -193,6 +193,21 @@ def test_aim_normal_matches_numpy_in_every_shape(drawn, sun, offset):
         close(optics.aim_normal(*args), optics.aim_normal(*args, reference=True))
 
 
+@SETTINGS
+@given(drawn=models(), angles=st.lists(st.floats(-4.0, 4.0), min_size=4, max_size=4))
+def test_rotate_matches_numpy_in_every_shape(drawn, angles):
+    """Rodrigues rotations as the error model makes them: rows about rows, about one axis, by one angle."""
+    model, _, _ = drawn
+    a1, n0 = model.drives_eff.axis1_enu, model.drives_eff.normal0_enu
+    k = len(model)
+    ang = np.resize(np.array(angles), k)
+    for args in ((a1, ang, n0), (a1[0], ang, n0), (a1, angles[0], n0), (a1[0], ang[:1], n0[0]),
+                 (np.broadcast_to(np.array([0.0, 0.0, 1.0]), (k, 3)), ang, n0)):
+        close(dr.rotate(*args), dr.rotate(*args, reference=True))
+    for args in ((a1[0], angles[0], n0[0]), (a1[:, None, :], ang[:, None], n0[:, None, :])):  # numpy's shapes
+        close(dr.rotate(*args), dr.rotate(*args, reference=True))
+
+
 def test_the_kernels_run_below_max_rows_and_numpy_from_it(monkeypatch):
     calls = []
     real = kernels.model_strokes_for_aim
@@ -220,8 +235,8 @@ def test_a_shape_the_kernels_do_not_take_goes_the_numpy_way():
 
 def test_warm_compiles_every_kernel():
     out = kernels.warm()
-    names = ("linkage", "angles_to_normal", "normal_to_angles", "aim_normal", "model_normal", "model_beam",
-             "model_spot", "model_normal_to_strokes", "model_strokes_for_aim")
+    names = ("linkage", "rotate_rows", "angles_to_normal", "normal_to_angles", "aim_normal", "model_normal",
+             "model_beam", "model_spot", "model_normal_to_strokes", "model_strokes_for_aim")
     assert out["kernels"] == len(names) and out["seconds"] > 0.0
     for name in names:
         assert getattr(kernels, name).signatures, name

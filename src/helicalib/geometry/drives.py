@@ -157,8 +157,34 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotate vectors ``v`` (..., 3) about unit ``axis`` (..., 3) by ``angle_rad`` (...)."""
+def rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray, reference: bool = False) -> np.ndarray:
+    """Rodrigues: rotate vectors ``v`` (..., 3) about unit ``axis`` (..., 3) by ``angle_rad`` (...).
+
+    Rows (K, 3) or (3,) with angles (K,) or scalar, K rows in all, run the compiled kernel
+    (``reference=True``, or other shapes: numpy)."""
+    if not reference:
+        out = _rotate_by_kernel(axis, angle_rad, v)
+        if out is not None:
+            return out
+    return _np_rotate(axis, angle_rad, v)
+
+
+def _rotate_by_kernel(axis, angle_rad, v) -> np.ndarray | None:
+    """:func:`rotate` by the kernel when the result is (K, 3) rows of (1 or K)-row inputs, else None."""
+    axis = np.asarray(axis, dtype=float)
+    v = np.asarray(v, dtype=float)
+    ang = np.asarray(angle_rad, dtype=float)
+    if ang.ndim > 1 or axis.ndim > 2 or v.ndim > 2 or (axis.ndim < 2 and v.ndim < 2 and ang.ndim < 1):
+        return None
+    k = max(axis.shape[0] if axis.ndim == 2 else 1, v.shape[0] if v.ndim == 2 else 1, ang.size)
+    a_rows, v_rows = kernel_rows(axis, 3, k), kernel_rows(v, 3, k)
+    if a_rows is None or v_rows is None or ang.size not in (1, k):
+        return None
+    return kernels().rotate_rows(a_rows, np.array(ang, dtype=float).reshape(-1), v_rows)
+
+
+def _np_rotate(axis: np.ndarray, angle_rad: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """numpy reference of :func:`rotate`."""
     axis = np.asarray(axis, dtype=float)
     v = np.asarray(v, dtype=float)
     c = np.cos(angle_rad)[..., None]
@@ -265,8 +291,8 @@ def angles_to_normal(drives: DriveArrays, angles_rad: np.ndarray, reference: boo
 def _np_angles_to_normal(drives: DriveArrays, angles_rad: np.ndarray) -> np.ndarray:
     """numpy reference of :func:`angles_to_normal`."""
     th = np.asarray(angles_rad, dtype=float)
-    n = rotate(drives.axis2_enu, th[..., 1], drives.normal0_enu)
-    return rotate(drives.axis1_enu, th[..., 0], n)
+    n = _np_rotate(drives.axis2_enu, th[..., 1], drives.normal0_enu)
+    return _np_rotate(drives.axis1_enu, th[..., 0], n)
 
 
 def _wrap_into_interval(theta: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:

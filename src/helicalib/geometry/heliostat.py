@@ -119,7 +119,7 @@ class HeliostatModel:
         again: a model of one heliostat out of 10⁴ costs one row."""
         idx = np.arange(len(self))[indices] if isinstance(indices, slice) else np.asarray(indices, dtype=int).reshape(-1)
         out = object.__new__(HeliostatModel)
-        for name, value in (("ids", tuple(self.ids[i] for i in idx)), ("pivots_enu", self.pivots_enu[idx]),
+        for name, value in (("ids", tuple(map(self.ids.__getitem__, idx.tolist()))), ("pivots_enu", self.pivots_enu[idx]),
                             ("drives", self.drives.take(idx)), ("params", self.params[idx]),
                             ("drives_eff", self.drives_eff.take(idx)), ("pivots_eff_enu", self.pivots_eff_enu[idx]),
                             ("_backlash_mm", self._backlash_mm[idx])):

@@ -264,6 +264,19 @@ def linkage(d, values, approach, to_angles):
 
 
 @_jit
+def rotate_rows(axis, angle, v):
+    """Rodrigues on rows: axis, v (1 or K, 3), angle (1 or K,) → (K, 3) (``drives.rotate``)."""
+    k = max(axis.shape[0], angle.shape[0], v.shape[0])
+    out = np.empty((k, 3))
+    for i in range(k):
+        a = i if axis.shape[0] > 1 else 0
+        r = i if v.shape[0] > 1 else 0
+        t = angle[i if angle.shape[0] > 1 else 0]
+        out[i, 0], out[i, 1], out[i, 2] = _rotate(axis[a, 0], axis[a, 1], axis[a, 2], t, v[r, 0], v[r, 1], v[r, 2])
+    return out
+
+
+@_jit
 def angles_to_normal(d, angles):
     """Axis angles (1 or N, 2) [rad] → unit normals (N, 3) (``drives.angles_to_normal``)."""
     n = d.shape[0]
@@ -453,6 +466,7 @@ def warm() -> dict[str, float]:
     calls = (
         lambda: linkage(d, row2, NO_APPROACH, True), lambda: linkage(m, row2, row2, True),
         lambda: angles_to_normal(d, row2), lambda: normal_to_angles(d, row3, 1e-12),
+        lambda: rotate_rows(row3, np.array([0.1]), row3),
         lambda: aim_normal(piv, row3, aim, np.array([0.3]), AIM_ITERATIONS),
         lambda: model_normal(m, row2, NO_APPROACH), lambda: model_beam(m, row2, row3, NO_APPROACH),
         lambda: model_spot(m, row2, row3, NO_APPROACH, aim, frames, which),
