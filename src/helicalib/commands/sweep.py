@@ -48,7 +48,7 @@ def run(args) -> int:
     out = prepare(args.out, "sweep")     # never cleared: a rerun skips the finished runs
     (out / "sweep.yaml").write_text(sweep.source.read_text(encoding="utf-8-sig"), encoding="utf-8")
     workers = args.workers or len(os.sched_getaffinity(0))
-    cluster = engine.connect(args.scheduler) if args.scheduler else engine.embedded_cluster(workers)
+    cluster = engine.cluster_for(args.scheduler, workers)
     with ProgressReporter("sweep", len(runs), transient=args.json) as bar:
         state = {"total": 0, "done": 0, "failed": 0}
 
