@@ -27,6 +27,8 @@ when read (cached for the instant; the in-place writes of a test land in the bas
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from helicalib.devices.protocols import HeliostatStatus
@@ -51,6 +53,15 @@ _ARRIVED_MM = 1e-6
 _AT_REST = frozenset(int(x) for x in (S.HOLDING, S.STOWED, S.FAULT, S.OFFLINE, S.IDLE))
 """States that stay until the next command unless tracking (strokes, state and approach unchanged)."""
 _AT_REST_ARRAY = np.array(sorted(_AT_REST), dtype=np.int64)
+
+
+def _sign_of(step: float, net: float, before: float) -> float:
+    """One actuator's approach: the sign of its last clock step's motion, else of its net motion
+    since the base, else as before (a motion under ``_MOVED_MM`` does not count)."""
+    for x in (step, net):
+        if abs(x) > _MOVED_MM:
+            return 1.0 if x > 0 else -1.0
+    return before
 
 
 class _WatchedMask(np.ndarray):
@@ -181,11 +192,48 @@ class LazyPlant(SimulatedPlant):
                 base[~fresh], state0[~fresh], approach0[~fresh], arrival0[~fresh])
         return pos, state, approach, arrival
 
+    def _sync_fixed_one(self, i: int) -> bool:
+        """:meth:`_sync` of one heliostat on its way to held or stow strokes (a constant goal) in
+        Python floats, the operations of :meth:`_eval` one by one (the same numbers, without its
+        array overhead: a visit polls its heliostat every 2 s until it holds). False (nothing
+        done) if a value is not finite."""
+        t, t0, v = self.t_s, self._step_start_s, self.speed_mm_s
+        tb, arrival = float(self._base_t[i]), float(self._arrival[i])
+        b0, b1 = float(self._base_mm[i, 0]), float(self._base_mm[i, 1])
+        hold = int(self.mode[i]) == MODE_HOLD
+        g0, g1 = (float(x) for x in (self.goal_cmd_mm[i] if hold else self.stow_strokes_mm[i]))
+        if not all(math.isfinite(x) for x in (b0, b1, g0, g1)):
+            return False
+        tr = v * (t - tb)
+        p0, p1 = b0 + min(max(g0 - b0, -tr), tr), b1 + min(max(g1 - b1, -tr), tr)
+        q0, q1 = b0, b1  # strokes at the start of the last clock step
+        if tb < t0:
+            tr0 = v * (t0 - tb)
+            q0, q1 = b0 + min(max(g0 - b0, -tr0), tr0), b1 + min(max(g1 - b1, -tr0), tr0)
+        a = self._base_approach[i]
+        approach = (_sign_of(p0 - q0, p0 - b0, float(a[0])), _sign_of(p1 - q1, p1 - b1, float(a[1])))
+        state = int(self._base_state[i])
+        arrived = max(abs(g0 - p0), abs(g1 - p1)) < _ARRIVED_MM
+        if arrived and state == S.MOVING and not math.isfinite(arrival):
+            arrival = tb + max(abs(g0 - b0), abs(g1 - b1)) / v
+        if not self.offline[i] and state not in (S.FAULT, S.IDLE):
+            if arrived and t >= arrival + self.settle_s:
+                state = int(S.HOLDING if hold else S.STOWED)
+            elif not arrived:
+                state = int(S.MOVING)
+        self._base_t[i], self._base_mm[i], self._base_state[i] = t, (p0, p1), state
+        self._base_approach[i], self._arrival[i] = approach, arrival
+        if state != S.MOVING:
+            self._pending.discard(i)
+        return True
+
     def _sync(self, rows: np.ndarray) -> None:
         """Re-base ``rows`` (distinct indices) at plant time now (a row at rest stays as it is)."""
         if rows.size == 1:  # one heliostat (a status, a measured beam): decided without arrays
             i = int(rows[0])
             if self._base_t[i] >= self.t_s or (self.mode[i] != MODE_TRACK and int(self._base_state[i]) in _AT_REST):
+                return
+            if int(self.mode[i]) in (MODE_HOLD, MODE_STOW) and self._sync_fixed_one(i):
                 return
         else:
             rows = rows[(self._base_t[rows] < self.t_s)
