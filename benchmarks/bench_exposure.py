@@ -153,6 +153,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scenario", default=str(ROOT / "simulations" / "scenarios" / "benchmark.yaml"),
                     help="scenario YAML, or 'none' for the default scenario")
     ap.add_argument("--heliostats", type=int, default=None, help="every k-th heliostat, this many (default all)")
+    ap.add_argument("--ids", default=None, help="only these heliostats (comma-separated ids)")
     ap.add_argument("--days", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--start", default="2026-09-22T00:00:00+06:18", help="plant start (default the September equinox)")
@@ -174,7 +175,7 @@ def main(argv=None) -> int:
         ensure_field(field)
     cfg = load_field_config(field)
     base = load_scenario(None if args.scenario == "none" else args.scenario)
-    ids = pick_heliostats(cfg, args.heliostats)
+    ids = args.ids.split(",") if args.ids else pick_heliostats(cfg, args.heliostats)
     start_s = float(to_unix_seconds([parse_time(args.start)])[0])
     results = {}
     with tempfile.TemporaryDirectory() as tmp:

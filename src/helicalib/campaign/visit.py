@@ -196,16 +196,18 @@ def _search_aims(target, steps: int) -> list[np.ndarray]:
 def _next_search_aim(target, obs: Observation, aim_enu: np.ndarray, search: list[np.ndarray]) -> np.ndarray | None:
     """The next aim point (ENU) of a search, always on the board; None when there is none left.
 
-    Led by the part of the spot it sees: a clipped spot seen ``seen`` metres from the current aim
-    means the beam lands about there, so the next aim is the current one minus ``seen`` (clipped to
-    the inner 80 % of the board). Without a usable centre (no spot, or an aim that would not move),
-    the next point of the ring.
+    Led by the part of the spot it sees: a clipped spot whose visible part lies ``seen`` metres from
+    the current aim (an observation's offsets are from its aim point) means the beam misses its aim
+    by about ``seen``, so the next aim is ``-seen`` from the board's centre, where that puts the spot
+    (clipped to the inner 80 % of the board); from an aim off the centre (a ring point, an earlier
+    search aim) too, so a search never chases the spot toward the rim. Without a usable centre (no
+    spot, or an aim that would not move), the next point of the ring.
     """
     w, h = target.size_m
     lim = np.array([0.4 * w, 0.4 * h])
     if obs.reason == "clipped" and obs.offset_u_m is not None:
         current = target.enu_to_uvw(aim_enu)[:2]
-        uv = np.clip(current - np.array([obs.offset_u_m, obs.offset_v_m]), -lim, lim)
+        uv = np.clip(-np.array([obs.offset_u_m, obs.offset_v_m]), -lim, lim)
         if np.linalg.norm(uv - current) > 0.05 * min(w, h):
             return target.uvw_to_enu(uv)
     return target.uvw_to_enu(search.pop(0)) if search else None
