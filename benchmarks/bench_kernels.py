@@ -3,7 +3,7 @@ crossover field size, and the cost of compiling (cold) or loading (warm) the ker
 
 For each geometry function the campaign calls on a one-heliostat model (``HeliostatModel``'s
 ``strokes_for_aim``, ``normal``, ``angles``, ``beam``, ``spot_on_target``, ``normal_to_strokes``;
-``drives``' linkage and normal functions; ``optics.aim_normal``) it times the numpy path
+``drives``' linkage, normal and rotation functions; ``optics.aim_normal``) it times the numpy path
 (``reference=True``) and the kernel path, best of ``--repeats`` runs of ``--calls`` calls each (the
 best run is the least disturbed on a shared machine). Then, for ``strokes_for_aim`` and ``normal``,
 both paths on models of N heliostats (``--sizes``), the kernel forced past ``kernels.MAX_ROWS``, to
@@ -77,6 +77,7 @@ def one_heliostat_cases(model: HeliostatModel, sun: np.ndarray, aim: np.ndarray,
         "drives.angles_to_strokes": lambda r: dr.angles_to_strokes(eff, a, reference=r),
         "drives.angles_to_normal": lambda r: dr.angles_to_normal(eff, a, reference=r),
         "drives.normal_to_angles": lambda r: dr.normal_to_angles(eff, n, reference=r),
+        "drives.rotate": lambda r: dr.rotate(eff.axis1_enu, a[:, 0], eff.normal0_enu, reference=r),
         "optics.aim_normal": lambda r: optics.aim_normal(model.pivots_eff_enu[0], sun, aim,
                                                          float(eff.mirror_offset_m[0]), reference=r),
     }
