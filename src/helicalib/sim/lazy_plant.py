@@ -1,6 +1,6 @@
 """``LazyPlant``: the simulated plant with every heliostat in closed form, computed when read.
 
-The stepped reference (:class:`~helicalib.sim.plant.SimulatedPlant` with ``lazy=False``) moves
+The stepped reference (:class:`~helicalib.sim.stepped_plant.SteppedPlant`, ``SimulatedPlant(..., lazy=False)``) moves
 every heliostat at every clock advance: O(N) per advance. Here a heliostat keeps the record of
 its last motion (base time, strokes, state, approach, arrival; mode and goal) and its strokes,
 state and approach at plant time t follow from it when something reads them (status, true
@@ -33,7 +33,7 @@ import numpy as np
 
 from helicalib.devices.protocols import HeliostatStatus
 from helicalib.devices.registers import FieldState, HeliostatState
-from helicalib.sim.plant import (
+from helicalib.sim.stepped_plant import (
     _TRACK_NODES_KEPT,
     MAX_STEP_S,
     MODE_HOLD,
@@ -41,7 +41,7 @@ from helicalib.sim.plant import (
     MODE_STOW,
     MODE_TRACK,
     TRACK_GRID_S,
-    SimulatedPlant,
+    SteppedPlant,
 )
 from helicalib.sim.truth import TrueBeam
 
@@ -76,7 +76,7 @@ class _WatchedMask(np.ndarray):
         super().__setitem__(key, value)
 
 
-class LazyPlant(SimulatedPlant):
+class LazyPlant(SteppedPlant):
     """The closed-form simulated plant (see the module docstring); same constructor as
     :class:`~helicalib.sim.plant.SimulatedPlant`, built by it when ``lazy=True``."""
 
