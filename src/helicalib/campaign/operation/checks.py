@@ -19,6 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
+from helicalib.calibration.uncertainty import beam_jacobians_mrad
 from helicalib.campaign import book as books
 from helicalib.campaign import choice as choices
 from helicalib.campaign import verdict as verdicts
@@ -26,11 +27,34 @@ from helicalib.campaign.events import RunEvent
 from helicalib.campaign.field import Field
 from helicalib.campaign.operation import rules as op_rules
 from helicalib.campaign.state import CampaignDevices, CampaignState
+from helicalib.geometry import error_model as em
 from helicalib.geometry.heliostat import HeliostatModel
 from helicalib.store import history
 
 SPREAD_KEEP_S = 600.0
 """A model's predicted error at the present sun is reused for this long [plant s]."""
+
+
+SPREAD_ROWS_PER_PASS = 200_000
+"""At most this many model rows (heliostats × suns × (parameters + 1)) in one pass of
+:func:`spreads_over_suns` (bounds its memory on a large field)."""
+
+
+def spreads_over_suns(model: HeliostatModel, covariance: np.ndarray, suns_enu: np.ndarray,
+                      aims_enu: np.ndarray) -> np.ndarray:
+    """Predicted beam errors [mrad] (M, N) of N fitted models at M sun positions, NaN where the aim
+    is out of reach: :func:`helicalib.calibration.fit.beam_spread_mrad` at each sun, the Jacobians of
+    many suns in one pass (the day's preferred check times take a day's grid of suns at once)."""
+    n, m = len(model), len(suns_enu)
+    per = max(1, SPREAD_ROWS_PER_PASS // max(n * (em.P + 1), 1))
+    out = np.full((m, n), np.nan)
+    for k0 in range(0, m, per):
+        jac, ok = beam_jacobians_mrad(model, suns_enu[k0:k0 + per], aims_enu)
+        for j in range(jac.shape[1]):  # each sun's as beam_spread_mrad sums it (the same numbers)
+            jm = np.ascontiguousarray(jac[:, j])
+            var = np.einsum("nip,npq,niq->n", jm, covariance, jm)
+            out[k0 + j] = np.where(ok[:, j], np.sqrt(np.maximum(var, 0.0)), np.nan)
+    return np.where(np.isfinite(out), out, np.nan)
 
 
 class CheckHost(Protocol):
@@ -201,11 +225,13 @@ class OperationChecks:
             self._preferred = {}
             fitted = [h for h in self.state.ids if self.state.book.h[h].fit is not None]
             if fitted and times.size:
-                spread = np.full((times.size, len(fitted)), np.nan)
-                for k, t in enumerate(times):
-                    got = choices.model_spreads(self.state.cfg, self.state.book, self.state.models, self.state.nominal_rows, fitted,
-                                               self.state.sun_table.vector_enu(t), math.inf)
-                    spread[k] = [got.get(h, np.nan) for h in fitted]
+                model = self.state.nominal_rows(fitted).with_params(np.vstack([self.state.models[h].params
+                                                                               for h in fitted]))
+                aims = np.array([self.state.cfg.target(self.state.cfg.heliostat(h).target).center_enu_m
+                                 for h in fitted], dtype=float)
+                suns = np.array([self.state.sun_table.vector_enu(t) for t in times])
+                spread = spreads_over_suns(model, np.stack([self.state.book.h[h].fit.covariance for h in fitted]),
+                                           suns, aims)
                 for j, h in enumerate(fitted):
                     if np.isfinite(spread[:, j]).any():
                         self._preferred[h] = float(times[int(np.nanargmax(spread[:, j]))])
@@ -233,7 +259,8 @@ class OperationChecks:
         """The accepted heliostat of this board most worth a check now (:func:`.rules.choose_check`)."""
         # only heliostats a check may take at all (unchecked long enough) are weighed: cheap tests first
         wait = self.rota_days * 86400.0 if self.mode == "rota" else op_rules.MIN_CHECK_INTERVAL_S
-        cands = [h for h in self.state.home[target_id] if now - self.state.book.h[h].last_visit_s >= wait]
+        books_h = self.state.book.h
+        cands = [h for h in self.state.home[target_id] if now - books_h[h].last_visit_s >= wait]
         if self.mode == "ranked" and cands:
             day = self.day(now)
             used_day, used_s = self._board_check_s.get(target_id, (day, 0.0))
@@ -241,11 +268,11 @@ class OperationChecks:
                 return None  # this board's checks are ahead of their share of the day's sun so far
             overdue = (op_rules.MAX_DAYS_UNCHECKED + 1.0) * 86400.0
             cands = [h for h in cands if now >= self._preferred.get(h, -math.inf)
-                     or now - self.state.book.h[h].last_visit_s >= overdue]
+                     or now - books_h[h].last_visit_s >= overdue]
         cands = self.eligible(cands, now, busy)
         if not cands:
             return None
-        last = [self.state.book.h[h].last_visit_s for h in cands]
+        last = [books_h[h].last_visit_s for h in cands]
         spreads = self.spreads(cands, now) if self.mode == "ranked" else {}
         for _try in range(3):  # a heliostat whose strokes do not reach the board now is passed over
             hid = op_rules.choose_check(cands, [spreads.get(h, np.nan) for h in cands], last, now,
