@@ -191,7 +191,7 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
         v = verdicts.verdict(cfg, book, tb.ids[rows[k]], None, now_s)
         need[k] = tb.need_id(acceptance.needs(v, rules))
         accepted[k] = bool(v.accepted)
-    for k in np.unique(need):
+    for k in np.flatnonzero(np.bincount(need - PlanTable.UNJUDGED)) + PlanTable.UNJUDGED:  # np.unique's, cheaper
         if k not in timed:
             timed[int(k)] = tier_of(tb.needs[int(k)])
     keys = np.array(sorted(timed))
@@ -220,10 +220,13 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
     sel = np.flatnonzero(go)
     if not sel.size:
         return None
-    order = sel[np.lexsort((tb.id_rank[rows[sel]], tb.visits[rows[sel]], -err[sel], not_preferred[sel],
-                            borrowed[sel], closes[sel], tier[sel]))]
-    refused = 0
-    for k in order:
+    sort_keys = (tier, closes, borrowed, not_preferred, -err, tb.visits[rows], tb.id_rank[rows])  # first key first
+    first = _lexicographic_first(sel, sort_keys)
+    if not borrowed[first] or usable is None or usable(tb.ids[rows[first]]):
+        return tb.ids[rows[first]]  # the usual decision: no sort of the whole target's candidates
+    order = sel[np.lexsort(tuple(k[sel] for k in reversed(sort_keys)))]  # order[0] is first, a guest refused
+    refused = 1
+    for k in order[1:]:
         hid = tb.ids[rows[k]]
         if not borrowed[k] or usable is None:
             return hid
@@ -233,6 +236,23 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
             return hid
         refused += 1
     return None
+
+
+def _lexicographic_first(sel: np.ndarray, keys) -> int:
+    """The element of ``sel`` that ``np.lexsort`` over ``keys`` (first key first, NaN last) puts
+    first, by narrowing key by key: O(len(sel)) a key instead of a sort."""
+    for key in keys:
+        v = key[sel]
+        if v.dtype.kind == "f":
+            finite = ~np.isnan(v)
+            if not finite.all():
+                if not finite.any():
+                    continue
+                sel, v = sel[finite], v[finite]
+        sel = sel[v == v.min()]
+        if sel.size == 1:
+            break
+    return int(sel[0])
 
 
 MAX_GUEST_TRIES = 8
@@ -252,19 +272,27 @@ def shared_targets(cfg, hids, camera_targets) -> dict[str, dict[str, int]]:
     cams = set(camera_targets)
     out: dict[str, dict[str, int]] = {t.id: {} for t in cfg.targets}
     cos_max = math.cos(math.radians(MAX_SHARE_INCIDENCE_DEG))
-    for hid in hids:
-        h = cfg.heliostat(hid)
-        home = np.asarray(cfg.target(h.target).center_enu_m, dtype=float)
-        pos = np.asarray(h.position_enu_m, dtype=float)
-        ok = []
-        for t in cfg.targets:
-            if t.id == h.target or t.id not in cams:
-                continue
-            centre = np.asarray(t.center_enu_m, dtype=float)
-            if float(np.dot(optics.unit(pos - centre), np.asarray(t.normal_enu, dtype=float))) >= cos_max:
-                ok.append((float(np.linalg.norm(centre - home)), t.id))
-        for rank, (_d, tid) in enumerate(sorted(ok), start=1):
-            out[tid][hid] = rank
+    hids = list(hids)
+    if not hids:
+        return out
+    # one array operation a board over all heliostats (10⁴ heliostats × boards in Python took seconds)
+    helios = [cfg.heliostat(h) for h in hids]
+    pos = np.array([h.position_enu_m for h in helios], dtype=float)
+    centres = np.array([t.center_enu_m for t in cfg.targets], dtype=float)
+    tindex = {t.id: k for k, t in enumerate(cfg.targets)}
+    home = np.array([tindex[h.target] for h in helios], dtype=np.int64)
+    lent = np.zeros((len(hids), len(cfg.targets)), dtype=bool)
+    for k, t in enumerate(cfg.targets):
+        if t.id in cams:
+            u = optics.unit(pos - centres[k])
+            n = np.asarray(t.normal_enu, dtype=float)
+            lent[:, k] = (u[:, 0] * n[0] + u[:, 1] * n[1] + u[:, 2] * n[2] >= cos_max) & (home != k)
+    # a board's rank depends on the heliostat's own board and the boards it may borrow: ordered once per home
+    dist = [[float(np.linalg.norm(b - a)) for b in centres] for a in centres]  # [home][board]
+    for i in np.flatnonzero(lent.any(axis=1)):
+        ok = sorted((dist[home[i]][k], cfg.targets[k].id) for k in np.flatnonzero(lent[i]))
+        for rank, (_d, tid) in enumerate(ok, start=1):
+            out[tid][hids[i]] = rank
     return out
 
 
