@@ -73,3 +73,40 @@ def test_shared_targets_match_the_boards_found_one_heliostat_at_a_time(demo_data
         assert got == _reference_shared(cfg, hids, cams)
         assert sum(len(v) for v in got.values()) > len(hids)  # boards are lent, some heliostats borrow several
     assert choice.shared_targets(cfg, [], {"T1"}) == {t.id: {} for t in cfg.targets}
+
+
+def test_blank_needs_are_judged_again_when_the_days_or_the_evaluation_day_change(demo_field_path):
+    from helicalib.app.simulated import default_start_s
+    from helicalib.calibration import acceptance
+    from helicalib.campaign.book import Book
+    from helicalib.campaign.verdict import verdict
+
+    cfg = load_field_config(demo_field_path)
+    book = Book(cfg, [h.id for h in cfg.heliostats])
+    hid, tb = cfg.heliostats[0].id, book.table
+    judged = []
+
+    def needs_at(now_s):
+        days = book.days(now_s)
+
+        def judge():
+            judged.append(now_s)
+            return verdict(cfg, book, hid, None, now_s)
+
+        got = tb.blank_needs(days, now_s, judge)
+        v = verdict(cfg, book, hid, None, now_s)
+        assert got == (acceptance.needs(v, cfg.acceptance), bool(v.accepted))  # as judging it now
+        return days
+
+    t0 = default_start_s(cfg) + 12 * 3600.0  # local noon: the day's high span has begun
+    days = needs_at(t0)
+    needs_at(t0 + 600.0)
+    needs_at(t0 + 3 * 3600.0)
+    assert judged == [t0]  # the same days, the same evaluation day: judged once
+    ref = acceptance.evaluation_day(days, t0)
+    tomorrow = next(d.high_start_s for d in days if d.high_start_s is not None and d.high_start_s > ref.high_start_s)
+    needs_at(tomorrow + 60.0)
+    assert judged == [t0, tomorrow + 60.0]  # the next day's high span began: judged again
+    book._days_span = (float("inf"), -float("inf"))  # the solar days are computed afresh (a new object)
+    needs_at(tomorrow + 120.0)
+    assert judged == [t0, tomorrow + 60.0, tomorrow + 120.0]

@@ -255,6 +255,7 @@ class PlanTable:
         self.id_rank = np.argsort(np.argsort(np.array(self.ids, dtype=object)))  # ties broken by id
         self.needs: list[tuple] = []        # need id -> the needs (acceptance.Need) of that key
         self._need_ids: dict[tuple, int] = {}
+        self._blank: tuple | None = None    # ((days, evaluation day), (needs, accepted)): blank_needs
         targets = [t.id for t in cfg.targets]
         self.target_index = {t: k for k, t in enumerate(targets)}
         self.own = np.array([self.target_index[cfg.heliostat(h).target] for h in self.ids], dtype=np.int64)
@@ -283,6 +284,18 @@ class PlanTable:
         else:
             self.accepted[row] = bool(v.accepted)
             self.need[row] = self.need_id(acceptance.needs(v, self.cfg.acceptance))
+
+    def blank_needs(self, days, now_s: float, judge) -> tuple[tuple, bool]:
+        """The needs and acceptance of a heliostat without a point, ``judge()`` its verdict now.
+
+        Without points a verdict depends on the solar days and on the day that sets the number of
+        high windows (:func:`helicalib.calibration.acceptance.evaluation_day`) alone, so it is
+        judged again only when either changes, not at every decision."""
+        key = (days, acceptance.evaluation_day(days, now_s))
+        if self._blank is None or self._blank[0][0] is not days or self._blank[0][1] != key[1]:
+            v = judge()
+            self._blank = (key, (acceptance.needs(v, self.cfg.acceptance), bool(v.accepted)))
+        return self._blank[1]
 
     def need_id(self, wanted: tuple) -> int:
         key = tuple((nd.kind, nd.window, nd.n_windows) for nd in wanted)

@@ -184,9 +184,10 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
 
     blank = np.flatnonzero(need == PlanTable.BLANK)
     if blank.size:
-        v = verdicts.verdict(cfg, book, tb.ids[rows[blank[0]]], None, now_s)
-        timed[PlanTable.BLANK] = tier_of(acceptance.needs(v, rules))
-        accepted[blank] = bool(v.accepted)
+        wanted, blank_accepted = tb.blank_needs(days, now_s, lambda: verdicts.verdict(
+            cfg, book, tb.ids[rows[blank[0]]], None, now_s))
+        timed[PlanTable.BLANK] = tier_of(wanted)
+        accepted[blank] = blank_accepted
     for k in np.flatnonzero(need == PlanTable.UNJUDGED):  # points but no verdict yet: one by one
         v = verdicts.verdict(cfg, book, tb.ids[rows[k]], None, now_s)
         need[k] = tb.need_id(acceptance.needs(v, rules))

@@ -165,9 +165,10 @@ class Tracking:
         if not ids:
             return
         rows = [st.index[hid] for hid in ids]
-        calibrated = st.nominal.subset(rows).with_params(np.vstack([st.models[h].params for h in ids]))
+        nominal = st.nominal.subset(rows)  # (once: a subset of the whole field's rows is not free)
+        calibrated = nominal.with_params(np.vstack([st.models[h].params for h in ids]))
         later = self.sun(now + verdicts.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
-        corr = verdicts.tracking_corrections(st.cfg, st.nominal.subset(rows), calibrated, vec, later)
+        corr = verdicts.tracking_corrections(st.cfg, nominal, calibrated, vec, later)
         failed = []
         plant = self.devices.plant
         if self.devices.abilities.bulk_tracking:  # the in-process simulated plant: one array write
