@@ -182,3 +182,25 @@ def test_warm_compiles_every_kernel():
     assert fit_kernels.warm() >= 0.0
     for kernel in (fit_kernels.solve, fit_kernels.beam_residuals, fit_kernels.fun_jac):
         assert kernel.signatures
+
+
+def test_a_changed_error_model_is_refused_at_import():
+    """numba bakes the parameters' columns into the cached kernels: a reordered error model must
+    not run against them."""
+    fit_kernels.check_names(em.NAMES)
+    with pytest.raises(ImportError, match="error model's parameters changed"):
+        fit_kernels.check_names((em.NAMES[1], em.NAMES[0], *em.NAMES[2:]))
+
+
+def test_read_only_and_strided_inputs_use_the_compiled_signature():
+    """No input layout makes numba compile another version of the solver mid-run."""
+    fit_kernels.warm()
+    before = len(fit_kernels.solve.signatures)
+    _t, strokes, sun, spot, approach = _observations(1, 14)
+    for a in (strokes, sun, spot, approach):
+        a.setflags(write=False)
+    strided_sun = np.repeat(sun, 2, axis=0)[::2]
+    fit = fit_error_model(NOMINAL, FitPoints(strokes, strided_sun, spot, approach=approach),
+                          FitOptions(loss="soft_l1", n_suggestions=0))
+    assert fit.message == "Gauss-Newton converged"
+    assert len(fit_kernels.solve.signatures) == before

@@ -240,3 +240,28 @@ def test_warm_compiles_every_kernel():
     assert out["kernels"] == len(names) and out["seconds"] > 0.0
     for name in names:
         assert getattr(kernels, name).signatures, name
+
+
+def test_degenerate_inputs_give_nan_as_numpy_does_not_an_exception():
+    """A zero normal, a zero sun or an aim at the pivot: NaN (and unreachable), as the numpy
+    reference gives, never a ZeroDivisionError out of a kernel."""
+    model = HeliostatModel(["H"], PIVOTS[:1], DriveArrays.from_drives([DRIVES[0]]))
+    for reference in (False, True):
+        strokes, _angles, reachable = model.normal_to_strokes(np.zeros(3), reference=reference)
+        assert np.all(np.isnan(strokes)) and not bool(reachable[0])
+        assert np.all(np.isnan(model.strokes_for_aim(np.zeros(3), AIMS[0], reference=reference).strokes_mm))
+        assert np.all(np.isnan(model.strokes_for_aim(np.array([0.0, 0.6, 0.8]), PIVOTS[0],
+                                                     reference=reference).strokes_mm))
+    assert np.all(np.isnan(optics.aim_normal(PIVOTS[0], np.zeros(3), AIMS[0], 0.2)))
+
+
+def test_strided_rows_use_the_compiled_signature():
+    """A strided row (a column slice) is made contiguous first: no second compiled version mid-run."""
+    kernels.warm()
+    model = HeliostatModel(["H"], PIVOTS[:1], DriveArrays.from_drives([DRIVES[0]]))
+    before = {k.py_func.__name__: len(k.signatures) for k in (kernels.model_strokes_for_aim, kernels.model_normal)}
+    suns = np.tile([0.1, 0.6, 0.79, 0.0], (3, 1))[:, :3]  # rows strided in memory
+    model.strokes_for_aim(suns[0], AIMS[0])
+    model.normal(np.array([[500.0, 600.0, 0.0]])[0, :2])
+    after = {k.py_func.__name__: len(k.signatures) for k in (kernels.model_strokes_for_aim, kernels.model_normal)}
+    assert after == before

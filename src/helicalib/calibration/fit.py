@@ -405,15 +405,21 @@ def _solve_compiled(prob, u: Unknowns, x0, row_sigma, loss, f_scale):
     epoch = np.zeros(k, dtype=np.int64) if u.epoch is None else np.asarray(u.epoch, dtype=np.int64)
     n_groups = 1 if u.epoch is None or not k else int(epoch.max()) + 1
     ep_scale = np.ones(len(EPOCH)) if u.ep_scale is None else np.asarray(u.ep_scale, dtype=float)
+    f = _kernel_array  # writable C-contiguous arrays: the one signature warm() compiled, never another mid-run
     x, r, j, converged, nfev = fit_kernels.solve(
-        np.asarray(x0, dtype=float), fit_kernels.LOSSES.index(loss), float(f_scale),
-        fit_kernels.pack_drive(prob.model.drives, prob.model.pivots_enu[0]), prob.strokes, approach, has_approach,
-        prob.sun, prob.spot, prob.basis, u.base, u.centre, u.free_idx.astype(np.int64), u.sig_prior,
-        1.0 / row_sigma, age, float(u.rate_scale), epoch, n_groups, EPOCH.astype(np.int64), ep_scale,
-        fit_kernels.XTOL, fit_kernels.FTOL, fit_kernels.MAX_ITER)
+        f(x0), fit_kernels.LOSSES.index(loss), float(f_scale),
+        fit_kernels.pack_drive(prob.model.drives, prob.model.pivots_enu[0]), f(prob.strokes), f(approach), has_approach,
+        f(prob.sun), f(prob.spot), f(prob.basis), f(u.base), f(u.centre), f(u.free_idx, np.int64), f(u.sig_prior),
+        f(1.0 / row_sigma), f(age), float(u.rate_scale), f(epoch, np.int64), n_groups, f(EPOCH, np.int64),
+        f(ep_scale), fit_kernels.XTOL, fit_kernels.FTOL, fit_kernels.MAX_ITER)
     if not converged or not np.all(np.isfinite(x)):
         return None
     return x, j, (r[: 2 * k] * row_sigma).reshape(-1, 2), True, "Gauss-Newton converged", nfev
+
+
+def _kernel_array(a, dtype=float) -> np.ndarray:
+    """``a`` as a writable C-contiguous array of ``dtype`` (copied only when it is not one already)."""
+    return np.require(np.asarray(a, dtype=dtype), dtype, ["C", "W"])
 
 
 def leave_out_params(fit: FitResult, groups: Sequence[Sequence[int]]) -> np.ndarray:

@@ -32,14 +32,30 @@ _EPS = float(np.finfo(float).eps)
 STALL_FTOL = 1e-10
 """As :data:`.fit_solver.STALL_FTOL`."""
 
-_I = {name: em.index(name) for name in em.NAMES}
+_NAMES = ("stroke_offset_1_mm", "stroke_offset_2_mm", "pedestal_tilt_e_mrad", "pedestal_tilt_n_mrad",
+          "axis_nonorthogonality_mrad", "canting_1_mrad", "canting_2_mrad", "pivot_de_m", "pivot_dn_m", "pivot_du_m",
+          "arm_scale_1", "arm_scale_2", "pedestal_yaw_mrad", "backlash_1_mm", "backlash_2_mm")
+"""The error model's parameters in their order, written out here: numba bakes the columns below into
+the compiled kernels as constants and its cache checks only this file, so a change of
+:data:`helicalib.geometry.error_model.NAMES` must change this file too (checked at import)."""
+
+
+def check_names(names) -> None:
+    """Raise ImportError unless ``names`` are :data:`_NAMES` in order (run at import on the error model's)."""
+    if tuple(names) != _NAMES:
+        raise ImportError("calibration.fit_kernels: the error model's parameters changed "
+                          "(geometry/error_model.py NAMES); update fit_kernels._NAMES, which renews the compiled cache")
+
+
+check_names(em.NAMES)
+_I = {name: k for k, name in enumerate(_NAMES)}
 # columns of the parameters the kernels need, as plain ints (compile-time constants)
 SO1, SO2 = _I["stroke_offset_1_mm"], _I["stroke_offset_2_mm"]
 TE, TN, YAW = _I["pedestal_tilt_e_mrad"], _I["pedestal_tilt_n_mrad"], _I["pedestal_yaw_mrad"]
 NONORTH, CAN1, CAN2 = _I["axis_nonorthogonality_mrad"], _I["canting_1_mrad"], _I["canting_2_mrad"]
 PIV_E, PIV_N, PIV_U = _I["pivot_de_m"], _I["pivot_dn_m"], _I["pivot_du_m"]
 ARM1, ARM2, BL1, BL2 = _I["arm_scale_1"], _I["arm_scale_2"], _I["backlash_1_mm"], _I["backlash_2_mm"]
-P = em.P
+P = len(_NAMES)
 XTOL, FTOL, MAX_ITER = 1e-8, 1e-14, 100
 """The stopping rules of :func:`.fit_solver.gauss_newton` (its defaults)."""
 GEO_SIZE = 29

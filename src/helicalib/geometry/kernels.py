@@ -54,7 +54,7 @@ kernels free of imports from the modules that call them)."""
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
-_jit = numba.njit(cache=True, nogil=True)
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")  # a division by zero gives inf/NaN, as numpy
 
 
 def pack(axis1_enu, axis2_enu, normal0_enu, arm_fixed_m, arm_moving_m, gamma0_rad, sign, length_at_zero_m,
@@ -75,7 +75,7 @@ def rows2(a, width: int) -> np.ndarray | None:
     None (then the caller takes the numpy path, which broadcasts anything)."""
     a = np.asarray(a, dtype=float)
     if a.ndim == 1 and a.shape[0] == width:
-        a = a.reshape(1, width)
+        a = np.ascontiguousarray(a.reshape(1, width))  # (a strided row would compile another layout)
     elif a.ndim == 2 and a.shape[1] == width:
         a = np.ascontiguousarray(a)
     else:
