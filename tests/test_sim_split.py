@@ -192,6 +192,8 @@ def test_merge_interleaves_by_time_renumbers_ids_and_moves_frames(tmp_path):
                                   sun_elevation_deg=53.0, valid=True, reason="ok", message="")
                 s.record_observation(obs, before_frame=_frame(value + k), after_frames=[_frame(value + k + 10)])
                 s.end_visit(vid, ended_s=t0 + 100.0 * k + 50, outcome="converged")
+                s.record_event(campaign_id=cid, time_s=t0 + 100.0 * k, kind="check", heliostat_id=hid,
+                               reason=f"{hid}: visit {vid} is a check", data={"visit_id": vid, "after_frames": 10})
             s.record_event(campaign_id=cid, time_s=5.0, kind="stow", reason="wind 16 m/s")
             s.finish_campaign(cid, 1000.0)
         return tmp_path / name / "helicalib.db"
@@ -216,7 +218,10 @@ def test_merge_interleaves_by_time_renumbers_ids_and_moves_frames(tmp_path):
 
             assert np.asarray(Image.open(images / o.before_frame_path)).max() == value
             assert (images / o.after_frame_paths[0]).is_file()
-        assert len(s.events(campaign_id=result.campaign_id)) == 1
+        events = s.events(campaign_id=result.campaign_id)
+        assert len([e for e in events if e.kind == "stow"]) == 1
+        checks = [e for e in events if e.kind == "check"]  # a check's visit is the merged visit
+        assert [(e.heliostat_id, e.data["visit_id"]) for e in checks] == [(v.heliostat_id, v.id) for v in visits]
         assert s.campaign(result.campaign_id).settings["split"] == {"groups": 2}
 
 

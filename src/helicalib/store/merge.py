@@ -14,6 +14,7 @@ alike, such as a wind stow every group saw, are kept once. The sources are only 
 from __future__ import annotations
 
 import heapq
+import json
 import os
 import re
 import shutil
@@ -119,6 +120,8 @@ def _merge(out: Store, cid: int, sources: list[_Source], ended_s: float | None, 
                     src.visits[old_id] = next_id
                 elif table == "observations":
                     _remap_observation(row, src, out, cid, links)
+                elif table == "events":
+                    _remap_event(row, src)
                 batch.append(tuple(row[c] for c in columns))
                 next_id += 1
                 written += 1
@@ -138,6 +141,17 @@ def _insert(conn, table: str, columns: Sequence[str], batch: list[tuple]) -> Non
         conn.executemany(f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})",
                          batch)
         batch.clear()
+
+
+def _remap_event(row: dict, src: _Source) -> None:
+    """An event that names its visit (a check's ``visit_id``) names the merged visit."""
+    text = row.get("data_json")
+    if not text or '"visit_id"' not in text:
+        return
+    data = json.loads(text)
+    if isinstance(data, dict) and isinstance(data.get("visit_id"), int) and data["visit_id"] in src.visits:
+        data["visit_id"] = src.visits[data["visit_id"]]
+        row["data_json"] = json.dumps(data, sort_keys=True)
 
 
 def _remap_observation(row: dict, src: _Source, out: Store, cid: int, links: list[tuple[Path, Path]]) -> None:
