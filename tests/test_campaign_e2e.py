@@ -22,7 +22,7 @@ from helicalib.devices.clock import PlantClock
 from helicalib.devices.modbus import ModbusPlant
 from helicalib.devices.registers import HeliostatCommand
 from helicalib.sim.clock import RateClock
-from helicalib.sim.plant import SimulatedPlant
+from helicalib.sim.lazy_plant import LazyPlant
 from helicalib.sim.scenario import parse_scenario
 from helicalib.sim.server import FaultInjector, PlantServer
 from helicalib.store.sqlite import Store
@@ -31,8 +31,8 @@ IDS = ["H0001", "H0040"]  # one heliostat on each target
 MORNING_S = 6.6 * 3600.0  # local solar time of the start: the sun rises through the low band
 
 
-class LoggingPlant(SimulatedPlant):
-    """The simulated plant, logging every command it is asked to act on (the plant's side of the wire)."""
+class LoggingPlant(LazyPlant):
+    """The simulated plant (the lazy one a simulation uses), logging every command it is asked to act on (the plant's side of the wire)."""
 
     def __init__(self, *a, **kw):
         super().__init__(*a, **kw)

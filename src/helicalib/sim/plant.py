@@ -52,6 +52,8 @@ class SimulatedPlant(ABC):
 
     def __new__(cls, cfg, scenario: Scenario | None = None, start_s: float = 0.0, rate: float = 1.0,
                 zero_errors: bool = False, lazy: bool = True):
+        if cls is not SimulatedPlant:  # a subclass would silently get a plant of another class
+            raise TypeError(f"{cls.__name__}: subclass LazyPlant or SteppedPlant; SimulatedPlant only builds one of them")
         kind = LazyPlant if lazy else SteppedPlant
         return kind(cfg, scenario, start_s=start_s, rate=rate, zero_errors=zero_errors)
 
