@@ -159,3 +159,21 @@ def timed_step(label: str, what: str, *, stream: TextIO | None = None,
         print(f"{label}: {what} failed after {format_elapsed(clock() - t0)}", file=out, flush=True)
         raise
     print(f"{label}: {what} done in {format_elapsed(clock() - t0)}", file=out, flush=True)
+
+
+class TaskTally:
+    """Tasks done of all, and how many failed, on a :class:`ProgressReporter` (Dask runs of
+    ``sweep`` and split ``simulate``): :meth:`ended` once per task, a failure noted with its reason."""
+
+    def __init__(self, bar: ProgressReporter, command: str, noun: str):
+        self.bar, self.command, self.noun = bar, command, noun
+        self.total = self.done = self.failed = 0
+
+    def ended(self, reason: str | None) -> None:
+        """One task ended (``reason``: why it failed, None when it did not)."""
+        self.done += 1
+        if reason is not None:
+            self.failed += 1
+            self.bar.note(f"{self.command}: failed: {reason}")
+        failed = f", {self.failed} failed" if self.failed else ""
+        self.bar.update(self.done, f"{self.done} of {self.total} {self.noun}{failed}")

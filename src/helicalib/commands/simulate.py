@@ -216,29 +216,24 @@ def run_split(args, inputs, out: Path) -> int:
     """The split campaign of ``args`` into ``out`` (checked and marked by the caller)."""
     from helicalib.app.cluster import cluster_for
     from helicalib.app.split import simulate_split
-    from helicalib.commands._progress import ProgressReporter
+    from helicalib.commands._progress import ProgressReporter, TaskTally
 
     workers = args.workers or len(os.sched_getaffinity(0))
     options = simulation_options(args, inputs)
     with ProgressReporter("simulate", None, transient=args.json) as bar, \
             cluster_for(args.scheduler, workers, TASK_MODULE) as client:
         n_groups = args.groups or (len(client.nthreads()) if args.scheduler else workers)
-        state = {"done": 0, "failed": 0, "total": 0}
+        tally = TaskTally(bar, "simulate", "groups done")
 
         def on_start(groups) -> None:
-            state["total"] = len(groups)
+            tally.total = len(groups)
             bar.note(f"simulate: {len(groups)} groups of boards ("
                      + "; ".join(f"{', '.join(g.boards)}: {len(g.heliostats)} heliostats" for g in groups)
                      + f") on {args.scheduler or f'{workers} local worker processes'}")
             bar.update(0, f"0 of {len(groups)} groups done", total=len(groups))
 
         def on_group(group, reason) -> None:
-            state["done"] += 1
-            if reason is not None:
-                state["failed"] += 1
-                bar.note(f"simulate: failed: {reason}")
-            failed = f", {state['failed']} failed" if state["failed"] else ""
-            bar.update(state["done"], f"{state['done']} of {state['total']} groups done{failed}")
+            tally.ended(reason)
 
         result = simulate_split(inputs.cfg, args.field, out, options, client, n_groups,
                                 on_start=on_start, on_group=on_group)

@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-    from helicalib.commands._progress import ProgressReporter
+    from helicalib.commands._progress import ProgressReporter, TaskTally
     from helicalib.errors import ConfigError
     from helicalib.outdir import check, prepare, refuse_inputs
     from helicalib.sweep import engine, results
@@ -50,19 +50,14 @@ def run(args) -> int:
     workers = args.workers or len(os.sched_getaffinity(0))
     cluster = engine.cluster_for(args.scheduler, workers)
     with ProgressReporter("sweep", len(runs), transient=args.json) as bar:
-        state = {"total": 0, "done": 0, "failed": 0}
+        tally = TaskTally(bar, "sweep", "runs")
 
         def on_start(n: int) -> None:
-            state["total"] = n
+            tally.total = n
             bar.update(0, f"0 of {n} runs ({len(runs) - n} finished before)", total=max(n, 1))
 
         def on_result(run, record, reason) -> None:
-            state["done"] += 1
-            if reason is not None:
-                state["failed"] += 1
-                bar.note(f"sweep: failed: {reason}")
-            failed = f", {state['failed']} failed" if state["failed"] else ""
-            bar.update(state["done"], f"{state['done']} of {state['total']} runs{failed}")
+            tally.ended(reason)
 
         bar.note(f"sweep: {len(runs)} runs ({len(sweep.cells())} cells x {len(sweep.spec.seeds)} seeds) "
                  f"on {args.scheduler or f'{workers} local worker processes'}")
