@@ -20,34 +20,15 @@ from abc import ABC
 
 from helicalib.sim.lazy_plant import LazyPlant
 from helicalib.sim.scenario import Scenario
-from helicalib.sim.stepped_plant import (  # noqa: F401 - the plant's constants, as before
-    MAX_STEP_S,
-    MODE_HOLD,
-    MODE_IDLE,
-    MODE_STOW,
-    MODE_TRACK,
-    TRACK_GRID_S,
-    WIND_RELEASE_MS,
-    SteppedPlant,
-)
+from helicalib.sim.stepped_plant import SteppedPlant
 
 
 class SimulatedPlant(ABC):
     """A simulated tower plant with hidden true errors, weather, soiling and finite-speed drives.
 
-    Parameters
-    ----------
-    cfg : config.FieldConfig
-    scenario : Scenario
-    start_s : float
-        Initial plant time [UTC s].
-    rate : float
-        Plant time rate reported at registers 12-13 (1.0 in-process; the server sets its own).
-    zero_errors : bool
-        A perfect field (no hidden errors or unmodelled effects) — for checks of the nominal model.
-    lazy : bool
-        True (default): a :class:`~helicalib.sim.lazy_plant.LazyPlant` (heliostats in closed form,
-        computed when read); False: the stepped reference :class:`~helicalib.sim.stepped_plant.SteppedPlant`.
+    Takes :class:`~helicalib.sim.stepped_plant.SteppedPlant`'s parameters, and ``lazy``: True
+    (default) builds a :class:`~helicalib.sim.lazy_plant.LazyPlant` (heliostats in closed form,
+    computed when read), False the stepped reference itself.
     """
 
     def __new__(cls, cfg, scenario: Scenario | None = None, start_s: float = 0.0, rate: float = 1.0,
