@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from spot_scene import EXPOSED, demo_scene
 
-from helicalib.sim.render import DEMO_CAMERA_ENU_M, Lighting, Spot, demo_target, look_at_pose, render_frame
-from helicalib.vision.marks import find_marks
+from helicalib.sim.render import Spot, render_frame
 from helicalib.vision.mirror import asymmetry, mirror_centre, mirrored
 from helicalib.vision.spot import SpotLimits, measure_spot
 
-EXPOSED = Lighting(ambient=25.0, background=10.0)
 CORE_ONLY = SpotLimits(max_mirror_slope=None)
 
 
@@ -63,11 +62,7 @@ def test_asymmetry_is_zero_for_a_symmetric_spot_and_large_for_a_lopsided_one():
 # ---------------------------------------------------------------------------- rendered frames
 @pytest.fixture(scope="module")
 def scene():
-    target = demo_target()
-    pose = look_at_pose(DEMO_CAMERA_ENU_M, target, 5200, (1280, 1024))
-    marks = find_marks(render_frame(target, pose, (), EXPOSED, rng=3), target)
-    assert marks.found
-    return target, pose, marks
+    return demo_scene()
 
 
 def _measure(scene, spot: Spot):
