@@ -1,4 +1,4 @@
-"""``helicalib status DB``: a campaign's progress as a table."""
+"""``helicalib status DB``: a campaign's progress, as a summary at field scale or as a table."""
 
 from __future__ import annotations
 
@@ -6,26 +6,39 @@ import argparse
 import json
 
 from helicalib.commands._args import add_database
+from helicalib.campaign.progress_summary import ATTENTION_SHOWN, FULL_TABLE_MAX, summarise, summary_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("status", help="print a campaign's progress as a table",
-                       description="Progress of a campaign in a helicalib database: per heliostat visits, valid "
-                                   "points, last error and the acceptance verdict with its first missing item.")
+    p = sub.add_parser("status", help="print a campaign's progress: a summary, or the table of every heliostat",
+                       description="Progress of a campaign in a helicalib database. A field of at most "
+                                   f"{FULL_TABLE_MAX} heliostats: per heliostat visits, valid points, last error and "
+                                   "the acceptance verdict with its first missing item. A larger one: per board "
+                                   "accepted / pending / out of service and error quantiles, the heliostats needing "
+                                   "attention with their first missing item, and the worst errors (--all: the "
+                                   "full table).")
     add_database(p)
     p.add_argument("--campaign", type=int, default=None,
                    help="campaign id (default: the one the process holding the database runs, else the newest "
                         "marked running, else the newest)")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--all", action="store_true",
+                   help=f"print the table of every heliostat also for a field of more than {FULL_TABLE_MAX}")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table (every heliostat, and the "
+                                                       "summary)")
     p.set_defaults(func=run)
+
+
+STATUS_EVENT_KINDS = ("plant_lost", "plant_back", "gated", "ungated", "stow", "resume", "off_tracking",
+                      "back_to_tracking")
+"""The events ``status`` reads (the plant's state, the gate, stows, heliostats left off tracking)."""
 
 
 def run(args) -> int:
 
     from rich.console import Console
-    from rich.table import Table
     from rich.text import Text
 
+    from helicalib.store.history import replay
     from helicalib.store.records import off_tracking
     from helicalib.store.sqlite import Store, existing_database
 
@@ -38,18 +51,22 @@ def run(args) -> int:
         owner = store.owner()
         camp, why = shown_campaign(store, campaigns, owner, args.campaign)
         rows = store.progress(camp.id)
-        events = store.events(camp.id)
+        events = store.events(camp.id, kinds=STATUS_EVENT_KINDS)
+        out_of_service = replay(store.actions(camp.id)).out_of_service
         newest_obs = max(store.latest_by_target(camp.id).values(), key=lambda o: o.id, default=None)
+        last_event = store.last_event(camp.id)
     finally:
         store.close()
     accepted = sum(1 for r in rows if r["accepted"])
     state = shown_status(camp.status, owner)
-    plant = plant_state(events, newest_obs)
+    plant = plant_state(events, newest_obs, last_event)
+    summary = summarise(rows, out_of_service)
     if args.json:
         print(json.dumps({"campaign": camp.id, "shown_because": why, "name": camp.name, "mode": camp.mode, "status": state,
                           "owner": owner, **plant, "accepted": accepted, "heliostats": rows,
                           "stows": sum(e.kind == "stow" for e in events),
-                          "off_tracking": off_tracking(events)}, indent=2, default=list))
+                          "off_tracking": off_tracking(events), "out_of_service": sorted(out_of_service),
+                          "summary": summary_json(summary)}, indent=2, default=list))
         return 0
     # every string below that a user or a device gave (ids, names, reasons, the owner's line) is
     # printed as rich Text, never parsed as markup: "[/]" must not crash, "[link=...]" not become a link
@@ -57,15 +74,12 @@ def run(args) -> int:
     console.print(Text(f"campaign {camp.id}: {why}"))
     for text, style in plant_lines(plant, running=owner is not None):
         console.print(Text(text, style=style))
-    table = Table(title=Text(f"campaign {camp.id}: {camp.name} ({state}) — {accepted}/{len(rows)} accepted"))
-    for col in ("heliostat", "target", "visits", "valid", "last error mrad", "RMS mrad", "verdict"):
-        table.add_column(col, justify="right" if col not in ("heliostat", "target", "verdict") else "left")
-    for r in rows:
-        verdict = "accepted" if r["accepted"] else ("—" if r["accepted"] is None else (r["reasons"] or ["not accepted"])[0])
-        fmt = lambda x: "—" if x is None else f"{x:.2f}"  # noqa: E731
-        table.add_row(Text(r["heliostat_id"]), Text(r["target_id"]), str(r["visits"]), str(r["valid"]),
-                      fmt(r["last_error_mrad"]), fmt(r["rms_mrad"]), Text(verdict))
-    console.print(table)
+    title = Text(f"campaign {camp.id}: {camp.name} ({state}) — {accepted}/{len(rows)} accepted")
+    if args.all or len(rows) <= FULL_TABLE_MAX:
+        console.print(heliostat_table(title, rows))
+    else:
+        for part in summary_view(title, summary):
+            console.print(part)
     stranded = off_tracking(events)
     if stranded:
         console.print(Text("not confirmed back to tracking", style="red")
@@ -76,18 +90,75 @@ def run(args) -> int:
     return 0
 
 
+def _mrad(x) -> str:
+    return "—" if x is None else f"{x:.2f}"
+
+
+def heliostat_table(title, rows, columns=("heliostat", "target", "visits", "valid", "last error mrad", "RMS mrad",
+                                          "verdict")):
+    """The table of every heliostat in ``rows`` (``status`` on a small field, ``--all``)."""
+    from rich.table import Table
+    from rich.text import Text
+
+    table = Table(title=title)
+    for col in columns:
+        table.add_column(col, justify="right" if col not in ("heliostat", "target", "verdict") else "left")
+    for r in rows:
+        verdict = "accepted" if r["accepted"] else ("—" if r["accepted"] is None else (r["reasons"] or ["not accepted"])[0])
+        table.add_row(Text(r["heliostat_id"]), Text(r["target_id"]), str(r["visits"]), str(r["valid"]),
+                      _mrad(r["last_error_mrad"]), _mrad(r["rms_mrad"]), Text(verdict))
+    return table
+
+
+def summary_view(title, summary) -> list:
+    """``status`` on a large field: the per-board table, the heliostats needing attention (the tally
+    by first missing item, the first :data:`ATTENTION_SHOWN` of them), the worst last errors."""
+    from rich.table import Table
+    from rich.text import Text
+
+    from rich import box
+
+    boards = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, caption="total: heliostats on the board; out: out of service (the crew's); err: each "
+                   "heliostat's last valid error; RMS: its verdict's; mrad")
+    for col in ("board", "total", "accepted", "pending", "out", "visits", "err p50", "p90", "max", "RMS p50"):
+        boards.add_column(col, justify="left" if col == "board" else "right", no_wrap=True, min_width=max(len(col), 4))
+    for b in summary.boards:
+        boards.add_row(Text(b.target_id), str(b.heliostats), str(b.accepted), str(b.pending), str(b.out_of_service),
+                       str(b.visits), *(_mrad(x) for x in (b.error_p50_mrad, b.error_p90_mrad, b.error_max_mrad,
+                                                           b.rms_p50_mrad)))
+    parts: list = [boards]
+    n = len(summary.attention)
+    if n:
+        parts.append(Text(f"{n} heliostat(s) need attention (not accepted, in service); first missing item:"))
+        for item, count in summary.missing_tally:
+            parts.append(Text(f"  {count:6d}  ") + Text(item))
+        shown = summary.attention[:ATTENTION_SHOWN]
+        parts.append(heliostat_table(Text(f"needing attention: the first {len(shown)} of {n} in block order"
+                                          + (" (--all: every heliostat)" if n > len(shown) else "")), shown))
+    else:
+        parts.append(Text("no heliostat needs attention: every one in service is accepted"))
+    if summary.worst:
+        parts.append(heliostat_table(Text(f"worst last errors (the {len(summary.worst)} largest)"), summary.worst))
+    return parts
+
+
 def _utc(t_s: float | None) -> str | None:
     from helicalib.campaign.events import iso_utc
 
     return None if t_s is None else iso_utc(t_s).replace("T", " ").replace("+00:00", " UTC")
 
 
-def plant_state(events, newest_obs) -> dict:
+def plant_state(events, newest_obs, last_event=None) -> dict:
     """What the database says of the plant: unreachable since when (the newest ``plant_lost`` /
     ``plant_back`` event, in the order recorded), the gate's last change (``gated``, ``ungated``,
     ``stow``, ``resume``), the weather of the newest measurement, each with its plant time, and the
-    plant time of the newest record (events and measurements) that their ages are counted to."""
+    plant time of the newest record (events and measurements) that their ages are counted to.
+
+    ``events`` may be only those kinds; ``last_event`` is then the campaign's event recorded last
+    (of any kind: its plant time is the newest record's), else the last of ``events`` is."""
     by_row = sorted(events, key=lambda e: e.id)  # recorded order: a plant clock set back stamps earlier
+    if last_event is not None and (not by_row or last_event.id > by_row[-1].id):
+        by_row.append(last_event)
     lost = [e for e in by_row if e.kind in ("plant_lost", "plant_back")]
     since = lost[-1].time_s if lost and lost[-1].kind == "plant_lost" else None
     gates = [e for e in by_row if e.kind in ("gated", "ungated", "stow", "resume")]

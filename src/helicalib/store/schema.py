@@ -33,6 +33,13 @@ OPERATOR_ACTIONS = (
 )
 """The crew console's actions (version 3): created with the schema, and by the migration."""
 
+READ_INDEXES = (
+    "CREATE INDEX IF NOT EXISTS events_by_kind ON events (campaign_id, kind)",
+)
+"""Indexes for the crew's reads (``status``, the console) at 10⁴ heliostats. Not part of the
+version: a writer that opens a database of the current version adds the missing ones; a reader
+works without them (slower), and an older helicalib reads a database that has them."""
+
 DDL = """
 CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL);
 
@@ -153,7 +160,7 @@ CREATE TABLE IF NOT EXISTS events (
     data_json TEXT NOT NULL DEFAULT '{}'
 );
 CREATE INDEX IF NOT EXISTS events_by_campaign ON events (campaign_id, time_s);
-""" + "".join(stmt + ";\n" for stmt in OPERATOR_ACTIONS)
+""" + "".join(stmt + ";\n" for stmt in OPERATOR_ACTIONS + READ_INDEXES)
 
 
 MIGRATIONS: dict[int, tuple[str, ...]] = {
@@ -215,6 +222,7 @@ def ensure_schema(conn: sqlite3.Connection, where: str) -> int:
                 f"{where}: database schema version {version} is newer than this helicalib's ({SCHEMA_VERSION}); upgrade helicalib"
             )
         if version == SCHEMA_VERSION:
+            _add_read_indexes(conn)
             return version
         if version >= 1:
             with conn:
@@ -222,9 +230,20 @@ def ensure_schema(conn: sqlite3.Connection, where: str) -> int:
                     for stmt in MIGRATIONS[v]:
                         conn.execute(stmt)
                 conn.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
+            _add_read_indexes(conn)
             return SCHEMA_VERSION
     with conn:
         conn.executescript(DDL)
         conn.execute("DELETE FROM schema_version")
         conn.execute("INSERT INTO schema_version (version) VALUES (?)", (SCHEMA_VERSION,))
     return SCHEMA_VERSION
+
+
+def _add_read_indexes(conn: sqlite3.Connection) -> None:
+    """Create the :data:`READ_INDEXES` a database of the current version lacks (one transaction)."""
+    have = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'index'")}
+    missing = [stmt for stmt in READ_INDEXES if stmt.split(" EXISTS ", 1)[1].split()[0] not in have]
+    if missing:
+        with conn:
+            for stmt in missing:
+                conn.execute(stmt)

@@ -382,10 +382,28 @@ class Store:
                 + (where + " AND" if where else " WHERE") + " outcome = 'running'", (float(time_s), *params))
             return int(cur.rowcount)
 
-    def visits(self, campaign_id: int | None = None, heliostat_id: str | None = None) -> list[Visit]:
-        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
-        return [Visit(**{k: r[k] for k in r.keys()})
-                for r in self._read(f"SELECT * FROM visits{where} ORDER BY id", params, table="visits")]
+    def visits(self, campaign_id: int | None = None, heliostat_id: str | None = None, *,
+               outcome: str | None = None, newest: int | None = None) -> list[Visit]:
+        """Visits in recording order, filtered by campaign, heliostat and outcome; ``newest``: only
+        the newest N of them (still oldest first)."""
+        where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id, outcome=outcome)
+        if newest is None:
+            sql = f"SELECT * FROM visits{where} ORDER BY id"
+        else:  # "+campaign_id": walk the rows newest first and stop at N (the index would sort them all)
+            sql = (f"SELECT * FROM (SELECT * FROM visits{where.replace('campaign_id =', '+campaign_id =')}"
+                   f" ORDER BY id DESC LIMIT {max(0, int(newest))}) ORDER BY id")
+        return [Visit(**{k: r[k] for k in r.keys()}) for r in self._read(sql, params, table="visits")]
+
+    def count_visits(self, campaign_id: int) -> int:
+        """How many visits a campaign has (any outcome, running ones too)."""
+        return int(self._read("SELECT COUNT(*) FROM visits WHERE campaign_id = ?", (int(campaign_id),))[0][0])
+
+    def last_outcomes(self, campaign_id: int) -> dict[str, str]:
+        """Each heliostat's newest ended visit's outcome (a running visit is not ended), by heliostat id."""
+        rows = self._read("SELECT id, heliostat_id, outcome FROM visits WHERE id IN (SELECT MAX(id) FROM visits "
+                          "WHERE campaign_id = ? AND outcome != 'running' GROUP BY heliostat_id)",
+                          (int(campaign_id),), table="visits")
+        return {r["heliostat_id"]: r["outcome"] for r in rows}
 
     # ------------------------------------------------------------------ observations
     def save_frame(self, frame: FrameData, *, campaign_id: int, heliostat_id: str, visit_id: int | None,
@@ -540,11 +558,13 @@ class Store:
         return [_verdict(self.path, r)
                 for r in self._read(f"SELECT * FROM verdicts{where} ORDER BY time_s, id", params, table="verdicts")]
 
-    def latest_verdicts(self, campaign_id: int) -> dict[str, Verdict]:
-        """The newest verdict of each heliostat of a campaign, by heliostat id."""
+    def latest_verdicts(self, campaign_id: int, after_id: int = 0) -> dict[str, Verdict]:
+        """The newest verdict of each heliostat of a campaign, by heliostat id; ``after_id``: only
+        of the heliostats with a verdict recorded after that row id (verdicts are only ever added,
+        so a reader holding the result for ``after_id`` updates it with this)."""
         rows = self._read(
-            "SELECT * FROM verdicts WHERE id IN (SELECT MAX(id) FROM verdicts WHERE campaign_id = ? GROUP BY heliostat_id)",
-            (int(campaign_id),), table="verdicts")
+            "SELECT * FROM verdicts WHERE id IN (SELECT MAX(id) FROM verdicts WHERE campaign_id = ? AND id > ? "
+            "GROUP BY heliostat_id)", (int(campaign_id), int(after_id)), table="verdicts")
         return {r["heliostat_id"]: _verdict(self.path, r) for r in rows}
 
     def record_event(self, *, campaign_id: int, time_s: float, kind: str, reason: str,
@@ -555,11 +575,30 @@ class Store:
             (int(campaign_id), float(time_s), kind, heliostat_id, reason, _json(data or {})),
         )
 
-    def events(self, campaign_id: int | None = None, kind: str | None = None) -> list[Event]:
+    def events(self, campaign_id: int | None = None, kind: str | None = None, *,
+               kinds: Sequence[str] | None = None, newest: int | None = None) -> list[Event]:
+        """Events in plant-time order (then recording order), filtered by campaign and kind (``kinds``:
+        any of several); ``newest``: only the newest N of them (still oldest first)."""
         where, params = _where(campaign_id=campaign_id, kind=kind)
-        return [Event(id=r["id"], campaign_id=r["campaign_id"], time_s=r["time_s"], kind=r["kind"], reason=r["reason"],
-                      heliostat_id=r["heliostat_id"], data=loads(self.path, "events", r, "data_json"))
-                for r in self._read(f"SELECT * FROM events{where} ORDER BY time_s, id", params, table="events")]
+        if kinds is not None:
+            where += (" AND" if where else " WHERE") + f" kind IN ({', '.join('?' * len(kinds)) or 'NULL'})"
+            params += tuple(kinds)
+        sql = f"SELECT * FROM events{where} ORDER BY time_s, id"
+        if newest is not None:
+            sql = (f"SELECT * FROM (SELECT * FROM events{where} ORDER BY time_s DESC, id DESC "
+                   f"LIMIT {max(0, int(newest))}) ORDER BY time_s, id")
+        return [_event(self.path, r) for r in self._read(sql, params, table="events")]
+
+    def last_event(self, campaign_id: int) -> Event | None:
+        """A campaign's event recorded last (the highest row id, whatever its plant time)."""
+        rows = self._read("SELECT * FROM events WHERE +campaign_id = ? ORDER BY id DESC LIMIT 1", (int(campaign_id),),
+                          table="events")
+        return _event(self.path, rows[0]) if rows else None
+
+    def event_kinds(self, campaign_id: int) -> list[str]:
+        """The kinds of event a campaign has recorded, sorted."""
+        return sorted(r[0] for r in self._read("SELECT DISTINCT kind FROM events WHERE campaign_id = ?",
+                                               (int(campaign_id),), table="events"))
 
     # ------------------------------------------------------------------ operator actions (the console)
     def request_action(self, *, campaign_id: int, kind: str, heliostat_ids: Sequence[str] = (), who: str,
@@ -588,36 +627,40 @@ class Store:
 
     # ------------------------------------------------------------------ summary
     def progress(self, campaign_id: int) -> list[dict[str, Any]]:
-        """Per heliostat of a campaign: target, visits, observations, valid ones, last error, verdict.
+        """Per heliostat of a campaign (in block order): target, visits, observations, valid ones,
+        last valid error, and the newest verdict (accepted, RMS, reasons).
 
-        The table ``helicalib status`` prints.
+        The table ``helicalib status`` prints. A few grouped passes over the indexes, not one query
+        per heliostat: about 0.2 s for 10⁴ heliostats and 10⁵ observations.
         """
-        rows = self._read(
-            """
-            SELECT h.rowid AS id, h.heliostat_id, h.target_id,
-              (SELECT COUNT(*) FROM visits v WHERE v.campaign_id = h.campaign_id AND v.heliostat_id = h.heliostat_id) AS visits,
-              (SELECT COUNT(*) FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id) AS observations,
-              (SELECT COUNT(*) FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id AND o.valid = 1) AS valid,
-              (SELECT o.id FROM observations o WHERE o.campaign_id = h.campaign_id AND o.heliostat_id = h.heliostat_id
-                 AND o.valid = 1 ORDER BY o.id DESC LIMIT 1) AS last_valid_id
-            FROM heliostats h WHERE h.campaign_id = ? ORDER BY h.block_index
-            """, (int(campaign_id),), table="heliostats")
-        last = [r["last_valid_id"] for r in rows if r["last_valid_id"] is not None]
+        cid = (int(campaign_id),)
+        helios = self._read("SELECT heliostat_id, target_id FROM heliostats WHERE campaign_id = ? ORDER BY block_index",
+                            cid, table="heliostats")
+        visits = {r[0]: r[1] for r in self._read(
+            "SELECT heliostat_id, COUNT(*) FROM visits WHERE campaign_id = ? GROUP BY heliostat_id", cid)}
+        obs = {r[0]: (r[1], r[2] or 0, r[3]) for r in self._read(
+            "SELECT heliostat_id, COUNT(*), SUM(valid = 1), MAX(CASE WHEN valid = 1 THEN id END) FROM observations "
+            "WHERE campaign_id = ? GROUP BY heliostat_id", cid)}
+        last = [o[2] for o in obs.values() if o[2] is not None]
         errors = {}
         for i in range(0, len(last), PARAMS_PER_QUERY):  # SQLite builds may allow as few as 32 766 ?-parameters
             chunk = last[i:i + PARAMS_PER_QUERY]
             errors.update({r["id"]: r["error_mrad"] for r in self._read(
                 f"SELECT id, error_mrad FROM observations WHERE id IN ({', '.join('?' * len(chunk))})", chunk,
                 table="observations")})
-        verdicts = self.latest_verdicts(campaign_id)
+        verdicts = {r["heliostat_id"]: r for r in self._read(
+            "SELECT id, heliostat_id, accepted, rms_mrad, reasons_json FROM verdicts WHERE id IN "
+            "(SELECT MAX(id) FROM verdicts WHERE campaign_id = ? GROUP BY heliostat_id)", cid, table="verdicts")}
         out = []
-        for r in rows:
-            v = verdicts.get(r["heliostat_id"])
-            out.append({"heliostat_id": r["heliostat_id"], "target_id": r["target_id"], "visits": r["visits"],
-                        "observations": r["observations"], "valid": r["valid"],
-                        "last_error_mrad": errors.get(r["last_valid_id"]),
-                        "accepted": None if v is None else v.accepted,
-                        "rms_mrad": None if v is None else v.rms_mrad, "reasons": () if v is None else v.reasons})
+        for r in helios:
+            hid = r["heliostat_id"]
+            n_obs, n_valid, last_id = obs.get(hid, (0, 0, None))
+            v = verdicts.get(hid)
+            out.append({"heliostat_id": hid, "target_id": r["target_id"], "visits": visits.get(hid, 0),
+                        "observations": n_obs, "valid": n_valid, "last_error_mrad": errors.get(last_id),
+                        "accepted": None if v is None else bool(v["accepted"]),
+                        "rms_mrad": None if v is None else v["rms_mrad"],
+                        "reasons": () if v is None else tuple(loads(self.path, "verdicts", v, "reasons_json"))})
         return out
 
 
@@ -774,3 +817,8 @@ def _verdict(db: Path, r: sqlite3.Row) -> Verdict:
                    accepted=bool(r["accepted"]), n_points=r["n_points"], rms_mrad=r["rms_mrad"],
                    reasons=tuple(loads(db, "verdicts", r, "reasons_json")),
                    details=loads(db, "verdicts", r, "details_json"))
+
+
+def _event(db: Path, r: sqlite3.Row) -> Event:
+    return Event(id=r["id"], campaign_id=r["campaign_id"], time_s=r["time_s"], kind=r["kind"], reason=r["reason"],
+                 heliostat_id=r["heliostat_id"], data=loads(db, "events", r, "data_json"))
