@@ -62,8 +62,10 @@ def variant(tmp_path, name: str, edit) -> str:
 
 
 @contextlib.contextmanager
-def serve(register_map, scenario=None):
-    cfg = load_field_config(FIELD)
+def serve(register_map, scenario=None, field=FIELD):
+    """The simulated plant of ``field`` served in ``register_map``'s layout: (cfg, plant, server, a
+    plain pymodbus client, the :class:`ModbusPlant`, the fake time source)."""
+    cfg = load_field_config(field)
     source = FakeSource()
     plant = SimulatedPlant(cfg, scenario, start_s=START, rate=600.0)
     rmap = load_register_map(register_map)

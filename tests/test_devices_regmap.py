@@ -279,10 +279,10 @@ def test_a_map_too_small_for_the_field_is_refused_when_the_count_is_known(n, edi
 
 
 def test_loading_by_name_file_and_the_errors_of_both(tmp_path):
-    assert shipped_maps() == ["plant-interface-1", "scs-b"]
+    assert shipped_maps() == ["plant-interface-1", "plant-interface-1-units", "scs-b"]
     assert load_register_map("scs-b").name == "scs-b"
     with pytest.raises(ConfigError, match=r"register map 'scs-c': no shipped map of that name \(shipped: "
-                                          r"plant-interface-1, scs-b"):
+                                          r"plant-interface-1, plant-interface-1-units, scs-b"):
         load_register_map("scs-c")
     (tmp_path / "mine.yaml").write_text((MAPS_DIR / "scs-b.yaml").read_text().replace("name: scs-b", "name: mine"))
     assert load_register_map("mine.yaml", tmp_path).name == "mine"

@@ -134,8 +134,11 @@ class ModbusPlant:
         self.guard.check_index(index, self.heliostat_count())
 
     def _where(self, q: Q, index: int | None = None) -> str:
-        """``input 10002 (heliostats.status.strokes_mm[0])``: a quantity's register in messages."""
-        return f"{q.table} {self.map.address(q, index)} ({q.path})"
+        """``input 10002 (heliostats.status.strokes_mm[0])``: a quantity's register in messages (with
+        its unit id when the heliostat's block lies on another unit than the endpoint's)."""
+        step = self.map.unit_step(index) if q.block and index is not None else 0
+        unit = f"unit {self.scs.unit + step} " if step else ""
+        return f"{unit}{q.table} {self.map.address(q, index)} ({q.path})"
 
     def _read(self, qs: list[Q], what: str, index: int | None = None, link: ModbusLink | None = None) -> dict[str, list[int]]:
         """The registers of ``qs`` (plant-wide, or of heliostat ``index``'s block), in few requests."""
@@ -147,15 +150,19 @@ class ModbusPlant:
             readable = lambda table, a: 0 <= a - base < m.block_extent(table)
         wanted = [(q.table, base + r if q.block else r) for q in qs for r in q.registers]
         image: dict[tuple[str, int], int] = {}
+        unit = {} if index is None or not m.unit_step(index) else {"unit": self.scs.unit + m.unit_step(index)}
         for table, start, count in plan_reads(wanted, readable):
             link = link or self.scs
-            got = link.read(start, count, what) if table == "holding" else link.read(start, count, what, table=table)
+            got = link.read(start, count, what, **unit, **({} if table == "holding" else {"table": table}))
             for k, v in enumerate(got):
                 image[(table, start + k)] = v
         return {q.path: [image.get((q.table, m.address(q, index) + k), 0) for k in range(q.width)] for q in qs}
 
-    def _write(self, table: str, address: int, values: list[int], what: str, retry: bool = True) -> None:
+    def _write(self, table: str, address: int, values: list[int], what: str, retry: bool = True,
+               index: int | None = None) -> None:
         kw = {} if retry else {"retry": False}
+        if index is not None and self.map.unit_step(index):
+            kw["unit"] = self.scs.unit + self.map.unit_step(index)
         if table == "holding":
             self.scs.write(address, values, what, **kw)
         else:
@@ -311,13 +318,15 @@ class ModbusPlant:
                 token = (done + 1) & 0xFFFF
                 go = (eq, 1, "execute")
             for q, values in fields:
-                self._write(q.table, self.map.address(q, index), values, f"{label} {q.meaning or q.path}")
-            self._write(mq.table, self.map.address(mq, index), encode_raw(mq, mode), f"{label} command {command.name}")
+                self._write(q.table, self.map.address(q, index), values, f"{label} {q.meaning or q.path}", index=index)
+            self._write(mq.table, self.map.address(mq, index), encode_raw(mq, mode), f"{label} command {command.name}",
+                        index=index)
             if self._hs.kind == "sequence":   # a retried write rewrites the same number: no second command
-                self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}")
+                self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", index=index)
             else:                             # the plant acts on every execute write: sent once
                 try:
-                    self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", retry=False)
+                    self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", retry=False,
+                                index=index)
                 except PlantUnreachableError:
                     self._check_taken(index, token, what)
             self._last_sent[index] = token

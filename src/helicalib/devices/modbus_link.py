@@ -138,43 +138,49 @@ class ModbusLink:
             self._down_reason = last
         raise PlantUnreachableError(f"plant {self.name}: {what} failed after {attempts} attempt{'s' * (attempts > 1)} ({last})")
 
-    def read(self, address: int, count: int, what: str, table: str = "holding") -> list[int]:
-        """``count`` registers of ``table`` (holding: function 3, input: 4, coil: 1) from ``address``;
-        ``what`` names them in errors."""
+    def _where(self, address: int, table: str, unit: int) -> str:
         where = f"address {address}" if table == "holding" else f"{table} address {address}"
+        return where if unit == self.unit else f"unit {unit} {where}"
+
+    def read(self, address: int, count: int, what: str, table: str = "holding", unit: int | None = None) -> list[int]:
+        """``count`` registers of ``table`` (holding: function 3, input: 4, coil: 1) from ``address``;
+        ``what`` names them in errors; ``unit``: another unit id behind this endpoint (a block of
+        heliostats, ``heliostats.per_unit``), same connection."""
+        device = self.unit if unit is None else int(unit)
+        where = self._where(address, table, device)
         label = f"read of {what} ({where}, {count} registers)"
         if table == "coil":
-            rr = self._call(label, lambda c: c.read_coils(address, count=count, device_id=self.unit))
+            rr = self._call(label, lambda c: c.read_coils(address, count=count, device_id=device))
             regs = [int(b) for b in rr.bits]
         else:
             fn = "read_input_registers" if table == "input" else "read_holding_registers"
-            rr = self._call(label, lambda c: getattr(c, fn)(address, count=count, device_id=self.unit))
+            rr = self._call(label, lambda c: getattr(c, fn)(address, count=count, device_id=device))
             regs = list(rr.registers)
         if len(regs) < count:
             raise PlantError(f"plant {self.name}: read of {what} ({where}) answered {len(regs)} of {count} registers")
         return regs[:count]
 
     def write(self, address: int, values: Sequence[int], what: str, table: str = "holding",
-              retry: bool = True) -> None:
+              retry: bool = True, unit: int | None = None) -> None:
         """Write holding registers (function 6 for one, 16 for several) or coils (5, 15).
 
         ``retry=False``: one attempt only, for a write the plant acts on every time (an execute
         handshake): a lost answer must not become a second command; the caller finds out whether
-        the plant took it.
+        the plant took it. ``unit``: as for :meth:`read`.
         """
         values = [int(v) & 0xFFFF for v in values]
-        where = f"address {address}" if table == "holding" else f"{table} address {address}"
-        label = f"write of {what} ({where})"
+        device = self.unit if unit is None else int(unit)
+        label = f"write of {what} ({self._where(address, table, device)})"
         if table == "coil":
             bits = [bool(v) for v in values]
             if len(bits) == 1:
-                self._call(label, lambda c: c.write_coil(address, bits[0], device_id=self.unit), retry)
+                self._call(label, lambda c: c.write_coil(address, bits[0], device_id=device), retry)
             else:
-                self._call(label, lambda c: c.write_coils(address, bits, device_id=self.unit), retry)
+                self._call(label, lambda c: c.write_coils(address, bits, device_id=device), retry)
         elif len(values) == 1:
-            self._call(label, lambda c: c.write_register(address, values[0], device_id=self.unit), retry)
+            self._call(label, lambda c: c.write_register(address, values[0], device_id=device), retry)
         else:
-            self._call(label, lambda c: c.write_registers(address, values, device_id=self.unit), retry)
+            self._call(label, lambda c: c.write_registers(address, values, device_id=device), retry)
 
     def close(self) -> None:
         with self._lock:

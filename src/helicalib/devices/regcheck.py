@@ -29,6 +29,8 @@ CODED = {  # key path: (allowed names, required names, how the plant's values ar
 }
 
 
+MAX_UNITS = 247
+"""Modbus unit (device) ids a plant can answer on: 1..247."""
 STROKE_DEMANDS = ("heliostats.command.strokes_mm[0]", "heliostats.command.strokes_mm[1]")
 
 
@@ -149,6 +151,8 @@ def _check_blocks(m) -> list[str]:
     extent = _extents(m)
     widest = max(extent.values(), default=0)
     out = []
+    if h.per_unit is not None and h.addresses is not None:
+        out.append("heliostats.per_unit: blocks by unit id need base and stride, not addresses")
     if h.block_size is not None and h.block_size < widest:
         out.append(f"heliostats.block_size: {h.block_size} is smaller than the block's extent {widest}")
     if h.stride is not None and extent:
@@ -182,7 +186,11 @@ def check_count(m, n: int) -> list[str]:
         return [f"heliostats.addresses: {len(h.addresses)} block addresses for a field of {n} heliostats"]
     if n == 0:
         return []
-    starts = [m.block_address(i) for i in ((0, n - 1) if h.addresses is None else range(n))]
+    if m.unit_steps(n) > MAX_UNITS:
+        return [f"heliostats.per_unit: {n} heliostats at {h.per_unit} per unit need {m.unit_steps(n)} unit ids, "
+                f"more than Modbus's {MAX_UNITS}"]
+    last_i = min(n, h.per_unit or n) - 1
+    starts = [m.block_address(i) for i in ((0, last_i) if h.addresses is None else range(n))]
     lo = min(starts)
     ends = {table: max(starts) + max(e, h.block_size or 0) - 1 for table, e in _extents(m).items()}
     table, last = max(ends.items(), key=lambda kv: kv[1])

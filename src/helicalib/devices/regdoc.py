@@ -63,6 +63,10 @@ def markdown(m: RegisterMap) -> str:
     d, h = m.doc.defaults, m.doc.heliostats
     blocks = (f"{h.base} + {h.stride}·i" if h.addresses is None
               else "the addresses " + ", ".join(str(a) for a in h.addresses))
+    if h.per_unit:
+        blocks = (f"{h.base} + {h.stride}·(i mod {h.per_unit}) on unit id u + ⌊i / {h.per_unit}⌋ "
+                  f"({h.per_unit} heliostats per unit id; u is the field config's `plant.scs.unit`, plant-wide "
+                  "registers answer on every unit)")
     hs = h.command.handshake
     done = "the last sequence number processed" if hs.kind == "sequence" else "the commands-taken counter"
     command_table = d.command_table or d.table

@@ -59,11 +59,22 @@ class RegisterMap:
 
     # -- the heliostat blocks -----------------------------------------------------------------
     def block_address(self, index: int) -> int:
-        """Address of heliostat ``index``'s block (0-based, the field config's order)."""
+        """Address of heliostat ``index``'s block (0-based, the field config's order) within its unit."""
         h = self.doc.heliostats
         if h.addresses is not None:
             return h.addresses[index]
-        return h.base + h.stride * index
+        return h.base + h.stride * (index % h.per_unit if h.per_unit else index)
+
+    def unit_step(self, index: int) -> int:
+        """How many unit ids past the SCS endpoint's unit heliostat ``index``'s block lies
+        (``heliostats.per_unit``: heliostats per unit id; 0 without it)."""
+        per = self.doc.heliostats.per_unit
+        return index // per if per else 0
+
+    def unit_steps(self, n: int) -> int:
+        """Unit ids the blocks of ``n`` heliostats take (1 without ``heliostats.per_unit``)."""
+        per = self.doc.heliostats.per_unit
+        return max(1, -(-n // per)) if per else 1
 
     def address(self, q: Q, index: int | None = None) -> int:
         """The protocol address of ``q``'s first register (of heliostat ``index`` for a block quantity)."""
@@ -119,7 +130,7 @@ def parse_register_map(data, source: str) -> RegisterMap:
     return RegisterMap(doc, source)
 
 
-SHIPPED = ("plant-interface-1", "scs-b")
+SHIPPED = ("plant-interface-1", "plant-interface-1-units", "scs-b")
 """The register maps shipped in ``devices/maps/`` (the folder holds OPC UA node maps too)."""
 
 

@@ -117,6 +117,7 @@ class Heliostats(_Map):
     stride: int | None = Field(default=None, ge=1, le=65535)
     addresses: list[int] | None = Field(default=None, min_length=1)
     block_size: int | None = Field(default=None, ge=1, le=65535)
+    per_unit: int | None = Field(default=None, ge=1, le=65535)
     command: HeliostatCommands
     status: HeliostatStatusRegs
 

@@ -41,17 +41,27 @@ class PlantRegisters:
     lock : threading.Lock shared with the cameras (one is made if None)
     register_map : RegisterMap, a shipped map's name or a YAML path, optional
         The layout served (default: ``PLANT_INTERFACE.md``).
+    served : bool
+        False when the plant is served over OPC UA: the registers then only lend their lock and
+        :meth:`sync` to the other services, and the map's reach (2016 heliostats for
+        ``PLANT_INTERFACE.md``) does not limit the field.
     """
 
-    def __init__(self, plant, clock, lock: threading.Lock | None = None, register_map=None):
+    def __init__(self, plant, clock, lock: threading.Lock | None = None, register_map=None, served: bool = True):
         self.plant = plant
         self.clock = clock
         self.lock = lock or threading.RLock()
         self.map: RegisterMap = load_register_map(register_map)
         self.n = plant.heliostat_count()
-        self.map.check_count(self.n)
+        if served:
+            self.map.check_count(self.n)
         self.written: dict[tuple[str, int], int] = {}
-        """Command registers as written, by (table, address)."""
+        """Command registers as written, by (table, address); a block on another unit id than the
+        first (``heliostats.per_unit``) at address + 65536 · its unit step."""
+        scs = plant.cfg.plant.scs
+        self.first_unit = scs.unit if scs is not None else 1
+        self.block_units = [self.first_unit + k for k in range(self.map.unit_steps(self.n))]
+        """The unit ids that answer heliostat blocks (one without ``heliostats.per_unit``)."""
         m = self.map
         self._plant_w = {(q.table, r): q for q in m.q.values() if q.writable and not q.block for r in q.registers}
         self._block_w = {(q.table, r): q for q in m.q.values() if q.writable and q.block for r in q.registers}
@@ -66,14 +76,29 @@ class PlantRegisters:
             self.plant.advance_to(now)
 
     # -- where an address lies --------------------------------------------------------------
-    def _block_of(self, table: str, address: int) -> tuple[int, int] | None:
+    def _step(self, unit: int | None) -> int:
+        """The unit step of a request to ``unit`` (0 without ``heliostats.per_unit``; -1: no blocks there)."""
+        if unit is None or len(self.block_units) == 1:
+            return 0
+        step = int(unit) - self.first_unit
+        return step if 0 <= step < len(self.block_units) else -1
+
+    def _key(self, table: str, address: int, step: int) -> tuple[str, int]:
+        """Where a written register is kept: a block's at its unit step's own address space."""
+        return (table, address + 65536 * step) if step > 0 and self._block_of(table, address, step) else (table, address)
+
+    def _block_of(self, table: str, address: int, step: int = 0) -> tuple[int, int] | None:
         """(heliostat index, offset) of a register inside a block's readable extent, or None."""
         extent = self._extent[table]
-        if not extent or self.n == 0:
+        if not extent or self.n == 0 or step < 0:
             return None
         if self._starts is None:
             h = self.map.doc.heliostats
             i, off = divmod(address - h.base, h.stride)
+            if h.per_unit:
+                if i >= h.per_unit:
+                    return None
+                i += step * h.per_unit
             return (i, off) if address >= h.base and i < self.n and off < extent else None
         k = bisect.bisect_right(self._starts, (address, self.n)) - 1
         if k < 0:
@@ -81,30 +106,33 @@ class PlantRegisters:
         start, i = self._starts[k]
         return (i, address - start) if address - start < extent else None
 
-    def _readable(self, table: str, address: int) -> bool:
-        return self.map.plant_readable(table, address) or self._block_of(table, address) is not None
+    def _readable(self, table: str, address: int, step: int = 0) -> bool:
+        return self.map.plant_readable(table, address) or self._block_of(table, address, step) is not None
 
     # -- reads ------------------------------------------------------------------------------
-    def read(self, address: int, count: int, table: str = "holding") -> list[int] | int:
-        """``count`` registers of ``table`` from ``address``, or the exception code 2."""
+    def read(self, address: int, count: int, table: str = "holding", unit: int | None = None) -> list[int] | int:
+        """``count`` registers of ``table`` from ``address`` (on ``unit``, which picks the block of
+        heliostats with ``heliostats.per_unit``), or the exception code 2."""
+        step = self._step(unit)
         if count < 1 or address < 0 or address + count > 65536:
             return ILLEGAL_ADDRESS
-        if not all(self._readable(table, address + k) for k in range(count)):
+        if not all(self._readable(table, address + k, step) for k in range(count)):
             return ILLEGAL_ADDRESS
         with self.lock:
             self.sync()
-            return self._image(table, address, count)
+            return self._image(table, address, count, step)
 
-    def _image(self, table: str, address: int, count: int) -> list[int]:
+    def _image(self, table: str, address: int, count: int, step: int = 0) -> list[int]:
         image: dict[int, int] = {}
         if any(self.map.plant_readable(table, address + k) for k in range(count)):
             image.update(self._plant_values(table))
-        blocks = {b[0] for k in range(count) if (b := self._block_of(table, address + k)) is not None}
+        blocks = {b[0] for k in range(count) if (b := self._block_of(table, address + k, step)) is not None}
         if blocks:
             clean = self.plant.soiling.cleanliness(self.plant.t_s)
             for i in blocks:
                 image.update(self._block_values(table, i, float(clean[i])))
-        return [int(image.get(address + k, self.written.get((table, address + k), 0))) for k in range(count)]
+        return [int(image.get(address + k, self.written.get(self._key(table, address + k, step), 0)))
+                for k in range(count)]
 
     def _put(self, image: dict[int, int], q: Q, address: int, value: float) -> None:
         for k, v in enumerate(encode(q, value, clamp=True)):
@@ -155,26 +183,28 @@ class PlantRegisters:
         return image
 
     # -- writes -----------------------------------------------------------------------------
-    def _command_register(self, table: str, address: int) -> tuple[int | None, Q] | None:
+    def _command_register(self, table: str, address: int, step: int = 0) -> tuple[int | None, Q] | None:
         """(heliostat index or None, the command quantity) of a writable register, else None."""
         q = self._plant_w.get((table, address))
         if q is not None:
             return None, q
-        b = self._block_of(table, address)
+        b = self._block_of(table, address, step)
         if b is None:
             return None
         q = self._block_w.get((table, b[1]))
         return None if q is None else (b[0], q)
 
-    def writable(self, address: int, table: str = "holding") -> bool:
-        return self._command_register(table, address) is not None
+    def writable(self, address: int, table: str = "holding", unit: int | None = None) -> bool:
+        return self._command_register(table, address, self._step(unit)) is not None
 
-    def write(self, address: int, values, table: str = "holding") -> int | None:
-        """Store ``values`` from ``address``; returns None, or exception code 2 (nothing stored)."""
+    def write(self, address: int, values, table: str = "holding", unit: int | None = None) -> int | None:
+        """Store ``values`` from ``address`` (on ``unit``, as for :meth:`read`); returns None, or
+        exception code 2 (nothing stored)."""
         values = [int(v) & 0xFFFF for v in values]
+        step = self._step(unit)
         if not values or address < 0 or address + len(values) > 65536:
             return ILLEGAL_ADDRESS
-        targets = [self._command_register(table, address + k) for k in range(len(values))]
+        targets = [self._command_register(table, address + k, step) for k in range(len(values))]
         if any(t is None for t in targets):
             return ILLEGAL_ADDRESS
         with self.lock:
@@ -182,7 +212,7 @@ class PlantRegisters:
             field_written = False
             acts: dict[int, str] = {}
             for k, v in enumerate(values):
-                self.written[(table, address + k)] = v
+                self.written[self._key(table, address + k, step)] = v
                 i, q = targets[k]
                 if i is None:
                     field_written = True
@@ -198,8 +228,11 @@ class PlantRegisters:
         return None
 
     def _regs(self, q: Q, i: int | None = None) -> list[int]:
-        start = self.map.address(q, i)
-        return [self.written.get((q.table, start + k), 0) for k in range(q.width)]
+        return [self.written.get(self._written_at(q, i, k), 0) for k in range(q.width)]
+
+    def _written_at(self, q: Q, i: int | None, k: int = 0) -> tuple[str, int]:
+        step = self.map.unit_step(i) if q.block and i is not None else 0
+        return (q.table, self.map.address(q, i) + k + 65536 * step)
 
     def _act(self, i: int, path: str) -> None:
         q, p = self.map.q, self.plant
@@ -209,7 +242,7 @@ class PlantRegisters:
         else:
             if not int(decode_raw(hq, self._regs(hq, i))):
                 return                                  # execute written back to 0: nothing to do
-            self.written[(hq.table, self.map.address(hq, i))] = 0
+            self.written[self._written_at(hq, i)] = 0
             seq = (int(p.sequence_done[i]) + 1) & 0xFFFF
         mq = q["heliostats.command.mode"]
         raw = int(decode_raw(mq, self._regs(mq, i)))

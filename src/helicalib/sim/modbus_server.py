@@ -38,7 +38,7 @@ class PlantContext(ModbusServerContext):
     async def async_getValues(self, device_id, func_code, address, count=1):
         self._check(device_id)
         table = TABLES.get(func_code)
-        out = ILLEGAL_ADDRESS if table is None else self.registers.read(address, count, table)
+        out = ILLEGAL_ADDRESS if table is None else self.registers.read(address, count, table, unit=device_id)
         if isinstance(out, int):
             return ExcCodes(out)
         return [bool(v) for v in out] if table == "coil" else out
@@ -46,7 +46,8 @@ class PlantContext(ModbusServerContext):
     async def async_setValues(self, device_id, func_code, address, values):
         self._check(device_id)
         table = TABLES.get(func_code)
-        rc = ILLEGAL_ADDRESS if table is None else self.registers.write(address, [int(v) for v in values], table)
+        rc = ILLEGAL_ADDRESS if table is None else self.registers.write(address, [int(v) for v in values], table,
+                                                                          unit=device_id)
         return None if rc is None else ExcCodes(rc)
 
     def device_ids(self):

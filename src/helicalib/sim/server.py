@@ -125,12 +125,13 @@ class PlantServer:
                  opcua_security=None, stream_port: int | None = None):
         self.plant = plant
         self.clock = clock
-        self.registers = PlantRegisters(plant, clock, register_map=register_map)
+        self.registers = PlantRegisters(plant, clock, register_map=register_map, served=protocol == "modbus")
         self.faults = faults or FaultInjector()
         self.sleep = sleep
         self.protocol = protocol
         cfg = plant.cfg
-        self.units = {e.unit for e in (cfg.plant.scs, cfg.plant.weather_endpoint) if e is not None} or {1}
+        self.units = ({e.unit for e in (cfg.plant.scs, cfg.plant.weather_endpoint) if e is not None} or {1}) | \
+            set(self.registers.block_units if protocol == "modbus" else ())
         self._want_modbus = [modbus_port] if protocol == "modbus" else []
         if protocol == "modbus" and weather_port is not None and weather_port != modbus_port:
             self._want_modbus.append(weather_port)
