@@ -37,7 +37,7 @@ browser:
 	fi
 
 test: $(STAMP) browser warm
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadfile
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=25
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache build src/*.egg-info
