@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-
+    from helicalib.commands._progress import ProgressReporter
     from helicalib.store.retention import retain_frames
     from helicalib.store.sqlite import Store, existing_database
 
@@ -37,11 +37,20 @@ def run(args) -> int:
         store = Store.open(path, args.images, readonly=True)
     else:
         store = Store.open(path, args.images, owner="prune-frames")
+    bars: list = []  # progress on stderr once thousands of files go (a plant's first pruning: minutes)
+
+    def progress(done: int, total: int) -> None:
+        if not bars:
+            bars.append(ProgressReporter("prune-frames", total, transient=args.json).__enter__())
+        bars[0].update(done, f"{done} of {total} frame files deleted")
+
     try:
         result = retain_frames(store, args.keep_last, keep_invalid=not args.drop_rejected,
-                               campaign_id=args.campaign, dry_run=args.dry_run)
+                               campaign_id=args.campaign, dry_run=args.dry_run, progress=progress)
     finally:
         store.close()
+        for bar in bars:
+            bar.close()
     if args.json:
         print(json.dumps({"dry_run": args.dry_run, "keep_last": args.keep_last, **result.as_dict()}))
     else:
