@@ -2,7 +2,7 @@
 
 The simulated plant is served on loopback (Modbus TCP) with the real client; each write to the
 plant is slowed down and logged in wire order. The tick's thread refreshes the field's tracking
-corrections (one track command per calibrated heliostat) while the weather job, finding the tick
+corrections (one track command per calibrated heliostat, a slice per tick) while the weather job, finding the tick
 busy, reads a gust and stows the field on its own (:mod:`helicalib.app.live`).
 """
 
@@ -40,6 +40,9 @@ def test_no_track_or_move_is_accepted_after_a_gust_stows_the_field_mid_refresh(c
     def tick():  # the tick's thread, holding the jobs' lock while it refreshes on the slow plant
         with lock:
             runner.tracking.refresh(clock.now_s())
+        while runner.state.refresh_round is not None:  # the round's slices, a tick each
+            with lock:
+                runner.tracking.write_round()
 
     ticking = threading.Thread(target=tick)
     ticking.start()

@@ -33,7 +33,7 @@ from helicalib.campaign.operation.checks import OperationChecks
 from helicalib.campaign.resume import resume_from_store
 from helicalib.campaign.sensor import camera_sensors
 from helicalib.campaign.state import CampaignDevices, CampaignOptions, RunningVisit, build_state
-from helicalib.campaign.tracking import Tracking
+from helicalib.campaign.tracking import REFRESH_SLICE_S, Tracking
 from helicalib.campaign.visit import run_visit
 from helicalib.campaign.visit_types import VisitContext, VisitOutcome
 from helicalib.devices.protocols import SpotSensor, abilities_of
@@ -154,6 +154,8 @@ class CampaignRunner:
         for _wake, hid in due:
             if hid in st.active:
                 self._step(hid, now)
+        if st.refresh_round is not None and st.faults.plant_unreachable_since_s is None:
+            self.tracking.write_round()  # a slice, after the visits: they never wait for a whole round
         free = self._free_targets()
         gate = None
         if free and not st.stowed:
@@ -164,6 +166,8 @@ class CampaignRunner:
                         pass
         wakes = [v.wake_s for v in st.active.values()]
         wakes.append(st.last_poll_s + WEATHER_POLL_S)
+        if st.refresh_round is not None:
+            wakes.append(now + REFRESH_SLICE_S)
         if st.armed and not st.stowed:  # (while stowed, or for a heliostat in a visit, no check is due)
             wakes.extend(r.next_check_s for h, r in st.returning.items() if h not in st.active)
         if self._free_targets() and not st.stowed:

@@ -175,6 +175,18 @@ class Faults:
 
 
 @dataclass
+class RefreshRound:
+    """A tracking refresh round going out a slice per tick: the corrections computed when it was
+    due (``due_s``, plant time), those not yet written, and the writes the plant refused."""
+
+    due_s: float
+    queue: deque
+    """(heliostat id, corrections (2,) [mm]) in the order they go out."""
+    failed: list = field(default_factory=list)
+    """(heliostat id, the plant's error) of each write that failed."""
+
+
+@dataclass
 class CampaignState:
     """Everything a running campaign knows and holds (module docstring)."""
 
@@ -220,6 +232,8 @@ class CampaignState:
     gate_said: tuple | None = None
     """(open, night) of the gate last said with a ``gated``/``ungated`` event."""
     last_refresh_s: float = -math.inf
+    refresh_round: RefreshRound | None = None
+    """The tracking refresh still going out over a plant without bulk tracking (:mod:`.tracking`)."""
     band_cache: tuple[float, str] = (-math.inf, "")
     nominal_one: dict[str, HeliostatModel] = field(default_factory=dict)
     clean_cache: dict[str, tuple[float, float | None]] = field(default_factory=dict)

@@ -6,23 +6,38 @@ reports state 1 (tracking) or a stow of its own; a return the plant did not take
 wait doubling up to 10 min, and said once (``off_tracking``), its confirmation once
 (``back_to_tracking``). The plant's nominal tracking plus a constant offset follows a calibrated
 model only near the sun position the offset was computed for, so the corrections are recomputed
-for the whole field every :data:`~helicalib.campaign.verdict.TRACKING_REFRESH_S` (one array write
-on a plant that declares :class:`~helicalib.devices.protocols.BulkTracking`).
+for the whole field every :data:`~helicalib.campaign.verdict.TRACKING_REFRESH_S`: one array write
+on a plant that declares :class:`~helicalib.devices.protocols.BulkTracking`, else a round of track
+commands sent a slice of :data:`REFRESH_SLICE_S` plant seconds per tick after the visits are
+stepped, so a field of 10⁴ heliostats never holds a visit back for the whole round.
 """
 
 from __future__ import annotations
+
+from collections import deque
 
 import numpy as np
 
 from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.journal import Journal
 from helicalib.campaign.moves import APPROACH_LEAD_S
-from helicalib.campaign.state import RETURN_CHECK_S, RETURN_RETRY_S, CampaignDevices, CampaignState, Returning
+from helicalib.campaign.state import (
+    RETURN_CHECK_S,
+    RETURN_RETRY_S,
+    CampaignDevices,
+    CampaignState,
+    RefreshRound,
+    Returning,
+)
 from helicalib.campaign.visit_types import Left
 from helicalib.devices.protocols import FieldStowedError
 from helicalib.devices.registers import HeliostatState
 from helicalib.errors import PlantError
 from helicalib.geometry.heliostat import HeliostatModel
+
+
+REFRESH_SLICE_S = 2.0
+"""Plant seconds a tick spends at most on a refresh round's track commands (one status poll's time)."""
 
 
 class Tracking:
@@ -153,9 +168,10 @@ class Tracking:
 
     # ------------------------------------------------------------------ the field's corrections
     def refresh(self, now: float) -> None:
-        """Rewrite the tracking corrections of every calibrated heliostat not in a visit, for the sun
-        half a refresh period ahead (module docstring). Not armed, stowed, at night or in a
-        re-check: nothing is written."""
+        """Recompute the tracking corrections of every calibrated heliostat not in a visit, for the sun
+        half a refresh period ahead (module docstring). A plant with bulk tracking takes them in one
+        write; any other gets them as a round that :meth:`write_round` sends a slice per tick. Not
+        armed, stowed, at night or in a re-check: nothing is written."""
         st = self.state
         st.last_refresh_s = now
         vec, _az, el, _r = self.sun(now + verdicts.TRACKING_REFRESH_S / 2)
@@ -169,27 +185,51 @@ class Tracking:
         calibrated = nominal.with_params(np.vstack([st.models[h].params for h in ids]))
         later = self.sun(now + verdicts.TRACKING_REFRESH_S / 2 + APPROACH_LEAD_S)[0]
         corr = verdicts.tracking_corrections(st.cfg, nominal, calibrated, vec, later)
-        failed = []
-        plant = self.devices.plant
+        ok = np.flatnonzero(np.all(np.isfinite(corr), axis=1))
         if self.devices.abilities.bulk_tracking:  # the in-process simulated plant: one array write
-            ok = np.flatnonzero(np.all(np.isfinite(corr), axis=1))
-            plant.track_many(st.plant_index[np.asarray(rows, dtype=np.int64)[ok]], corr[ok])
+            self.devices.plant.track_many(st.plant_index[np.asarray(rows, dtype=np.int64)[ok]], corr[ok])
             for k in ok:
                 st.corrections[ids[k]] = corr[k]
-            ids, corr = [], corr[:0]
-        for hid, c in zip(ids, corr):
+            return
+        if st.refresh_round is not None:  # the last round's rest is superseded by these corrections
+            self._round_done()
+        st.refresh_round = RefreshRound(now, deque((ids[k], corr[k]) for k in ok))
+
+    def write_round(self) -> None:
+        """Send the refresh round's next slice: track commands until :data:`REFRESH_SLICE_S` plant
+        seconds have passed by the controller's own clock (a virtual clock: the whole round), so
+        the visits are stepped again between slices. A heliostat that began a visit meanwhile is
+        skipped (its visit ends with corrections of its own); a stow ends the round."""
+        st, plant, clock = self.state, self.devices.plant, self.devices.clock
+        r = st.refresh_round
+        if r is None:
+            return
+        end = clock.estimate_s() + REFRESH_SLICE_S
+        while r.queue:
             if st.stowed:  # the weather job stowed the field meanwhile (the plant client refuses the rest)
+                r.queue.clear()
                 break
-            if not np.all(np.isfinite(c)):
+            hid, c = r.queue.popleft()
+            if hid in st.active:
                 continue
             try:
                 plant.track(st.cfg.heliostat_index(hid), c)
                 st.corrections[hid] = c
             except FieldStowedError:
+                r.queue.clear()
                 break
             except PlantError as err:
-                failed.append((hid, err))
-        if failed:  # one line for a dead plant, not one per heliostat
+                r.failed.append((hid, err))
+            if clock.estimate_s() >= end:
+                break
+        if not r.queue:
+            self._round_done()
+
+    def _round_done(self) -> None:
+        """End the refresh round: its failed writes said in one line (a dead plant is not one line per heliostat)."""
+        failed = self.state.refresh_round.failed
+        self.state.refresh_round = None
+        if failed:
             names = ", ".join(h for h, _e in failed[:5]) + (f" and {len(failed) - 5} more" if len(failed) > 5 else "")
             self.journal.event("fault", f"tracking corrections not written for {len(failed)} heliostat(s) ({names}): "
                                         f"{failed[0][1]}", failed[0][0] if len(failed) == 1 else None)

@@ -8,7 +8,8 @@ the register (address and meaning) and the heliostat; a plant that did not answe
 its subclass :class:`~helicalib.devices.protocols.PlantUnreachableError`. Writes are refused unless ``armed=True``:
 an unarmed client reads and plans but never writes to the plant.
 
-A heliostat command is written as the map's handshake asks: the command fields, the mode, then
+A heliostat command is written as the map's handshake asks: the command fields, the mode (unless
+the mode register, read with the handshake's registers just before, already holds it), then
 either a sequence number different from the one in the register (``sequence``: the plant acts on
 the change) or 1 to the execute register (``execute``: the plant acts, sets it back to 0 and counts
 the command); a still-set execute register refuses the command (the plant has not taken the last one).
@@ -95,7 +96,7 @@ class ModbusPlant:
         self._hs = self.map.doc.heliostats.command.handshake
         self._status_q = [q[k] for k in STATUS_PATHS] + [q[HANDSHAKE + "done"]]
         self._command_q = self._status_q + ([q[HANDSHAKE + "sequence"]] if self._hs.kind == "sequence"
-                                            else [q[HANDSHAKE + "execute"]])
+                                            else [q[HANDSHAKE + "execute"]]) + [q["heliostats.command.mode"]]
 
     @classmethod
     def from_config(cls, cfg, *, armed: bool = False, register_map=None, **kw) -> "ModbusPlant":
@@ -319,8 +320,9 @@ class ModbusPlant:
                 go = (eq, 1, "execute")
             for q, values in fields:
                 self._write(q.table, self.map.address(q, index), values, f"{label} {q.meaning or q.path}", index=index)
-            self._write(mq.table, self.map.address(mq, index), encode_raw(mq, mode), f"{label} command {command.name}",
-                        index=index)
+            if int(decode_raw(mq, regs[mq.path])) != mode:  # (a refresh's track after a track: already there)
+                self._write(mq.table, self.map.address(mq, index), encode_raw(mq, mode),
+                            f"{label} command {command.name}", index=index)
             if self._hs.kind == "sequence":   # a retried write rewrites the same number: no second command
                 self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", index=index)
             else:                             # the plant acts on every execute write: sent once

@@ -127,10 +127,8 @@ class PlantRegisters:
         if any(self.map.plant_readable(table, address + k) for k in range(count)):
             image.update(self._plant_values(table))
         blocks = {b[0] for k in range(count) if (b := self._block_of(table, address + k, step)) is not None}
-        if blocks:
-            clean = self.plant.soiling.cleanliness(self.plant.t_s)
-            for i in blocks:
-                image.update(self._block_values(table, i, float(clean[i])))
+        for i in blocks:
+            image.update(self._block_values(table, i))
         return [int(image.get(address + k, self.written.get(self._key(table, address + k, step), 0)))
                 for k in range(count)]
 
@@ -159,25 +157,27 @@ class PlantRegisters:
             self._put(image, q, q.start, UNKNOWN if value is None else value)
         return image
 
-    def _block_values(self, table: str, i: int, cleanliness: float) -> dict[int, int]:
-        p, m = self.plant, self.map
+    def _block_values(self, table: str, i: int) -> dict[int, int]:
+        """Heliostat ``i``'s block from its status alone (the cost of one heliostat, not the field's)."""
+        m = self.map
+        st = self.plant.status(i)
         base = m.block_address(i)
         q = m.q
         image: dict[int, int] = {}
         sq, fq = q["heliostats.status.state"], q["heliostats.status.fault"]
         if sq.table == table:
-            name = HeliostatState(int(p.state[i])).name.lower()
+            name = HeliostatState(int(st.state)).name.lower()
             raw = state_raw(sq, name)
             raw = state_raw(sq, "fault") if raw is None else raw
             image.update(zip(range(base + sq.start, base + sq.start + sq.width), encode_raw(sq, raw)))
         if fq.table == table:
-            raw = state_raw(fq, FaultCode(int(p.fault[i])).name.lower())
+            raw = state_raw(fq, FaultCode(int(st.fault)).name.lower())
             image.update(zip(range(base + fq.start, base + fq.start + fq.width),
                              encode_raw(fq, UNKNOWN if raw is None else raw)))
-        for path, value in ((HS + "done", int(p.sequence_done[i]) & 0xFFFF),
-                            ("heliostats.status.strokes_mm[0]", p.strokes_mm[i, 0]),
-                            ("heliostats.status.strokes_mm[1]", p.strokes_mm[i, 1]),
-                            ("heliostats.status.cleanliness", cleanliness)):
+        for path, value in ((HS + "done", int(st.sequence_done) & 0xFFFF),
+                            ("heliostats.status.strokes_mm[0]", st.strokes_mm[0]),
+                            ("heliostats.status.strokes_mm[1]", st.strokes_mm[1]),
+                            ("heliostats.status.cleanliness", st.cleanliness)):
             if q[path].table == table:
                 self._put(image, q[path], base + q[path].start, value)
         return image
