@@ -250,3 +250,47 @@ def test_an_export_never_writes_outside_its_folder(campaign, tmp_path, demo_data
         paint_export.write_export(cfg, [row], out)
     assert not (tmp_path / "deep" / "escaped").exists() and not list(out.rglob("*"))
     assert paint_export.heliostat_name("H0003") == "H0003" and paint_export.heliostat_name("AA39") == "AA39"
+
+
+# ------------------------------------------------------------------------------------ streaming
+def test_streamed_export_equals_the_in_memory_export_byte_for_byte(campaign, tmp_path):
+    """The CLI streams the database heliostat by heliostat (store/stream.py, PaintWriter); the in-memory
+    path (export_fit_csv → CSV → write_export) writes the same files, byte for byte."""
+    from helicalib.commands.export_paint import campaign_rows
+    from helicalib.outdir import MARKER
+    from helicalib.store.sqlite import Store
+
+    with Store.open(campaign["db"], readonly=True) as store:
+        c = store.campaigns()[-1]
+        rows, _frames = campaign_rows(store, c.id, campaign["cfg"].calibration.spot_method)
+    ref = tmp_path / "ref"
+    paint_export.write_export(campaign["cfg"], rows, ref,
+                              description=f"helicalib campaign {c.id} ({c.name}) of {campaign['db']}")
+    streamed = {p.relative_to(campaign["plain"]): p.read_bytes() for p in campaign["plain"].rglob("*")
+                if p.is_file() and p.name != MARKER}
+    memory = {p.relative_to(ref): p.read_bytes() for p in ref.rglob("*") if p.is_file()}
+    assert len(memory) > 6 + 2 * len(IDS)
+    assert set(streamed) == set(memory)
+    assert [k for k in memory if streamed[k] != memory[k]] == []
+
+
+def test_stream_reads_every_row_once_in_any_chunk(campaign):
+    from helicalib.store.sqlite import Store
+    from helicalib.store.stream import iter_heliostat_observations, iter_observation_chunks, iter_observations
+
+    with Store.open(campaign["db"], readonly=True) as store:
+        cid = store.campaigns()[-1].id
+        every = store.observations(campaign_id=cid)
+        by_key = [o.id for o in sorted(every, key=lambda o: (o.heliostat_id, o.id))]
+        for chunk in (1, 3, 5000):
+            assert [o.id for o in iter_observations(store, cid, chunk=chunk)] == by_key
+            assert [o.id for o in iter_observations(store, cid, chunk=chunk, order="id")] == [o.id for o in every]
+            assert max(len(c) for c in iter_observation_chunks(store, cid, chunk=chunk)) <= chunk
+        for flag in (True, False):
+            assert list(iter_observations(store, cid, chunk=2, valid=flag)) == \
+                sorted((o for o in every if o.valid == flag), key=lambda o: (o.heliostat_id, o.id))
+        groups = list(iter_heliostat_observations(store, cid, chunk=2))
+        assert [h for h, _ in groups] == sorted({o.heliostat_id for o in every})
+        assert all({o.heliostat_id for o in rows} == {h} for h, rows in groups)
+        with pytest.raises(ValueError, match="order 'time'"):
+            next(iter_observations(store, cid, order="time"))

@@ -35,27 +35,42 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def campaign_rows(store, campaign_id: int, spot_method: str):
     """The campaign's valid observations as fit rows (:meth:`Store.export_fit_csv`'s selection and columns)
-    and their frame files by record id."""
+    and their frame files by record id, all in memory (the export itself streams: :func:`heliostat_batches`)."""
     from helicalib.calibration.observations import read_observations
-    from helicalib.realdata.paint_export import Frames
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "observations.csv"
         store.export_fit_csv(path, campaign_id=campaign_id, spot_method=spot_method)
         rows = read_observations(path)
-    frames = {}
+    frames = frame_files(store, store.observations(campaign_id=campaign_id, valid=True))
+    return rows, frames
+
+
+def frame_files(store, observations) -> dict:
+    """Record id → :class:`~helicalib.realdata.paint_export.Frames` of ``observations``: only a file inside
+    the database's images folder is copied out (a frame path is the database's word)."""
+    from helicalib.realdata.paint_export import Frames
+
     images = store.images_dir.resolve()
 
     def inside(rel: str | None) -> Path | None:
-        # a frame path is the database's word: only a file inside its images folder is copied out
         if not rel:
             return None
         path = (images / rel).resolve()
         return path if path.is_relative_to(images) and path.is_file() else None
 
-    for o in store.observations(campaign_id=campaign_id, valid=True):
-        frames[str(o.id)] = Frames(inside(o.after_frame_path), inside(o.before_frame_path))
-    return rows, frames
+    return {str(o.id): Frames(inside(o.after_frame_path), inside(o.before_frame_path)) for o in observations}
+
+
+def heliostat_batches(store, campaign_id: int, spot_method: str, chunk: int = 5000):
+    """(heliostat id, fit rows, frames by record id) heliostat by heliostat in id order, read in chunks of
+    ``chunk`` rows (:mod:`helicalib.store.stream`): the same rows as :func:`campaign_rows`, never all at once."""
+    from helicalib.store.stream import fit_row, iter_heliostat_observations
+
+    for hid, observations in iter_heliostat_observations(store, campaign_id, chunk=chunk, valid=True):
+        pairs = [(o, row) for o in observations if (row := fit_row(o, spot_method)) is not None]
+        if pairs:
+            yield hid, [row for _o, row in pairs], frame_files(store, [o for o, _row in pairs])
 
 
 def run(args) -> int:
@@ -63,7 +78,7 @@ def run(args) -> int:
     from helicalib.config import load_field_config
     from helicalib.errors import ConfigError
     from helicalib.outdir import prepare
-    from helicalib.realdata.paint_export import DEFAULT_INCREMENT_STEPS_PER_M, write_export
+    from helicalib.realdata.paint_export import DEFAULT_INCREMENT_STEPS_PER_M, PaintWriter
     from helicalib.store.sqlite import Store, existing_database
 
     db = existing_database(args.db)
@@ -79,25 +94,31 @@ def run(args) -> int:
         if not Path(field).is_file():
             raise ConfigError(f"{field}: field config of campaign {campaign.id} not found; give --field")
         cfg = load_field_config(field)
-        rows, frames = campaign_rows(store, campaign.id, cfg.calibration.spot_method)
+        total = store.count_observations(campaign_id=campaign.id, valid=True)
+        if not total:
+            raise ConfigError(f"{args.db}: campaign {campaign.id} has no valid observation to export")
+        out = prepare(args.out, "export-paint", replace=True,   # only an empty folder or a previous export is replaced
+                      inputs=(db, field, args.images))
+        writer = PaintWriter(cfg, out, increment_steps_per_m=args.increment or DEFAULT_INCREMENT_STEPS_PER_M,
+                             description=f"helicalib campaign {campaign.id} ({campaign.name}) of {args.db}")
+        done = 0
+        with ProgressReporter("export-paint", total, transient=args.json) as bar:
+            for hid, rows, frames in heliostat_batches(store, campaign.id, cfg.calibration.spot_method):
+                writer.write_heliostat(hid, rows, None if args.no_frames else frames)
+                done += len(rows)
+                bar.update(done, f"{done} of {total} valid observations, {len(writer.counts)} heliostats")
     finally:
         store.close()
-    if not rows:
-        raise ConfigError(f"{args.db}: campaign {campaign.id} has no valid observation to export")
-    increment = args.increment or DEFAULT_INCREMENT_STEPS_PER_M
-    out = prepare(args.out, "export-paint", replace=True,   # only an empty folder or a previous export is replaced
-                  inputs=(db, field, args.images))
-    with ProgressReporter("export-paint", len(rows), transient=args.json) as bar:
-        summary = write_export(cfg, rows, out, frames=None if args.no_frames else frames,
-                               increment_steps_per_m=increment,
-                               description=f"helicalib campaign {campaign.id} ({campaign.name}) of {args.db}",
-                               progress=lambda done, total: bar.update(done, f"{done} of {total} records"))
+    if not writer.records:
+        raise ConfigError(f"{args.db}: campaign {campaign.id} has no located valid observation to export")
+    summary = writer.finish()
     summary.update({"database": str(args.db), "campaign": campaign.id, "field": str(field)})
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
         print(f"wrote {summary['records']} records of {len(summary['heliostats'])} heliostats "
               f"({summary['frames']} with frames) to {summary['out']}; catalogue {summary['catalog']}")
-        for hid, n in summary["heliostats"].items():
-            print(f"  {hid}: {n} records")
+        if len(summary["heliostats"]) <= 50:
+            for hid, n in summary["heliostats"].items():
+                print(f"  {hid}: {n} records")
     return 0

@@ -277,72 +277,93 @@ def write_export(cfg, rows: Sequence[Observation], out_dir: str | Path, *,
     """Write ``rows`` (observations of heliostats of ``cfg``) in PAINT's layout with a STAC catalogue.
 
     ``frames`` maps a record id to its frame files (copied as ``<id>-raw.png`` / ``<id>-before.png``).
-    ``progress(done, total)`` is called after each record. Returns a summary (files, counts).
+    ``progress(done, total)`` is called after each heliostat. Returns a summary (files, counts).
+    All rows in memory: a campaign database streams through :class:`PaintWriter` instead.
     """
-    if not (math.isfinite(increment_steps_per_m) and increment_steps_per_m > 0):
-        raise ConfigError(f"increment {increment_steps_per_m}: expected a positive number of steps per metre")
     frames = frames or {}
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    ref = reference_llh(cfg)
-    targets = {t.id for t in cfg.targets}
+    writer = PaintWriter(cfg, out_dir, increment_steps_per_m=increment_steps_per_m, description=description)
     by_heliostat: dict[str, list[Observation]] = {}
-    seen: set[str] = set()
     for r in rows:
-        rid = record_name(r.record_id)
-        if rid in seen:
-            raise ConfigError(f"record_id {rid}: appears twice; PAINT's file names need unique record ids")
-        seen.add(rid)
-        if r.target_id not in targets:
-            raise ConfigError(f"record {rid}: target_id {r.target_id!r}: not a target of the field config")
-        cfg.heliostat(r.heliostat_id)
+        writer.check(r)
         by_heliostat.setdefault(heliostat_name(r.heliostat_id), []).append(r)
-
-    tower = tower_measurements(cfg)
-    _write_json(out / TOWER_FILE, tower)
-    tower_item = {
-        "type": "Feature", "stac_version": STAC_VERSION, "stac_extensions": [],
-        "id": "tower-measurements",
-        "geometry": {"type": "Point", "coordinates": _lonlat(ref)}, "bbox": _bbox([_lonlat(ref)]),
-        "properties": {"datetime": None, "start_datetime": _time_range(rows)[0], "end_datetime": _time_range(rows)[1],
-                       "title": f"Targets of {cfg.site.name}"},
-        "links": [_link("self", "./tower-measurements-item-stac.json"), _link("root", f"./{CATALOG_FILE}"),
-                  _link("parent", f"./{CATALOG_FILE}")],
-        "assets": {"tower_measurements": {"href": f"./{TOWER_FILE}", "type": MIME_JSON, "roles": ["metadata"],
-                                          "title": "Plant reference and target corners (WGS84)"}},
-    }
-    _write_json(out / "tower-measurements-item-stac.json", tower_item)
-
-    catalog_links = [_link("self", f"./{CATALOG_FILE}"), _link("root", f"./{CATALOG_FILE}"),
-                     _link("item", "./tower-measurements-item-stac.json", "Tower measurements")]
     done, total = 0, len(rows)
-    counts = {}
     for hid, recs in sorted(by_heliostat.items()):
-        hdir = out / hid
+        writer.write_heliostat(hid, recs, frames, checked=True)
+        done += len(recs)
+        if progress is not None:
+            progress(done, total)
+    return writer.finish()
+
+
+class PaintWriter:
+    """Writes a PAINT export heliostat by heliostat: at most one heliostat's records in memory.
+
+    Give each heliostat's records once, heliostats in id order (the catalogue lists them in the order
+    given), then call :meth:`finish` (the catalogue and the tower item with the records' time span).
+    """
+
+    def __init__(self, cfg, out_dir: str | Path, *, increment_steps_per_m: float = DEFAULT_INCREMENT_STEPS_PER_M,
+                 description: str = "helicalib calibration records"):
+        if not (math.isfinite(increment_steps_per_m) and increment_steps_per_m > 0):
+            raise ConfigError(f"increment {increment_steps_per_m}: expected a positive number of steps per metre")
+        self.cfg, self.increment, self.description = cfg, float(increment_steps_per_m), description
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.ref = reference_llh(cfg)
+        self.targets = {t.id for t in cfg.targets}
+        self.tower = tower_measurements(cfg)
+        self.catalog_links = [_link("self", f"./{CATALOG_FILE}"), _link("root", f"./{CATALOG_FILE}"),
+                              _link("item", "./tower-measurements-item-stac.json", "Tower measurements")]
+        self.counts: dict[str, int] = {}
+        self.records = self.with_frames = 0
+        self._seen: set[str] = set()
+        self._times = None, None
+
+    def check(self, r: Observation) -> str:
+        """A record's PAINT name, after checking that it is new, its board and its heliostat are the field's."""
+        rid = record_name(r.record_id)
+        if rid in self._seen:
+            raise ConfigError(f"record_id {rid}: appears twice; PAINT's file names need unique record ids")
+        self._seen.add(rid)
+        if r.target_id not in self.targets:
+            raise ConfigError(f"record {rid}: target_id {r.target_id!r}: not a target of the field config")
+        self.cfg.heliostat(r.heliostat_id)
+        return rid
+
+    def write_heliostat(self, hid: str, recs: Sequence[Observation], frames: Mapping[str, Frames] | None = None,
+                        checked: bool = False) -> int:
+        """Write one heliostat's properties, records (with their frames) and collection; returns the count."""
+        if not checked:
+            for r in recs:
+                self.check(r)
+        hid = heliostat_name(hid)
+        frames = frames or {}
+        hdir = self.out / hid
         (hdir / "Calibration").mkdir(parents=True, exist_ok=True)
         (hdir / "Properties").mkdir(parents=True, exist_ok=True)
         props_name = f"{hid}-heliostat-properties.json"
-        _write_json(hdir / "Properties" / props_name, heliostat_properties(cfg, hid, increment_steps_per_m))
+        _write_json(hdir / "Properties" / props_name, heliostat_properties(self.cfg, hid, self.increment))
         coll_id = f"{hid}-calibration-collection"
         coll_file = f"{coll_id}-stac.json"
         item_links = []
         for r in recs:
             rid = record_name(r.record_id)
-            _write_calibration_record(hdir / "Calibration", r, rid, coll_id, coll_file, tower, ref,
-                                      increment_steps_per_m, frames.get(rid))
+            fr = frames.get(rid)
+            _write_calibration_record(hdir / "Calibration", r, rid, coll_id, coll_file, self.tower, self.ref,
+                                      self.increment, fr)
             item_links.append(_link("item", f"./Calibration/{rid}-calibration-item-stac.json", media=MIME_GEOJSON))
-            done += 1
-            if progress is not None:
-                progress(done, total)
+            self.with_frames += _has_frames(fr)
         az, el = paint_sun_angles(np.array([r.sun_enu for r in recs]))
         boards = sorted({r.target_id for r in recs})
+        span = _time_range(recs)
+        self._times = tuple(_extreme(a, b, pick) for a, b, pick in zip(self._times, span, (min, max)))
         collection = {
             "type": "Collection", "stac_version": STAC_VERSION, "stac_extensions": [],
             "id": coll_id, "title": f"Calibration records of heliostat {hid}",
-            "description": f"{description}: {len(recs)} calibration records of heliostat {hid}",
+            "description": f"{self.description}: {len(recs)} calibration records of heliostat {hid}",
             "license": "other",
-            "extent": {"spatial": {"bbox": [_bbox([p for b in boards for p in _board_polygon(tower, b)])]},
-                       "temporal": {"interval": [_time_range(recs)]}},
+            "extent": {"spatial": {"bbox": [_bbox([p for b in boards for p in _board_polygon(self.tower, b)])]},
+                       "temporal": {"interval": [span]}},
             "summaries": {"view:sun_azimuth": {"minimum": float(north_azimuth_deg(az).min()),
                                                "maximum": float(north_azimuth_deg(az).max())},
                           "view:sun_elevation": {"minimum": float(el.min()), "maximum": float(el.max())},
@@ -354,18 +375,46 @@ def write_export(cfg, rows: Sequence[Observation], out_dir: str | Path, *,
                                                 "title": f"Position, size and kinematics of {hid}"}},
         }
         _write_json(hdir / coll_file, collection)
-        catalog_links.append(_link("child", f"./{hid}/{coll_file}", f"Heliostat {hid}"))
-        counts[hid] = len(recs)
-    _write_json(out / CATALOG_FILE, {
-        "type": "Catalog", "stac_version": STAC_VERSION, "stac_extensions": [],
-        "id": "helicalib-paint-export", "title": f"{cfg.site.name}: calibration records",
-        "description": f"{description}, in PAINT's layout (tower-measurements.json, per heliostat Properties/ and "
-                       "Calibration/)",
-        "links": catalog_links,
-    })
-    return {"out": str(out), "catalog": str(out / CATALOG_FILE), "tower_measurements": str(out / TOWER_FILE),
-            "records": len(rows), "heliostats": counts, "increment_steps_per_m": float(increment_steps_per_m),
-            "frames": sum(1 for r in rows if _has_frames(frames.get(record_name(r.record_id))))}
+        self.catalog_links.append(_link("child", f"./{hid}/{coll_file}", f"Heliostat {hid}"))
+        self.counts[hid] = self.counts.get(hid, 0) + len(recs)
+        self.records += len(recs)
+        return len(recs)
+
+    def finish(self) -> dict:
+        """Write the tower item and the catalogue; returns the export's summary (files, counts)."""
+        out, ref = self.out, self.ref
+        _write_json(out / TOWER_FILE, self.tower)
+        tower_item = {
+            "type": "Feature", "stac_version": STAC_VERSION, "stac_extensions": [],
+            "id": "tower-measurements",
+            "geometry": {"type": "Point", "coordinates": _lonlat(ref)}, "bbox": _bbox([_lonlat(ref)]),
+            "properties": {"datetime": None, "start_datetime": self._times[0], "end_datetime": self._times[1],
+                           "title": f"Targets of {self.cfg.site.name}"},
+            "links": [_link("self", "./tower-measurements-item-stac.json"), _link("root", f"./{CATALOG_FILE}"),
+                      _link("parent", f"./{CATALOG_FILE}")],
+            "assets": {"tower_measurements": {"href": f"./{TOWER_FILE}", "type": MIME_JSON, "roles": ["metadata"],
+                                              "title": "Plant reference and target corners (WGS84)"}},
+        }
+        _write_json(out / "tower-measurements-item-stac.json", tower_item)
+        _write_json(out / CATALOG_FILE, {
+            "type": "Catalog", "stac_version": STAC_VERSION, "stac_extensions": [],
+            "id": "helicalib-paint-export", "title": f"{self.cfg.site.name}: calibration records",
+            "description": f"{self.description}, in PAINT's layout (tower-measurements.json, per heliostat "
+                           "Properties/ and Calibration/)",
+            "links": self.catalog_links,
+        })
+        return {"out": str(out), "catalog": str(out / CATALOG_FILE), "tower_measurements": str(out / TOWER_FILE),
+                "records": self.records, "heliostats": dict(self.counts), "increment_steps_per_m": self.increment,
+                "frames": self.with_frames}
+
+
+def _extreme(a: str | None, b: str | None, pick) -> str | None:
+    """The earlier (``min``) or later (``max``) of two RFC 3339 UTC times, either may be None."""
+    if a is None or b is None:
+        return b if a is None else a
+    import pandas as pd
+
+    return a if pick(pd.Timestamp(a), pd.Timestamp(b)) == pd.Timestamp(a) else b
 
 
 def _has_frames(fr: Frames | None) -> bool:
