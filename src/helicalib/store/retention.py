@@ -25,9 +25,9 @@ import os
 import sqlite3
 import stat
 from collections import defaultdict
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 from helicalib.errors import ConfigError
 from helicalib.store.damage import loads, read_error
@@ -110,7 +110,7 @@ def retain_frames(store, keep_last: int, *, keep_invalid: bool = True, campaign_
     return result
 
 
-def _plan(store, files: "_Files", keep_last: int, keep_invalid: bool, campaign_id: int | None):
+def _plan(store, files: _Files, keep_last: int, keep_invalid: bool, campaign_id: int | None):
     """(observations losing frames as (id, before, after), frame paths to delete, frame paths kept);
     ``files`` learns the size of each path to delete."""
     running = {int(r[0]) for r in store._read("SELECT id FROM visits WHERE outcome = 'running'", table="visits")}
