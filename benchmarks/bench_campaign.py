@@ -63,6 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_band (the band crossings)
 ROOT = Path(__file__).resolve().parents[1]
 FIELD = ROOT / "simulations" / "fields" / "bench500.yaml"
 SCENARIO = ROOT / "simulations" / "scenarios" / "benchmark.yaml"
@@ -145,31 +146,17 @@ def band_throughput(db: Path, cfg, start_s: float, end_s: float, boards: int) ->
     the acceptance's low band), the visits that started in it per board-hour and the heliostats
     that got a valid point in it; and ``first_acceptance_days``, the start of the first setting band
     (no heliostat can meet the paper's rule (1), a point while the sun sets through the band, before it)."""
-    from helicalib.calibration.sun_days import sun_days
+    from bench_band import VALID_POINTS, VISIT_STARTS, crossings, latest_rows
 
-    acc = cfg.acceptance
-    days = [d for d in sun_days(cfg.site, start_s, end_s, acc.low_band_deg, acc.high_elevation_deg)
-            if d.set_band_end_s > start_s and d.rise_band_start_s < end_s]
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        cid = con.execute("SELECT id FROM campaigns ORDER BY id DESC LIMIT 1").fetchone()[0]
-        visits = con.execute("SELECT started_s FROM visits WHERE campaign_id = ?", (cid,)).fetchall()
-        points = con.execute("SELECT capture_time_s, heliostat_id FROM observations WHERE campaign_id = ? AND valid = 1 "
-                             "AND iteration >= 0", (cid,)).fetchall()
-    finally:
-        con.close()
+    visits, points = latest_rows(db, (VISIT_STARTS, ()), (VALID_POINTS, ()))
+    cross = crossings(cfg, start_s, end_s)
     bands = []
-    for d in days:
-        for name, a, b in (("rising", d.rise_band_start_s, d.rise_band_end_s),
-                           ("setting", d.set_band_start_s, d.set_band_end_s)):
-            a, b = max(a, start_s), min(b, end_s)
-            if b <= a:
-                continue
-            n_visits = sum(1 for (t,) in visits if a <= t < b)
-            bands.append({"day": int((a - start_s) // 86400), "band": name, "hours": round((b - a) / 3600.0, 3),
-                          "visits_per_board_hour": round(n_visits / ((b - a) / 3600.0) / max(boards, 1), 1),
-                          "heliostats_with_point": len({h for t, h in points if a <= t <= b})})
-    first = next((max(d.set_band_start_s, start_s) for d in days if d.set_band_end_s > start_s), None)
+    for c in cross:
+        n_visits = sum(1 for (t,) in visits if c.start_s <= t < c.end_s)
+        bands.append({"day": c.day, "band": c.kind, "hours": round(c.hours, 3),
+                      "visits_per_board_hour": round(n_visits / c.hours / max(boards, 1), 1),
+                      "heliostats_with_point": len({h for t, h in points if c.start_s <= t <= c.end_s})})
+    first = next((c.start_s for c in cross if c.kind == "setting"), None)
     return {"bands": bands, "first_acceptance_days": None if first is None else round((first - start_s) / 86400.0, 3)}
 
 

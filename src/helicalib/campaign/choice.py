@@ -176,11 +176,12 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
     days = book.days(now_s)
     need = tb.need[rows].copy()
     accepted = tb.accepted[rows].copy()
-    timed: dict[int, tuple[int, float]] = {}
+    timed: dict[int, tuple[int, float, int]] = {}
 
-    def tier_of(wanted) -> tuple[int, float]:
+    def tier_of(wanted) -> tuple[int, float, int]:
         gaps = acceptance.time_needs(wanted, days, now_s)
-        return planner_mod.gap_tier([g for g in gaps if g.is_open(now_s)])
+        tier, closes = planner_mod.gap_tier([g for g in gaps if g.is_open(now_s)])
+        return tier, closes, planner_mod.band_needs(tier, len(gaps))
 
     blank = np.flatnonzero(need == PlanTable.BLANK)
     if blank.size:
@@ -199,6 +200,7 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
     pos = np.searchsorted(keys, need)
     tier = np.array([timed[int(k)][0] for k in keys], dtype=np.int64)[pos]
     closes = np.array([timed[int(k)][1] for k in keys], dtype=float)[pos]
+    needs = np.array([timed[int(k)][2] for k in keys], dtype=np.int64)[pos]
 
     accepted &= not recheck
     pred = tb.predicted_error_mrad[rows]
@@ -209,7 +211,7 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
     go = ~accepted
     if refine:  # accepted heliostats whose model is uncertain at this sun
         refine_rows = accepted & (spread >= planner_mod.REFINE_MIN_SPREAD_MRAD)
-        tier[refine_rows], closes[refine_rows] = planner_mod.TIER_REFINE, math.inf
+        tier[refine_rows], closes[refine_rows], needs[refine_rows] = planner_mod.TIER_REFINE, math.inf, 0
         go |= refine_rows
     go &= (borrowed == 0) | np.isin(tier, planner_mod.BORROW_TIERS)
     if not (recheck or refine):  # a target stays idle rather than spend time on points no gap asks for
@@ -221,7 +223,7 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
     sel = np.flatnonzero(go)
     if not sel.size:
         return None
-    sort_keys = (tier, closes, borrowed, not_preferred, -err, tb.visits[rows], tb.id_rank[rows])  # first key first
+    sort_keys = (tier, closes, borrowed, needs, not_preferred, -err, tb.visits[rows], tb.id_rank[rows])  # first key first
     first = _lexicographic_first(sel, sort_keys)
     if not borrowed[first] or usable is None or usable(tb.ids[rows[first]]):
         return tb.ids[rows[first]]  # the usual decision: no sort of the whole target's candidates

@@ -12,7 +12,9 @@ gap-filling planner (:func:`plan`) ranks each free target's candidates in tiers:
 5. accepted heliostats whose model is still uncertain at this sun, only when ``refine`` (asked
    for: idle target time spent on points that sharpen year-round accuracy).
 
-Within a tier: the gap that closes soonest, then mirrors of preferred cleanliness, then the
+Within a tier: the gap that closes soonest; in the low band, the heliostats closest to acceptance
+(fewest needs besides, :func:`band_needs`: a band point that completes a heliostat before one
+that still lacks the other band), then mirrors of preferred cleanliness, then the
 largest predicted error (a new heliostat, with no model yet, counts as infinite; in tiers 3 and 5
 the model's own uncertainty at the present sun, ``spread_mrad``, where it is known), then the
 fewest visits, then the id. A heliostat on a borrowed target (``borrowed`` > 0: another board
@@ -113,7 +115,7 @@ def gap_tier(open_gaps: Sequence[Gap]) -> tuple[int, float]:
 def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False, refine: bool = False) -> tuple | None:
     """The sort key of a candidate at ``now_s`` (smaller goes first), or None when it should not go.
 
-    The key is ``(tier, closes_s, borrowed, not_preferred, -predicted_error, visits, id)``.
+    The key is ``(tier, closes_s, borrowed, band_needs, not_preferred, -predicted_error, visits, id)``.
     """
     if c.accepted and not (include_accepted or refine):
         return None
@@ -132,7 +134,15 @@ def rank(c: Candidate, now_s: float, gating, include_accepted: bool = False, ref
     if tier in (TIER_EXTRA, TIER_REFINE) and c.spread_mrad is not None and c.predicted_error_mrad is not None:
         err = float(c.spread_mrad)
     not_preferred = not (c.cleanliness > gating.cleanliness_preferred)
-    return (tier, closes, int(c.borrowed), not_preferred, -err, c.visits, c.heliostat_id)
+    return (tier, closes, int(c.borrowed), band_needs(tier, len(c.gaps)), not_preferred, -err, c.visits,
+            c.heliostat_id)
+
+
+def band_needs(tier: int, needs: int) -> int:
+    """The order within a tier after its closing time: in the low band (scarce, about an hour a day
+    each way) a heliostat's count of acceptance needs (this band's point among them), so the band
+    point that completes a heliostat goes first; 0 in every other tier (no order by need there)."""
+    return needs if tier == TIER_LOW_BAND else 0
 
 
 def _reason(c: Candidate, key: tuple, now_s: float) -> str:

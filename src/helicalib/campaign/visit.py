@@ -106,6 +106,11 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
             if obs.error_mrad < ctx.settings.loop_threshold_mrad:
                 out.end("converged", "ok")
                 break
+            if in_band(ctx, obs):
+                lo, hi = ctx.settings.band_deg
+                out.end("not_converged", f"band point: {obs.error_mrad:.2f} mrad, the {lo:g}–{hi:g}° band's time goes "
+                        "to the next heliostat")
+                break
             if p.placements >= ctx.settings.max_iterations:
                 out.end("not_converged", f"still {obs.error_mrad:.2f} mrad after {p.placements} placements")
                 break
@@ -148,6 +153,12 @@ def learn(ctx: VisitContext, out: VisitOutcome, obs: Observation) -> None:
     out.final_error_mrad = obs.error_mrad
     ctx.model = ctx.host.refit(ctx, obs)
     out.model = ctx.model
+
+
+def in_band(ctx: VisitContext, obs: Observation) -> bool:
+    """Whether ``obs`` was taken while the sun was in the acceptance's low band (``band_deg``)."""
+    band = ctx.settings.band_deg
+    return band is not None and band[0] <= obs.sun_elevation_deg <= band[1]
 
 
 def correct(ctx: VisitContext, p: Placement, obs: Observation, read) -> bool:

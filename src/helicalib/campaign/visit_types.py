@@ -43,13 +43,18 @@ class VisitSettings:
     max_capture_skew_s: float = 5.0
     """A frame whose capture time lies further than this outside the plant time around its grab
     is refused ("capture_time") [plant s]: its sun would be another sun."""
+    band_deg: tuple[float, float] | None = None
+    """The acceptance's low band (sun elevation [deg]): a valid point taken while the sun is in it
+    ends the visit (``band point``), the board's scarce band time going to the next heliostat's
+    band point rather than to a second placement; None: every visit runs its loop to the end."""
 
     @classmethod
     def from_config(cls, cfg) -> VisitSettings:
         c = cfg.calibration
         return cls(c.loop_threshold_mrad, c.max_iterations, c.after_frames, c.spot_method, c.settle_timeout_s,
                    reflectivity_clean=c.reflectivity_clean, approach_mm=c.approach_mm,
-                   max_jitter_mrad=c.max_jitter_mrad, max_capture_skew_s=c.max_capture_skew_s)
+                   max_jitter_mrad=c.max_jitter_mrad, max_capture_skew_s=c.max_capture_skew_s,
+                   band_deg=tuple(float(x) for x in cfg.acceptance.low_band_deg))
 
 
 @dataclass
