@@ -114,6 +114,7 @@ def real_frames(folder: Path, sample: int) -> dict:
         return {"folder": str(folder), "frames": 0}
     sizes = [os.path.getsize(f) for f in files]
     levers = {"stored": 0, "png_level1": 0, "png_level9": 0, "png_huffman_only": 0, "half_resolution_level1": 0}
+    encode_s = dict.fromkeys(levers, 0.0)
     picked = files[:: max(1, len(files) // sample)][:sample]
     shape = None
     for f in picked:
@@ -126,12 +127,15 @@ def real_frames(folder: Path, sample: int) -> dict:
                 ("png_huffman_only", image, [cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]),
                 ("half_resolution_level1", cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2),
                                                       interpolation=cv2.INTER_AREA), [cv2.IMWRITE_PNG_COMPRESSION, 1])):
+            t0 = time.process_time()
             ok, buf = cv2.imencode(".png", img, params)
+            encode_s[key] += time.process_time() - t0
             assert ok and (key.startswith("half") or (cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) == image).all())
             levers[key] += len(buf)
     return {"folder": str(folder), "frames": len(files), "shape": list(shape or ()),
             "bytes_per_frame": round(sum(sizes) / len(sizes)), "min_bytes": min(sizes), "max_bytes": max(sizes),
-            "sample": len(picked), "levers_bytes_per_frame": {k: round(v / len(picked)) for k, v in levers.items()}}
+            "sample": len(picked), "levers_bytes_per_frame": {k: round(v / len(picked)) for k, v in levers.items()},
+            "levers_encode_cpu_ms": {k: round(1e3 * v / len(picked), 1) for k, v in encode_s.items() if k != "stored"}}
 
 
 def copy_campaign(src: Path, dst: Path) -> Path:
