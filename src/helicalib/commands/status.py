@@ -118,10 +118,10 @@ def summary_view(title, summary) -> list:
 
     from rich import box
 
-    boards = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, caption="total: heliostats on the board; out: out of service (the crew's); err: each "
-                   "heliostat's last valid error; RMS: its verdict's; mrad")
-    for col in ("board", "total", "accepted", "pending", "out", "visits", "err p50", "p90", "max", "RMS p50"):
-        boards.add_column(col, justify="left" if col == "board" else "right", no_wrap=True, min_width=max(len(col), 4))
+    boards = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, show_edge=False, collapse_padding=True, caption="total: heliostats on the board; out: out of service (the crew's); err: each "
+                   "heliostat's last valid error; RMS: the median of their verdicts' RMS; mrad")
+    for col in ("board", "total", "accepted", "pending", "out", "visits", "err p50", "p90", "max", "RMS"):
+        boards.add_column(col, justify="left" if col == "board" else "right", no_wrap=True)
     for b in summary.boards:
         boards.add_row(Text(b.target_id), str(b.heliostats), str(b.accepted), str(b.pending), str(b.out_of_service),
                        str(b.visits), *(_mrad(x) for x in (b.error_p50_mrad, b.error_p90_mrad, b.error_max_mrad,

@@ -7,6 +7,10 @@ Routes (every one behind the token when the console listens beyond loopback, :cl
 ``GET /stream``                server-sent events: the panels again whenever they change
                                (each second at most; the page swaps them in, no reload)
 ``GET /api/view``              the page's figures as JSON (scripts)
+``GET /api/heliostats``        one page of the heliostats table, filtered and sorted
+                               (:mod:`helicalib.console.table`: ``board``, ``verdict``,
+                               ``state``, ``q``, ``min_error``, ``max_error``, ``sort``,
+                               ``order``, ``offset``, ``limit``)
 ``GET /frames/{id}.png``       a board's newest before/after frames with the spot overlay
                                (:func:`helicalib.report.overlay.overlay_latest`)
 ``GET /progress.png``          acceptance over time (the report's plot)
@@ -40,6 +44,10 @@ COOKIE = "helicalib_console"
 PANELS = ("clock", "gate", "boards", "map", "progress", "events", "actions")
 VIEW_EVERY_S = 1.0
 """The page's figures are read from the database at most this often (shared by every viewer)."""
+VIEW_MAX_AGE_S = 10.0
+"""``console DB`` reads the figures again after this long even when the database's files look unchanged."""
+TABLE_EVERY_S = 5.0
+"""The heliostats table's rows are read from the database at most this often."""
 REPORT_EVERY_S = 30.0
 """The report-side figures (progress plot) are recomputed at most this often."""
 
@@ -70,16 +78,40 @@ class Console:
         self._lock = threading.Lock()
         self._view: tuple[float, object, dict] | None = None
         self._report: tuple[float, object, object, dict] | None = None
+        self._table: tuple[float, list] | None = None
+        self._files_seen = None
         self._draw_lock = threading.Lock()
 
     # ------------------------------------------------------------------ figures
+    def _files(self):
+        """What says the database changed, for ``console DB`` (no feed): the database's and its
+        WAL's modification times and sizes, and who holds it; None beside a controller (its
+        snapshots change every second anyway)."""
+        if self.feed is not None:
+            return None
+        path = Path(self.src.store.path)
+        marks = []
+        for f in (path, path.with_name(path.name + "-wal")):
+            try:
+                st = f.stat()
+                marks.append((st.st_mtime_ns, st.st_size))
+            except OSError:
+                marks.append(None)
+        return tuple(marks) + (self.src.store.owner(),)
+
     def view(self) -> dict:
-        """The page's figures, read at most every :data:`VIEW_EVERY_S` or when an event came."""
+        """The page's figures, read at most every :data:`VIEW_EVERY_S` or when an event came; for
+        ``console DB``, only when the database's files changed (or :data:`VIEW_MAX_AGE_S` passed):
+        at 10⁴ heliostats a read costs tenths of a second, and an open page asks every second."""
         snapshot, version = self.feed.latest() if self.feed is not None else (None, None)
         with self._lock:
             now = time.monotonic()
-            if self._view is not None and self._view[1] == version and now - self._view[0] < VIEW_EVERY_S:
+            files = self._files()
+            if self._view is not None and self._view[1] == version and (
+                    now - self._view[0] < VIEW_EVERY_S
+                    or (files is not None and files == self._files_seen and now - self._view[0] < VIEW_MAX_AGE_S)):
                 return self._view[2]
+            self._files_seen = files
             if self.reopen is not None:
                 old, self.src.store = self.src.store, self.reopen()
                 old.close()
@@ -87,6 +119,39 @@ class Console:
                 v = read_view(self.src, snapshot)
             self._view = (now, version, v)
             return v
+
+    def table_rows(self) -> list[dict]:
+        """The heliostats table's rows (:func:`helicalib.console.table.table_rows`), read at most
+        every :data:`TABLE_EVERY_S`."""
+        from helicalib.console.table import table_rows
+
+        with self._lock:
+            fresh = self._table is not None and time.monotonic() - self._table[0] < TABLE_EVERY_S
+        if fresh:  # paging, sorting and filtering within a few seconds: no read at all
+            return self._table[1]
+        v = self.view()
+        with self._lock:
+            now = time.monotonic()
+            if self._table is None or now - self._table[0] >= TABLE_EVERY_S:
+                with reading(self.src.store, self.src.campaign_id):
+                    progress = self.src.store.progress(self.src.campaign_id)
+                self._table = (now, table_rows(progress, v["states"], set(v["out_of_service"])))
+            return self._table[1]
+
+    def warm(self) -> None:
+        """Read the page's figures once before the first viewer comes (the imports, the field's
+        layout and every verdict: seconds at 10⁴ heliostats); a failure is left for the page to say."""
+        try:
+            self.map_positions()
+        except Exception:  # noqa: BLE001 - the page reports what cannot be read, with its line
+            pass
+
+    def map_positions(self) -> dict | None:
+        """The canvas map's positions (None when the map is SVG or there is none)."""
+        from helicalib.console.view import map_positions
+
+        v = self.view()
+        return map_positions(self.src) if v["map"].get("canvas") else None
 
     def close(self) -> None:
         """Stop the live streams (the server is stopping)."""
@@ -314,7 +379,9 @@ def create_app(console: Console):
     async def page(request: Request):
         v = await run_in_threadpool(console.view)
         panels = await run_in_threadpool(console.panels, v)
-        return HTMLResponse(console.render("console.html", v=v, panels=panels, live=console.feed is not None))
+        positions = await run_in_threadpool(console.map_positions)
+        return HTMLResponse(console.render("console.html", v=v, panels=panels, live=console.feed is not None,
+                                           positions=positions))
 
     async def stream(request: Request):
         async def events():
@@ -343,6 +410,16 @@ def create_app(console: Console):
     async def api_view(request: Request):
         v = await run_in_threadpool(console.view)
         return JSONResponse(json.loads(json.dumps(v, default=str)))
+
+    async def api_heliostats(request: Request):
+        from helicalib.console.table import query
+
+        rows = await run_in_threadpool(console.table_rows)
+        try:
+            page = query(rows, request.query_params)
+        except ConfigError as err:
+            return JSONResponse({"error": str(err)}, status_code=400)
+        return JSONResponse(page)
 
     async def frames(request: Request):
         path = await run_in_threadpool(console.frames_png, int(request.path_params["obs"]))
@@ -396,6 +473,7 @@ def create_app(console: Console):
 
     routes = [
         Route("/", page), Route("/stream", stream), Route("/api/view", api_view),
+        Route("/api/heliostats", api_heliostats),
         Route("/api/action", action, methods=["POST"]), Route("/frames/{obs:int}.png", frames),
         Route("/progress.png", progress), Route("/heliostat/{hid:path}", heliostat),
         Route("/sheets/index.html", sheets_index),
@@ -411,6 +489,7 @@ def create_app(console: Console):
 
         middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=list(LOOPBACK_HOSTS))]
     (console.cache / "sheets").mkdir(parents=True, exist_ok=True)
+    threading.Thread(target=console.warm, name="helicalib-console-warm", daemon=True).start()
 
     async def unreadable(request: Request, err: HelicalibError):
         """A database that cannot be read (damaged rows, a file gone): one line, 503, never a traceback."""

@@ -32,6 +32,12 @@ STATES = {
 }
 """Heliostat states on the field map, with their meaning (the legend)."""
 EVENTS_SHOWN = 300
+STATE_EVENT_KINDS = ("gated", "ungated", "stow", "resume", "plant_lost", "plant_back", "off_tracking",
+                     "back_to_tracking")
+"""The events the page's state is made of (the gate, the plant, heliostats off tracking)."""
+MAP_SVG_MAX = 500
+"""Fields of at most this many heliostats are drawn as SVG (a link and a tooltip per heliostat);
+larger ones on a canvas from one compact list (:func:`_map`), 10⁴ points in milliseconds."""
 FRAMES_KEPT = 50
 """Observations whose frames the page may ask for (the boards' newest; older ones are forgotten)."""
 PLOT_AFTER_S = 600.0
@@ -54,6 +60,28 @@ class Sources:
     """The frames folder when given (``--images``, or the controller's own); None: the folder the
     campaign recorded at its start (:meth:`~helicalib.store.sqlite.Store.campaign_images_dir`)."""
 
+    ids: list | None = None
+    """The campaign's heliostat ids in block order (read once: they never change)."""
+    verdicts: dict = field(default_factory=dict)
+    verdicts_max_id: int = 0
+    """The newest verdicts read so far and the highest verdict row id among them (verdicts are only
+    ever added: each view reads those recorded since)."""
+    positions: dict | None = None
+    """The map's drawing of the field (positions never change during a campaign): see :func:`_map`."""
+
+    def heliostat_ids(self) -> list:
+        if self.ids is None:
+            self.ids = [h.heliostat_id for h in self.store.campaign_heliostats(self.campaign_id)]
+        return self.ids
+
+    def latest_verdicts(self) -> dict:
+        """Each heliostat's newest verdict, read incrementally."""
+        new = self.store.latest_verdicts(self.campaign_id, after_id=self.verdicts_max_id)
+        if new:
+            self.verdicts = {**self.verdicts, **new}
+            self.verdicts_max_id = max(self.verdicts_max_id, *(v.id for v in new.values()))
+        return self.verdicts
+
     def frames_dir(self):
         """Where the campaign's frame files are (the paths in its observations are relative to it)."""
         from pathlib import Path
@@ -65,13 +93,9 @@ def _num(x, nd: int = 2):
     return None if x is None or not math.isfinite(float(x)) else round(float(x), nd)
 
 
-def heliostat_states(ids, verdicts, visits, on_board, off_tracking, out_of_service) -> dict[str, str]:
+def heliostat_states(ids, verdicts, last, on_board, off_tracking, out_of_service) -> dict[str, str]:
     """Each heliostat's state on the map (pure): on a board, out of service or refused, needs
-    attention, accepted, else waiting."""
-    last = {}
-    for v in visits:  # oldest first: the newest ended visit wins
-        if v.outcome != "running":
-            last[v.heliostat_id] = v.outcome
+    attention, accepted, else waiting. ``last``: each heliostat's newest ended visit's outcome."""
     out = {}
     for hid in ids:
         verdict = verdicts.get(hid)
@@ -88,13 +112,37 @@ def heliostat_states(ids, verdicts, visits, on_board, off_tracking, out_of_servi
     return out
 
 
-def _map(cfg, ids, states, width: int = 640, height: int = 420, pad: int = 24) -> dict:
-    """SVG coordinates of the heliostats (east right, north up) and the tower."""
+def _map(cfg, ids, states, src=None, width: int = 640, height: int = 420, pad: int = 24) -> dict:
+    """SVG coordinates of the heliostats (east right, north up) and the tower. A field of more than
+    :data:`MAP_SVG_MAX` heliostats is drawn on a canvas: ``canvas`` True, no ``points`` but
+    ``codes``, one letter per heliostat of ``ids`` (its state's initial, ``-`` for one without a
+    position); the positions are drawn once into the page (:func:`map_positions`)."""
+    layout = map_layout(cfg, ids, src, width, height, pad)
+    if not layout["available"]:
+        return {"available": False, "points": [], "width": width, "height": height, "canvas": False}
+    if len(ids) > MAP_SVG_MAX:
+        codes = "".join(STATE_CODES[states[h]] if h in layout["xy"] else "-" for h in ids)
+        return {"available": True, "canvas": True, "points": [], "codes": codes, "drawn": len(layout["xy"]),
+                "width": width, "height": height, "r": layout["r"], "tower": layout["tower"]}
+    points = [{"id": h, "state": states[h], "xy": layout["xy"][h]} for h in ids if h in layout["xy"]]
+    return {"available": True, "canvas": False, "points": points, "width": width, "height": height,
+            "r": layout["r"], "tower": layout["tower"]}
+
+
+STATE_CODES = {"waiting": "w", "on-board": "o", "accepted": "a", "refused": "r", "attention": "t"}
+"""A heliostat's state on the canvas map, one letter (console.js reads them back)."""
+
+
+def map_layout(cfg, ids, src=None, width: int = 640, height: int = 420, pad: int = 24) -> dict:
+    """Each heliostat's map coordinates (``xy``), the dot radius and the tower; computed once per
+    :class:`Sources` (positions do not move)."""
+    if src is not None and src.positions is not None:
+        return src.positions
     pos = {h.id: h.position_enu_m for h in cfg.heliostats} if cfg is not None else {}
     have = [hid for hid in ids if hid in pos]
     tower = cfg.tower.receiver_aim_enu_m if cfg is not None else None
     if not have:
-        return {"available": False, "points": [], "width": width, "height": height}
+        return {"available": False}
     xs = [pos[h][0] for h in have] + ([tower[0]] if tower is not None else [])
     ys = [pos[h][1] for h in have] + ([tower[1]] if tower is not None else [])
     x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
@@ -103,10 +151,25 @@ def _map(cfg, ids, states, width: int = 640, height: int = 420, pad: int = 24) -
     def xy(e, n):
         return round(pad + (e - x0) * scale, 1), round(height - pad - (n - y0) * scale, 1)
 
-    r = max(3.0, min(9.0, 0.45 * scale * _spacing(pos, have)))
-    points = [{"id": h, "state": states[h], "xy": xy(pos[h][0], pos[h][1])} for h in have]
-    return {"available": True, "points": points, "width": width, "height": height, "r": round(r, 1),
-            "tower": None if tower is None else xy(tower[0], tower[1])}
+    r = max(3.0, min(9.0, 0.45 * scale * _spacing(pos, have))) if len(have) <= MAP_SVG_MAX else \
+        max(0.6, min(9.0, 0.45 * scale * _spacing(pos, have)))
+    out = {"available": True, "xy": {h: xy(pos[h][0], pos[h][1]) for h in have}, "r": round(r, 2),
+           "tower": None if tower is None else xy(tower[0], tower[1])}
+    if src is not None:
+        src.positions = out
+    return out
+
+
+def map_positions(src) -> dict:
+    """The canvas map's static part, drawn once into the page: ids and x, y in the map's
+    coordinates, in the order of the view's ``codes``."""
+    ids = src.heliostat_ids()
+    layout = map_layout(src.cfg, ids, src)
+    if not layout.get("available"):
+        return {"ids": [], "x": [], "y": []}
+    xy = layout["xy"]
+    return {"ids": ids, "x": [xy[h][0] if h in xy else None for h in ids],
+            "y": [xy[h][1] if h in xy else None for h in ids]}
 
 
 def _spacing(pos, ids) -> float:
@@ -195,9 +258,10 @@ def _frames_of(obs) -> dict:
             "spot_px": None if obs.spot_x_px is None else [float(obs.spot_x_px), float(obs.spot_y_px)]}
 
 
-def _boards(cfg, snapshot, visits, last_obs, framed, frames_cache, live_visits: bool, now_s) -> list[dict]:
-    running = {v.target_id: v for v in visits if v.outcome == "running"} if live_visits else {}
-    targets = [t.id for t in cfg.targets] if cfg is not None else sorted({v.target_id for v in visits})
+def _boards(cfg, snapshot, running_visits, last_obs, framed, frames_cache, live_visits: bool, now_s) -> list[dict]:
+    running = {v.target_id: v for v in running_visits} if live_visits else {}
+    targets = [t.id for t in cfg.targets] if cfg is not None else sorted({v.target_id for v in running_visits}
+                                                                         | set(last_obs))
     live = {b.target_id: b for b in snapshot.boards} if snapshot is not None else {}
     out = []
     for tid in targets:
@@ -366,10 +430,12 @@ def read_view(src: Sources, snapshot=None) -> dict:
 
     store, cfg, cid = src.store, src.cfg, src.campaign_id
     campaign = store.campaign(cid)
-    ids = [h.heliostat_id for h in store.campaign_heliostats(cid)]
-    verdicts = store.latest_verdicts(cid)
-    visits = store.visits(campaign_id=cid)
-    events = store.events(campaign_id=cid)
+    ids = src.heliostat_ids()
+    verdicts = src.latest_verdicts()
+    running = store.visits(cid, outcome="running")
+    recent = store.visits(cid, newest=EVENTS_SHOWN)
+    events = store.events(cid, kinds=STATE_EVENT_KINDS)  # the gate's, the plant's and the tracking's: few
+    log = store.events(cid, newest=EVENTS_SHOWN, data=False)
     actions = store.actions(cid)
     standing = replay(actions)
     last_obs = store.latest_by_target(cid)
@@ -380,10 +446,10 @@ def read_view(src: Sources, snapshot=None) -> dict:
     if snapshot is not None:
         on_board = {b.heliostat_id for b in snapshot.boards if b.heliostat_id}
     else:
-        on_board = {v.heliostat_id for v in visits if v.outcome == "running"} if campaign.status == "running" else set()
-    states = heliostat_states(ids, verdicts, visits, on_board, off, standing.out_of_service)
-    times = [campaign.started_s] + [e.time_s for e in events[-1:]] + [o.capture_time_s for o in last_obs.values()]
-    times += [v.started_s for v in visits[-1:]]
+        on_board = {v.heliostat_id for v in running} if campaign.status == "running" else set()
+    states = heliostat_states(ids, verdicts, store.last_outcomes(cid), on_board, off, standing.out_of_service)
+    times = [campaign.started_s] + [e.time_s for e in log[-1:]] + [o.capture_time_s for o in last_obs.values()]
+    times += [v.started_s for v in recent[-1:]]
     now = snapshot.time_s if snapshot is not None else max(times)
     counts = {k: 0 for k in STATES}
     for st in states.values():
@@ -396,16 +462,16 @@ def read_view(src: Sources, snapshot=None) -> dict:
                   "rate": None if snapshot is None else snapshot.rate, "armed": None if snapshot is None
                   else snapshot.armed},
         "gate": _gate(cfg, snapshot, events, last_obs, standing, now),
-        "boards": _boards(cfg, snapshot, visits, last_obs, framed, src.frames, campaign.status == "running", now),
-        "map": _map(cfg, ids, states),
+        "boards": _boards(cfg, snapshot, running, last_obs, framed, src.frames, campaign.status == "running", now),
+        "map": _map(cfg, ids, states, src),
         "states": states,
         "counts": counts,
         "progress": {"heliostats": len(ids), "accepted": counts["accepted"],
                      "next_band": None if snapshot is None else snapshot.next_band,
                      "started_s": campaign.started_s, "plot": now - campaign.started_s >= PLOT_AFTER_S,
-                     "visits": len(visits), "bands": _bands(cfg, now, ids, verdicts, states)},
-        "events": log_rows(events, visits),
-        "kinds": sorted({e.kind for e in events} | ({"visit_end"} if visits else set())),
+                     "visits": store.count_visits(cid), "bands": _bands(cfg, now, ids, verdicts, states)},
+        "events": log_rows(log, recent),
+        "kinds": sorted(set(store.event_kinds(cid)) | ({"visit_end"} if recent else set())),
         "actions": [{"id": a.id, "kind": a.kind, "heliostats": list(a.heliostat_ids), "who": a.who,
                      "requested_wall_s": a.requested_wall_s, "requested_s": a.requested_s, "done_s": a.done_s,
                      "outcome": a.outcome}

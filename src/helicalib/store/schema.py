@@ -35,6 +35,8 @@ OPERATOR_ACTIONS = (
 
 READ_INDEXES = (
     "CREATE INDEX IF NOT EXISTS events_by_kind ON events (campaign_id, kind)",
+    "CREATE INDEX IF NOT EXISTS observations_by_target ON observations (campaign_id, target_id)",
+    "CREATE INDEX IF NOT EXISTS visits_by_outcome ON visits (campaign_id, heliostat_id, outcome)",
 )
 """Indexes for the crew's reads (``status``, the console) at 10⁴ heliostats. Not part of the
 version: a writer that opens a database of the current version adds the missing ones; a reader

@@ -576,17 +576,21 @@ class Store:
         )
 
     def events(self, campaign_id: int | None = None, kind: str | None = None, *,
-               kinds: Sequence[str] | None = None, newest: int | None = None) -> list[Event]:
+               kinds: Sequence[str] | None = None, newest: int | None = None, data: bool = True) -> list[Event]:
         """Events in plant-time order (then recording order), filtered by campaign and kind (``kinds``:
-        any of several); ``newest``: only the newest N of them (still oldest first)."""
+        any of several); ``newest``: only the newest N of them (still oldest first); ``data`` False:
+        each event's ``data`` left empty, not read (an event log shows the reasons only)."""
         where, params = _where(campaign_id=campaign_id, kind=kind)
         if kinds is not None:
             where += (" AND" if where else " WHERE") + f" kind IN ({', '.join('?' * len(kinds)) or 'NULL'})"
             params += tuple(kinds)
-        sql = f"SELECT * FROM events{where} ORDER BY time_s, id"
+        # "+time_s" when by kinds: the kind index finds the few rows, sorting them is cheap
+        sql = f"SELECT * FROM events{where} ORDER BY {'+time_s' if kinds is not None else 'time_s'}, id"
         if newest is not None:
             sql = (f"SELECT * FROM (SELECT * FROM events{where} ORDER BY time_s DESC, id DESC "
                    f"LIMIT {max(0, int(newest))}) ORDER BY time_s, id")
+        if not data:
+            sql = sql.replace("SELECT *", "SELECT id, campaign_id, time_s, kind, heliostat_id, reason, '{}' AS data_json")
         return [_event(self.path, r) for r in self._read(sql, params, table="events")]
 
     def last_event(self, campaign_id: int) -> Event | None:
@@ -638,29 +642,25 @@ class Store:
                             cid, table="heliostats")
         visits = {r[0]: r[1] for r in self._read(
             "SELECT heliostat_id, COUNT(*) FROM visits WHERE campaign_id = ? GROUP BY heliostat_id", cid)}
-        obs = {r[0]: (r[1], r[2] or 0, r[3]) for r in self._read(
-            "SELECT heliostat_id, COUNT(*), SUM(valid = 1), MAX(CASE WHEN valid = 1 THEN id END) FROM observations "
-            "WHERE campaign_id = ? GROUP BY heliostat_id", cid)}
-        last = [o[2] for o in obs.values() if o[2] is not None]
-        errors = {}
-        for i in range(0, len(last), PARAMS_PER_QUERY):  # SQLite builds may allow as few as 32 766 ?-parameters
-            chunk = last[i:i + PARAMS_PER_QUERY]
-            errors.update({r["id"]: r["error_mrad"] for r in self._read(
-                f"SELECT id, error_mrad FROM observations WHERE id IN ({', '.join('?' * len(chunk))})", chunk,
-                table="observations")})
+        obs = {r["heliostat_id"]: (r["n"], r["n_valid"] or 0, r["error_mrad"]) for r in self._read(
+            "SELECT a.heliostat_id, a.n, a.n_valid, o.error_mrad FROM (SELECT heliostat_id, COUNT(*) AS n, "
+            "SUM(valid = 1) AS n_valid, MAX(CASE WHEN valid = 1 THEN id END) AS last_id FROM observations "
+            "WHERE campaign_id = ? GROUP BY heliostat_id) AS a LEFT JOIN observations AS o ON o.id = a.last_id", cid,
+            table="observations")}
         verdicts = {r["heliostat_id"]: r for r in self._read(
             "SELECT id, heliostat_id, accepted, rms_mrad, reasons_json FROM verdicts WHERE id IN "
             "(SELECT MAX(id) FROM verdicts WHERE campaign_id = ? GROUP BY heliostat_id)", cid, table="verdicts")}
         out = []
         for r in helios:
             hid = r["heliostat_id"]
-            n_obs, n_valid, last_id = obs.get(hid, (0, 0, None))
+            n_obs, n_valid, error = obs.get(hid, (0, 0, None))
             v = verdicts.get(hid)
             out.append({"heliostat_id": hid, "target_id": r["target_id"], "visits": visits.get(hid, 0),
-                        "observations": n_obs, "valid": n_valid, "last_error_mrad": errors.get(last_id),
+                        "observations": n_obs, "valid": n_valid, "last_error_mrad": error,
                         "accepted": None if v is None else bool(v["accepted"]),
                         "rms_mrad": None if v is None else v["rms_mrad"],
-                        "reasons": () if v is None else tuple(loads(self.path, "verdicts", v, "reasons_json"))})
+                        "reasons": () if v is None or v["reasons_json"] == "[]"  # most: parsing 10⁴ of them costs
+                        else tuple(loads(self.path, "verdicts", v, "reasons_json"))})
         return out
 
 
