@@ -309,7 +309,7 @@ def table(res: dict) -> str:
                      + ", ".join(f"{k} {v / 1e3:.0f} KB" for k, v in fr["levers_bytes_per_frame"].items()))
     for n, t in res["timed"].items():
         lines.append(f"{n:>6} heliostats: build {t['build']['build_s']} s ({t['build']['frames']} frames); dry run "
-                     f"{t['dry_run_s']} s (peak {t['dry_run_peak_mb']} MB), default retention {t['default_s']} s, "
+                     f"{t['dry_run_s']} s (under tracemalloc: peak {t['dry_run_peak_mb']} MB), default retention {t['default_s']} s, "
                      f"first pruning {t['first_prune_s']} s ({t['first_prune']['files']} files, {t['files_per_s']}/s), "
                      f"idle nightly {t['idle_nightly_s']} s, prune-frames command {t['command_s']} s")
     st = res["steady_state"]
