@@ -55,7 +55,7 @@ def test_a_visit_in_the_band_leaves_after_its_first_valid_point(cfg, tmp_path, r
     in_band = 0
     for v in visits:
         valid = [o for o in obs if o.visit_id == v.id and o.valid and o.iteration >= 0]
-        if not valid or not all(lo <= o.sun_elevation_deg <= hi for o in valid):
+        if v.ended_s is None or not valid or not all(lo <= o.sun_elevation_deg <= hi for o in valid):
             continue
         in_band += 1
         assert len(valid) == 1, (v.heliostat_id, [round(o.error_mrad, 2) for o in valid])
