@@ -323,7 +323,8 @@ def main(argv: list[str] | None = None) -> int:
                                                    for t, h, w, g in meter.gap_log]), encoding="utf-8")
     r = meter.runner
     with Store.open(db, readonly=True) as store:
-        visits = [v for v in store.visits() if v.ended_s is not None and v.outcome not in ("aborted", "interrupted")]
+        visits = [v for v in store.visits() if v.ended_s is not None and v.started_s >= start_s
+                  and v.outcome not in ("aborted", "interrupted")]            # this run's, not the seeded ones
         durations = [v.ended_s - v.started_s for v in visits]
         events = store.events()
     opened = next((e for e in events if e.kind == "campaign"), None)

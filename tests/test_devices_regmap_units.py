@@ -109,3 +109,20 @@ def test_a_failure_on_another_unit_names_the_unit_the_register_and_the_heliostat
         line = str(err.value)
         assert "\n" not in line and "unit 3 address 1034" in line and cfg.heliostats[9].id in line
         assert mp.status(4).strokes_mm == pytest.approx(tuple(plant.strokes_mm[4]), abs=1e-3)
+
+
+def test_the_cleanliness_of_many_heliostats_is_read_through_neighbouring_blocks_on_each_unit(tmp_path):
+    with serve(units_map(tmp_path), field=FIELD) as (cfg, plant, server, raw, mp, source):
+        rows = [0, 1, 2, 3, 9, 10, 13, 21]                      # units 1, 3, 4 and 6 (4 heliostats per unit)
+        mp.heliostat_count()                                     # (read once per client, checked)
+        reads = []
+        read = mp.scs.read
+        mp.scs.read = lambda *a, **kw: reads.append(kw.get("unit", 1)) or read(*a, **kw)
+        got = mp.cleanliness_many(rows)
+        assert sorted(reads) == [1, 3, 4, 6]                     # one request per unit, not one per heliostat
+        mp.scs.read = read
+        assert got.tolist() == pytest.approx([mp.status(i).cleanliness for i in rows], abs=1e-6)
+        assert got.tolist() == pytest.approx([plant.cleanliness_of(i) for i in rows], abs=1e-6)
+        server.units.discard(3)                                  # a unit that does not answer: NaN, the others read
+        got = mp.cleanliness_many(rows)
+        assert np.isnan(got[4:6]).all() and np.isfinite(np.delete(got, [4, 5])).all()
