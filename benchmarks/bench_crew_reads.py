@@ -16,6 +16,7 @@ is mostly waiting for a core, the CPU time what the read costs. ``status`` runs 
 Usage::
 
     .venv/bin/python benchmarks/bench_crew_reads.py --field /tmp/f10k.yaml              # both sizes, ≈ 3 min
+    .venv/bin/python benchmarks/bench_crew_reads.py --db syn1k.db --field f1k.yaml --db syn10k.db --field f10k.yaml
     .venv/bin/python benchmarks/bench_crew_reads.py --db syn10k.db --field f10k.yaml --what status
 
 Prints a table and writes ``benchmarks/out/bench_crew_reads.json``: ``{"sizes": {N: {"database":
@@ -238,9 +239,12 @@ def table(res: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--field", default=None, help="a 10⁴-heliostat field config (default: made by sim-field)")
+    ap.add_argument("--field", action="append", default=None,
+                    help="a 10⁴-heliostat field config (default: made by sim-field); with --db, each database's "
+                         "field config, in the same order")
     ap.add_argument("--fields-dir", default=None, help="keep (and reuse) the generated field here")
-    ap.add_argument("--db", default=None, help="time this database (copied first) instead of building; needs --field")
+    ap.add_argument("--db", action="append", default=None,
+                    help="time this database (copied first) instead of building (repeat for several); needs --field")
     ap.add_argument("--sizes", default="1000,10000", help="heliostat counts timed (default %(default)s)")
     ap.add_argument("--days", type=float, default=30.0, help="plant days of each database (default %(default)s)")
     ap.add_argument("--what", default=",".join(PARTS), help="parts timed, of " + ", ".join(PARTS)
@@ -255,29 +259,33 @@ def main(argv=None) -> int:
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
         ap.error(f"--what {unknown[0]!r}: not one of {', '.join(PARTS)}")
-    if args.db and not args.field:
-        ap.error("--db needs --field (the campaign's field config)")
+    if args.db and (not args.field or len(args.field) != len(args.db)):
+        ap.error("--db needs one --field per database (its campaign's field config), in the same order")
+    if not args.db and args.field and len(args.field) > 1:
+        ap.error("--field once: the field the databases are built from")
 
     from helicalib.config import load_field_config
 
     work = Path(args.work or tempfile.mkdtemp(prefix="bench_crew_reads_"))
     work.mkdir(parents=True, exist_ok=True)
-    field = Path(args.field) if args.field else make_field(10000, 8, Path(args.fields_dir or work))
-    res: dict = {"field": str(field), "days": args.days, "what": parts, "sizes": {},
+    field = Path(args.field[0]) if args.field else make_field(10000, 8, Path(args.fields_dir or work))
+    res: dict = {"field": str(field) if not args.db else args.field, "days": args.days, "what": parts, "sizes": {},
                  "machine": {"cpus": os.cpu_count(), "load_average_1min": round(os.getloadavg()[0], 2),
                              "date": time.strftime("%Y-%m-%d")}}
     if args.db:
-        db = work / "given" / Path(args.db).name
-        db.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(args.db, db)
-        db.chmod(0o644)
-        targets = [(None, db)]
+        targets = []
+        for k, (given, given_field) in enumerate(zip(args.db, args.field)):
+            db = work / f"given{k}" / Path(given).name
+            db.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(given, db)
+            db.chmod(0o644)
+            targets.append((None, db, Path(given_field)))
     else:
         cfg = load_field_config(field)
-        targets = [(int(x), work / f"f{x}" / "syn.db") for x in args.sizes.split(",")]
-        for n, db in targets:
+        targets = [(int(x), work / f"f{x}" / "syn.db", field) for x in args.sizes.split(",")]
+        for n, db, _f in targets:
             res["sizes"][str(n)] = {"build": build(cfg, db, n, args.days)}
-    for n, db in targets:
+    for n, db, field in targets:
         figures = prepare(db)
         key = str(n if n is not None else figures["heliostats"])
         entry = res["sizes"].setdefault(key, {})

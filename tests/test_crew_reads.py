@@ -211,3 +211,35 @@ def test_the_map_draws_every_heliostat_and_the_table_fills(console_url, browser)
     shown = driver.execute_script("return Array.from(document.querySelectorAll('#hel-rows tr td:nth-child(7)'))"
                                   ".map(function (td) { return Number(td.textContent); })")
     assert shown == sorted(shown, reverse=True) and len(shown) == 50
+
+
+OLD_KEYS = {"campaign", "shown_because", "name", "mode", "status", "owner", "plant_unreachable_since",
+            "plant_unreachable_since_s", "gate", "weather", "newest_record", "newest_record_s", "accepted",
+            "heliostats", "stows", "off_tracking"}
+ROW_KEYS = {"heliostat_id", "target_id", "visits", "observations", "valid", "last_error_mrad", "accepted", "rms_mrad",
+            "reasons"}
+"""``status --json``'s keys and per-heliostat keys before the summary was added (kept as they are)."""
+
+
+def test_a_small_field_keeps_its_table_and_json(tmp_path, capsys, monkeypatch):
+    cfg = big_field(40, tmp_path / "field.yaml")
+    path = tmp_path / "small.db"
+    with open_for_synthesis(path) as store:
+        s = build_synthetic_campaign(store, cfg, days=3, per_day=20, seed=2)
+    exp = expected(path, s.campaign_id)
+    got = json.loads(status(capsys, monkeypatch, str(path), "--json"))
+    assert OLD_KEYS <= set(got) and set(got) - OLD_KEYS == {"summary", "out_of_service"}
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    for row in got["heliostats"]:
+        assert set(row) == ROW_KEYS
+        hid, r = row["heliostat_id"], exp[row["heliostat_id"]]
+        assert (row["target_id"], row["accepted"], list(row["reasons"])) == (r["target"], r["accepted"], r["reasons"])
+        assert row["last_error_mrad"] == (None if r["error"] is None else pytest.approx(r["error"]))
+        assert row["visits"] == con.execute("SELECT COUNT(*) FROM visits WHERE heliostat_id = ?", (hid,)).fetchone()[0]
+        assert (row["observations"], row["valid"]) == con.execute(
+            "SELECT COUNT(*), COALESCE(SUM(valid), 0) FROM observations WHERE heliostat_id = ?", (hid,)).fetchone()
+    con.close()
+    assert [row["heliostat_id"] for row in got["heliostats"]] == list(exp)
+    text = status(capsys, monkeypatch, str(path))
+    assert sum(1 for line in text.splitlines() if line.startswith("│ H")) == 40  # every heliostat, as before
+    assert "need attention" not in text and "err p50" not in text
