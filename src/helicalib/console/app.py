@@ -78,7 +78,8 @@ class Console:
         self._lock = threading.Lock()
         self._view: tuple[float, object, dict] | None = None
         self._report: tuple[float, object, object, dict] | None = None
-        self._table: tuple[float, list] | None = None
+        self._table: tuple[float, dict, list] | None = None
+        """(when, the view the rows were built with, the rows)."""
         self._files_seen = None
         self._draw_lock = threading.Lock()
 
@@ -121,28 +122,29 @@ class Console:
             return v
 
     def table_rows(self) -> list[dict]:
-        """The heliostats table's rows (:func:`helicalib.console.table.table_rows`), read at most
-        every :data:`TABLE_EVERY_S`."""
+        """The heliostats table's rows (:func:`helicalib.console.table.table_rows`): built from the
+        page's current figures, and at most every :data:`TABLE_EVERY_S` while those change (beside
+        a controller, every second)."""
         from helicalib.console.table import table_rows
 
         with self._lock:
             fresh = self._table is not None and time.monotonic() - self._table[0] < TABLE_EVERY_S
         if fresh:  # paging, sorting and filtering within a few seconds: no read at all
-            return self._table[1]
+            return self._table[2]
         v = self.view()
         with self._lock:
-            now = time.monotonic()
-            if self._table is None or now - self._table[0] >= TABLE_EVERY_S:
+            if self._table is None or (self._table[1] is not v and time.monotonic() - self._table[0] >= TABLE_EVERY_S):
                 with reading(self.src.store, self.src.campaign_id):
                     progress = self.src.store.progress(self.src.campaign_id)
-                self._table = (now, table_rows(progress, v["states"], set(v["out_of_service"])))
-            return self._table[1]
+                self._table = (time.monotonic(), v, table_rows(progress, v["states"], set(v["out_of_service"])))
+            return self._table[2]
 
     def warm(self) -> None:
         """Read the page's figures once before the first viewer comes (the imports, the field's
         layout and every verdict: seconds at 10⁴ heliostats); a failure is left for the page to say."""
         try:
             self.map_positions()
+            self.table_rows()
         except Exception:  # noqa: BLE001 - the page reports what cannot be read, with its line
             pass
 
