@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -291,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
                 now = r.devices.clock.estimate_s()
             except Exception:  # noqa: BLE001 - a progress line never stops the run
                 now = float("nan")
-            print(f"  [{time.monotonic() - wall0:6.0f} s] plant {iso(now)[11:19]}, visits {r.state.stats.visits}, "
+            print(f"  [{time.monotonic() - wall0:6.0f} s] load {os.getloadavg()[0]:.1f}, plant {iso(now)[11:19]}, "
+                  f"visits {r.state.stats.visits}, "
                   f"in visit {len(r.state.active)}, commands {meter.commands}, refreshes {meter.refreshes}, "
                   f"gaps {len(meter.gaps_s)} (p99 {pct(meter.gaps_s, 99)} s real), RSS {rss_mb():.0f} MB", file=out,
                   flush=True)
@@ -347,6 +349,7 @@ def main(argv: list[str] | None = None) -> int:
         "refresh_lag_plant_s": {"p99": pct(lags, 99), "max": None if not len(lags) else round(float(lags.max()), 1),
                                 "period": 900.0},
         "controller_rss_peak_mb": round(meter.rss_peak_mb, 1), "plant_rss_peak_mb": round(plant_rss, 1),
+        "load_average_1min_end": round(os.getloadavg()[0], 1), "cpus": os.cpu_count(),
     }
     print(json.dumps(result, indent=1))
     out_json.parent.mkdir(parents=True, exist_ok=True)

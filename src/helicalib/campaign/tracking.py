@@ -170,8 +170,10 @@ class Tracking:
     def refresh(self, now: float) -> None:
         """Recompute the tracking corrections of every calibrated heliostat not in a visit, for the sun
         half a refresh period ahead (module docstring). A plant with bulk tracking takes them in one
-        write; any other gets them as a round that :meth:`write_round` sends a slice per tick. Not
-        armed, stowed, at night or in a re-check: nothing is written."""
+        write; any other gets them as a round that :meth:`write_round` sends a slice per tick (a round
+        still going when the next is due is superseded, its unwritten heliostats first in the new
+        one, so no heliostat waits more than one round behind). Not armed, stowed, at night or in a
+        re-check: nothing is written."""
         st = self.state
         st.last_refresh_s = now
         vec, _az, el, _r = self.sun(now + verdicts.TRACKING_REFRESH_S / 2)
@@ -191,9 +193,12 @@ class Tracking:
             for k in ok:
                 st.corrections[ids[k]] = corr[k]
             return
-        if st.refresh_round is not None:  # the last round's rest is superseded by these corrections
+        items = [(ids[k], corr[k]) for k in ok]
+        if st.refresh_round is not None:  # superseded: its heliostats not yet written go first, with these corrections
+            late = {hid for hid, _c in st.refresh_round.queue}
+            items.sort(key=lambda item: item[0] not in late)  # (stable: the field's order otherwise)
             self._round_done()
-        st.refresh_round = RefreshRound(now, deque((ids[k], corr[k]) for k in ok))
+        st.refresh_round = RefreshRound(now, deque(items))
 
     def write_round(self) -> None:
         """Send the refresh round's next slice: track commands until :data:`REFRESH_SLICE_S` plant
