@@ -19,6 +19,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--field", default=None, help="field config to use instead of the one the campaign recorded")
     p.add_argument("--images", default=None, help="frames directory (default: images beside the database)")
     p.add_argument("--no-frames", action="store_true", help="do not draw each heliostat's latest frames (faster)")
+    p.add_argument("--plots", choices=("auto", "all", "attention"), default="auto",
+                   help="which heliostat sheets get the full drawn plots: all, only those needing attention (not "
+                        "accepted, no verdict; the others show a small inline chart), or auto (all on fields of at "
+                        "most 500 heliostats)")
+    p.add_argument("--predictions", action="store_true", help="compute the year-round prediction on any field (by "
+                   "default only on fields of at most 500 heliostats: it fits every heliostat again)")
     p.add_argument("--jobs", type=int, default=None, help="processes drawing the heliostat sheets (default: CPUs, max 4)")
     p.add_argument("--timezone", default=None, help="the site's clock shown beside UTC: an IANA zone (Asia/Shanghai) or "
                    "an offset (+08:00); default: local mean solar time from the site's longitude")
@@ -37,8 +43,13 @@ def run(args) -> int:
     db = _check_inputs(args)                              # before the folder is touched
     out = prepare(args.out, "report", replace=True,       # only an empty folder or a previous report is replaced
                   inputs=(db, args.field, args.images))
-    index = build_report(db, out, args.campaign, field_config=args.field, images_dir=args.images,
-                         frames=not args.no_frames, jobs=args.jobs, timezone=args.timezone)
+    from helicalib.commands._progress import ProgressReporter
+
+    with ProgressReporter("report", None, transient=args.json) as bar:
+        index = build_report(db, out, args.campaign, field_config=args.field, images_dir=args.images,
+                             frames=not args.no_frames, jobs=args.jobs, timezone=args.timezone, plots=args.plots,
+                             predictions=True if args.predictions else None,
+                             progress=lambda done, total, what: bar.update(done, f"{done} of {total} {what}", total))
     rep = json.loads((index.parent / "report.json").read_text())
     if args.json:
         print(json.dumps({"index": str(index), "status": rep["status"], "summary": rep["summary"],

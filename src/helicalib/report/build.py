@@ -20,10 +20,12 @@ import time
 from pathlib import Path
 
 from helicalib.report import figures as F
-from helicalib.report import html, plots
+from helicalib.report import html
+from helicalib.report import plots as campaign_plots
 from helicalib.report.data import CampaignData, load_campaign
 from helicalib.report.grlm import spec_of, tracking_test
 from helicalib.report.measures import glossary
+from helicalib.report.overview import overview
 from helicalib.report.prediction import year_predictions
 from helicalib.report.sheets import acceptance_spans, heliostat_sheet
 from helicalib.geometry.sitetime import SiteTime, site_time
@@ -62,10 +64,20 @@ def limits(data: CampaignData) -> dict:
             "grlm_threshold_mrad": float(spec_of(cfg)["threshold_mrad"])}
 
 
-def compute(data: CampaignData, site: SiteTime | None = None) -> dict:
-    """Every campaign-level figure of the report (no per-heliostat sheet), as one JSON-ready dict."""
+PREDICTION_MAX_HELIOSTATS = 500
+"""Fields up to this size get the year-round prediction by default: it fits every heliostat again
+(seconds each), hours on a 10⁴-heliostat field; ``predictions=True`` asks for it on any field."""
+
+
+def compute(data: CampaignData, site: SiteTime | None = None, predictions: bool | None = None) -> dict:
+    """Every campaign-level figure of the report (no per-heliostat sheet), as one JSON-ready dict.
+
+    ``predictions``: compute the year-round prediction (default: on fields of at most
+    :data:`PREDICTION_MAX_HELIOSTATS` heliostats; ``report.json``'s ``year_prediction_note`` says why not)."""
     from helicalib import __version__
 
+    n = len(data.heliostats)
+    predictions = n <= PREDICTION_MAX_HELIOSTATS if predictions is None else bool(predictions)
     visits = F.visit_table(data)
     summ = F.summary(data, visits)
     site = site if site is not None else site_time(data.cfg)
@@ -83,7 +95,10 @@ def compute(data: CampaignData, site: SiteTime | None = None) -> dict:
         "tracking_test": tracking_test(data.observations, data.cfg),
         "acceptance": acceptance_spans(data),
         "washing": F.washing(data),
-        "year_prediction": year_predictions(data),
+        "year_prediction": year_predictions(data) if predictions else None,
+        "year_prediction_note": "" if predictions else (
+            f"not computed for {n} heliostats: it fits every heliostat again (seconds each); "
+            f"helicalib report --predictions computes it"),
         "events": F.events_log(data),
         "glossary": glossary(limits(data)),
         "limits": limits(data),
@@ -91,8 +106,14 @@ def compute(data: CampaignData, site: SiteTime | None = None) -> dict:
     }
 
 
+FULL_PLOTS_MAX = 500
+"""Fields up to this size get every heliostat's drawn plot (PNG); above, only the heliostats needing
+attention (not accepted, no verdict) do and every other sheet shows a small inline chart instead."""
+
+
 def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_config=None, images_dir=None,
-                 frames: bool = True, jobs: int | None = None, timezone: str | None = None) -> Path:
+                 frames: bool = True, jobs: int | None = None, timezone: str | None = None,
+                 plots: str = "auto", predictions: bool | None = None, progress=None) -> Path:
     """Write the report of one campaign (default: the newest) into ``out_dir``; returns ``index.html``.
 
     Parameters
@@ -114,33 +135,50 @@ def build_report(db_path, out_dir, campaign_id: int | None = None, *, field_conf
     timezone : str, optional
         The site's clock shown beside UTC: an IANA zone name or an offset such as ``+08:00``
         (default: the field config's, else local mean solar time from the site's longitude).
+    plots : str
+        Which sheets get the drawn plot (PNG): ``"all"``, ``"attention"`` (not accepted or no verdict;
+        the others an inline chart) or ``"auto"`` (all on fields of at most :data:`FULL_PLOTS_MAX`).
+    predictions : bool, optional
+        Compute the year-round prediction (default: on fields of at most ``PREDICTION_MAX_HELIOSTATS``).
+    progress : callable, optional
+        ``progress(done, total, what)`` while the sheets are written.
     """
     t_start = time.perf_counter()
     out = Path(out_dir)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     (out / "heliostats").mkdir(parents=True, exist_ok=True)
+    sheet_plots = plots
+    if sheet_plots not in ("auto", "all", "attention"):
+        from helicalib.errors import ConfigError
+
+        raise ConfigError(f"plots {sheet_plots!r}: expected auto, all or attention")
     data = load_campaign(db_path, campaign_id, field_config, images_dir)
     site = site_time(data.cfg, timezone)
-    rep = compute(data, site)
+    rep = compute(data, site, predictions)
+    if sheet_plots == "auto":
+        sheet_plots = "all" if len(data.heliostats) <= FULL_PLOTS_MAX else "attention"
     t_figures = time.perf_counter()
 
-    images = {"field_map": plots.plot_field_map(rep["field_map"], out / "plots" / "field_map.png"),
-              "progress": plots.plot_progress(rep["progress"], out / "plots" / "progress.png", site),
-              "figure_3": plots.plot_figure_3(rep["tracking_test"], out / "plots" / "grlm_figure3.png")}
+    images = {"field_map": campaign_plots.plot_field_map(rep["field_map"], out / "plots" / "field_map.png"),
+              "progress": campaign_plots.plot_progress(rep["progress"], out / "plots" / "progress.png", site),
+              "figure_3": campaign_plots.plot_figure_3(rep["tracking_test"], out / "plots" / "grlm_figure3.png")}
     for number, key in ((6, "wind"), (7, "dni"), (8, "cleanliness")):
-        images[f"pass_{key}"] = plots.plot_pass_rate(rep["pass_rate"][key], out / "plots" / f"pass_rate_{key}.png",
+        images[f"pass_{key}"] = campaign_plots.plot_pass_rate(rep["pass_rate"][key], out / "plots" / f"pass_rate_{key}.png",
                                                      number, rep["pass_rate"]["threshold_mrad"])
     images = {k: v.relative_to(out).as_posix() for k, v in images.items()}
     t_plots = time.perf_counter()
 
-    rep["heliostats"] = _write_sheets(data, rep, out, frames, jobs, site)
+    rep["heliostats"] = _write_sheets(data, rep, out, frames, jobs, site, plots=sheet_plots, progress=progress)
+    rep["overview"] = overview(data, rep, rep["heliostats"])
+    rep["sheet_plots"] = sheet_plots
     t_sheets = time.perf_counter()
     rep["timing_s"] = {"figures": round(t_figures - t_start, 3), "campaign_plots": round(t_plots - t_figures, 3),
                        "sheets": round(t_sheets - t_plots, 3), "heliostats": len(rep["heliostats"]),
                        "total": round(time.perf_counter() - t_start, 3)}
     (out / "report.json").write_text(json.dumps(rep, indent=1, ensure_ascii=False, default=_json_default))
     index = out / "index.html"
-    index.write_text(html.index_page(rep, images, rep["heliostats"], site), encoding="utf-8")
+    index.write_text(html.index_page(rep, images, rep["heliostats"], site, static_table=len(data.heliostats) <= FULL_PLOTS_MAX),
+                     encoding="utf-8")
     return index
 
 
@@ -174,13 +212,18 @@ def write_sheet(data: CampaignData, rep: dict, out_dir, heliostat_id: str, site=
     return _write_sheets(data, rep, out, True, 1, site, only=[heliostat_id])[0]
 
 
+SHEET_BATCH = 50
+"""Heliostats per task of the sheet workers (the progress moves once per batch)."""
+
+
 def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: int | None = None,
-                  site=None, only: list[str] | None = None) -> list[dict]:
+                  site=None, only: list[str] | None = None, plots: str = "all", progress=None) -> list[dict]:
     """Each heliostat's plot, frames, JSON and page; returns the sheet summaries for ``report.json``.
 
     With ``jobs`` > 1 (default: the CPU count, at most 4) and a field of at least
     :data:`PARALLEL_MIN_HELIOSTATS`, the heliostats are split into chunks drawn by forked worker
-    processes (each with its own figure); the summaries come back in field order.
+    processes (each with its own figure); the summaries come back in field order. ``plots``:
+    ``"all"`` or ``"attention"`` (see :func:`build_report`); ``progress(done, total, what)``.
     """
     import multiprocessing
     import os
@@ -200,54 +243,84 @@ def _write_sheets(data: CampaignData, rep: dict, out: Path, frames: bool, jobs: 
         groups={str(k): g for k, g in obs.groupby("heliostat_id")} if len(obs) else {}, empty=obs.iloc[0:0],
         targets={h.heliostat_id: h.target_id for h in data.heliostats},
         max_error=float(valid["error_mrad"].max()) if len(valid) else 0.0,
-        max_placements=int(valid["iteration"].max()) + 1 if len(valid) else 1,
+        max_placements=int(valid["iteration"].max()) + 1 if len(valid) else 1, plots=plots,
+        n_heliostats=len(data.heliostats),
     )
     ids = data.heliostat_ids if only is None else list(only)
     jobs = min(4, os.cpu_count() or 1) if jobs is None else max(1, int(jobs))
     methods = multiprocessing.get_all_start_methods()
     try:
+        batches = [ids[k:k + SHEET_BATCH] for k in range(0, len(ids), SHEET_BATCH)]
+        by_id: dict[str, dict] = {}
+
+        def collect(part):
+            by_id.update((s["id"], s) for s in part)
+            if progress is not None:
+                progress(len(by_id), len(ids), "heliostat sheets")
+
         if jobs > 1 and len(ids) >= PARALLEL_MIN_HELIOSTATS and "fork" in methods:
-            chunks = [ids[k::jobs] for k in range(jobs)]
             with multiprocessing.get_context("fork").Pool(jobs) as pool:
-                parts = pool.map(_sheet_chunk, chunks)
-            by_id = {s["id"]: s for part in parts for s in part}
-            return [by_id[h] for h in ids]
-        return _sheet_chunk(ids)
+                for part in pool.imap_unordered(_sheet_chunk, batches):
+                    collect(part)
+        else:
+            for batch in batches:
+                collect(_sheet_chunk(batch))
+        return [by_id[h] for h in ids]
     finally:
+        if "plotter" in _JOB:
+            _JOB["plotter"].close()
         _JOB.clear()
 
 
 def _sheet_chunk(ids: list[str]) -> list[dict]:
     """Draw and write the sheets of ``ids`` (in this process) from :data:`_JOB`."""
     from helicalib.report.overlay import overlay_latest
-    from helicalib.report.sheet_plots import SheetPlotter
 
     j = _JOB
     data, rep, out = j["data"], j["rep"], j["out"]
     per_tt = rep["tracking_test"]["per_heliostat"]
-    t0 = data.campaign.started_s if data.campaign is not None else 0.0
     summaries = []
-    with SheetPlotter(rep["acceptance"], F.loop_threshold_mrad(data), (t0, data.end_s), j["max_error"],
-                      j["max_placements"], j["site"]) as plotter:
-        for hid in ids:
-            stem = j["names"][hid]
-            sheet = heliostat_sheet(data, hid, j["targets"][hid], j["groups"].get(hid, j["empty"]), j["errors"].get(hid),
-                                    per_tt.get(hid), j["visits_of"].get(hid, {}), j["history"].get(hid, ()))
-            plot = plotter.draw(sheet, out / "heliostats" / f"{stem}.png")
-            frames_info = None
-            if j["frames"] and sheet["latest_frames"] is not None:
-                drawn = overlay_latest(data.images_dir, sheet["latest_frames"], data.cfg,
-                                       out / "heliostats" / f"{stem}_frames.png")
-                sheet["latest_frames"]["remeasured"] = drawn["remeasured"]
-                sheet["latest_frames"]["note"] = drawn["note"]
-                frames_info = {"src": drawn["png"].name if drawn["png"] is not None else None, "note": drawn["note"]}
-            (out / "heliostats" / f"{stem}.json").write_text(
-                json.dumps(sheet, indent=1, ensure_ascii=False, default=_json_default))
-            (out / "heliostats" / f"{stem}.html").write_text(
-                html.sheet_page(sheet, plot.name, frames_info, f"{stem}.json", j["site"], rep["limits"]), encoding="utf-8")
-            summary = {k: v for k, v in sheet.items() if k not in ("observation_rows",)}
-            summary.update(href=f"heliostats/{stem}.html", json=f"heliostats/{stem}.json",
-                           plot=f"heliostats/{plot.name}",
-                           frames_png=f"heliostats/{frames_info['src']}" if frames_info and frames_info["src"] else None)
-            summaries.append(summary)
+    band = list(rep["acceptance"].get("low_band_deg") or (5.0, 15.0))
+    page_limits = {**rep["limits"], "low_band_deg": band}
+    for hid in ids:
+        stem = j["names"][hid]
+        sheet = heliostat_sheet(data, hid, j["targets"][hid], j["groups"].get(hid, j["empty"]), j["errors"].get(hid),
+                                per_tt.get(hid), j["visits_of"].get(hid, {}), j["history"].get(hid, ()))
+        drawn = j["plots"] == "all" or sheet["status"] != "accepted"
+        plot = _plotter().draw(sheet, out / "heliostats" / f"{stem}.png") if drawn else None
+        frames_info = None
+        if j["frames"] and sheet["latest_frames"] is not None:
+            shown = overlay_latest(data.images_dir, sheet["latest_frames"], data.cfg,
+                                   out / "heliostats" / f"{stem}_frames.png")
+            sheet["latest_frames"]["remeasured"] = shown["remeasured"]
+            sheet["latest_frames"]["note"] = shown["note"]
+            frames_info = {"src": shown["png"].name if shown["png"] is not None else None, "note": shown["note"]}
+        (out / "heliostats" / f"{stem}.json").write_text(
+            json.dumps(sheet, indent=1, ensure_ascii=False, default=_json_default))
+        (out / "heliostats" / f"{stem}.html").write_text(
+            html.sheet_page(sheet, plot.name if plot else None, frames_info, f"{stem}.json", j["site"], page_limits,
+                            plot_note="" if plot else _PLOT_NOTE.format(n=j["n_heliostats"])), encoding="utf-8")
+        summary = {k: v for k, v in sheet.items() if k not in ("observation_rows",)}
+        summary.update(href=f"heliostats/{stem}.html", json=f"heliostats/{stem}.json",
+                       plot=f"heliostats/{plot.name}" if plot else None,
+                       frames_png=f"heliostats/{frames_info['src']}" if frames_info and frames_info["src"] else None)
+        summaries.append(summary)
     return summaries
+
+
+def _plotter():
+    """This process's :class:`SheetPlotter` for :data:`_JOB`, made on first use (its background costs
+    seconds: once per worker, not per batch); closed when the job is cleared."""
+    from helicalib.report.sheet_plots import SheetPlotter
+
+    j = _JOB
+    if "plotter" not in j:
+        data = j["data"]
+        t0 = data.campaign.started_s if data.campaign is not None else 0.0
+        j["plotter"] = SheetPlotter(j["rep"]["acceptance"], F.loop_threshold_mrad(data), (t0, data.end_s),
+                                    j["max_error"], j["max_placements"], j["site"])
+    return j["plotter"]
+
+
+_PLOT_NOTE = ("On a field of {n} heliostats the report draws the full plots only for the heliostats that need "
+              "attention; helicalib report DB --out DIR --plots all draws them for every heliostat.")

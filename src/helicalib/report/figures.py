@@ -16,6 +16,7 @@ Every dictionary here is written unchanged into ``report.json`` and drawn by
 
 from __future__ import annotations
 
+import datetime as _dt
 import math
 import re
 from collections import Counter
@@ -60,9 +61,10 @@ def num(x: Any, nd: int = 4) -> float | None:
 
 
 def iso(t_s: float | None) -> str | None:
+    """``'2026-06-01 03:14:15 UTC'`` (the second truncated); None for None/NaN."""
     if t_s is None or not math.isfinite(float(t_s)):
         return None
-    return pd.Timestamp(float(t_s), unit="s", tz="UTC").strftime("%Y-%m-%d %H:%M:%S UTC")
+    return _dt.datetime.fromtimestamp(math.floor(float(t_s)), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
 def loop_threshold_mrad(data: CampaignData) -> float:
@@ -76,26 +78,45 @@ def visit_table(data: CampaignData) -> pd.DataFrame:
             "first_error_mrad", "final_error_mrad", "wind_ms", "dni_wm2", "cleanliness"]
     if not data.visits:
         return pd.DataFrame(columns=cols)
-    thr = loop_threshold_mrad(data)
-    obs = data.observations
+    per_visit = _visit_aggregates(data.observations, loop_threshold_mrad(data))
     rows = []
-    by_visit = {k: g for k, g in obs.groupby("visit_id")} if len(obs) else {}
     for v in data.visits:
-        g = by_visit.get(v.id)
         row = dict(visit_id=v.id, heliostat_id=v.heliostat_id, outcome=v.outcome, started_s=v.started_s,
                    ended_s=v.ended_s, n_obs=0, n_valid=0, passed=False, first_error_mrad=None, final_error_mrad=None,
                    wind_ms=None, dni_wm2=None, cleanliness=None)
-        if g is not None:
-            valid = g[g["valid"] & g["error_mrad"].notna()]
-            row.update(n_obs=len(g), n_valid=len(valid), passed=bool((valid["error_mrad"] < thr).any()))
-            if len(valid):
-                row.update(first_error_mrad=float(valid["error_mrad"].iloc[0]),
-                           final_error_mrad=float(valid["error_mrad"].iloc[-1]))
-            for c in ("wind_ms", "dni_wm2", "cleanliness"):
-                known = g[c].dropna()
-                row[c] = float(known.iloc[0]) if len(known) else None
+        row.update(per_visit.get(v.id, {}))
         rows.append(row)
     return pd.DataFrame(rows, columns=cols)
+
+
+def _visit_aggregates(obs: pd.DataFrame, threshold_mrad: float) -> dict[int, dict]:
+    """Per visit id, in one grouped pass over the observations (recording order): observation and valid
+    counts, passed (a valid error under ``threshold_mrad``), first and final valid error, and the first
+    recorded wind, DNI and cleanliness. A visit's values are None where it has none."""
+    if not len(obs):
+        return {}
+    o = obs[obs["visit_id"].notna()]
+    if not len(o):
+        return {}
+    ok = o["valid"].to_numpy(dtype=bool) & o["error_mrad"].notna().to_numpy()
+    frame = pd.DataFrame({"visit_id": o["visit_id"].to_numpy(dtype=float).astype(np.int64),
+                          "ok": ok, "err": o["error_mrad"].where(ok).to_numpy(dtype=float),
+                          "wind_ms": o["wind_ms"].to_numpy(dtype=float), "dni_wm2": o["dni_wm2"].to_numpy(dtype=float),
+                          "cleanliness": o["cleanliness"].to_numpy(dtype=float)})
+    frame["below"] = frame["err"] < threshold_mrad
+    g = frame.groupby("visit_id", sort=False)
+    agg = pd.DataFrame({"n_obs": g.size(), "n_valid": g["ok"].sum(), "passed": g["below"].any(),
+                        "first_error_mrad": g["err"].first(), "final_error_mrad": g["err"].last(),
+                        "wind_ms": g["wind_ms"].first(), "dni_wm2": g["dni_wm2"].first(),
+                        "cleanliness": g["cleanliness"].first()})
+    out = {}
+    for vid, r in zip(agg.index.tolist(), agg.itertuples(index=False)):
+        d = r._asdict()
+        d.update(n_obs=int(d["n_obs"]), n_valid=int(d["n_valid"]), passed=bool(d["passed"]))
+        for k in ("first_error_mrad", "final_error_mrad", "wind_ms", "dni_wm2", "cleanliness"):
+            d[k] = None if d[k] != d[k] else float(d[k])
+        out[int(vid)] = d
+    return out
 
 
 # ---------------------------------------------------------------------------------------- intervals

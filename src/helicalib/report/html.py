@@ -82,12 +82,28 @@ def render(name: str, site: SiteTime | None = None, *, extra_dirs: tuple[str, ..
                                                               **context)
 
 
-def index_page(rep: dict, images: dict, sheets: list[dict], site: SiteTime | None = None) -> str:
-    """The campaign page: banner, summary, glossary, maps, progress, pass rates, T/GRLM, heliostat table, events."""
+def script_json(value) -> str:
+    """JSON to embed in a ``<script type="application/json">`` block: no ``<``, ``>`` or ``&`` left that
+    could end the block or start markup (they are written as ``\\u003c``... inside the strings)."""
+    import json
+
+    from markupsafe import Markup
+
+    text = json.dumps(value, ensure_ascii=False, separators=(",", ":"), allow_nan=False)
+    return Markup(text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
+
+
+def index_page(rep: dict, images: dict, sheets: list[dict], site: SiteTime | None = None,
+               static_table: bool = True) -> str:
+    """The campaign page: banner, summary, glossary, field overview (map, boards, bands, searchable table),
+    maps, progress, pass rates, T/GRLM, heliostat table (``static_table``: every row in the HTML, for
+    small fields), events."""
     c = rep["campaign"]
+    ov = rep.get("overview")
     return render("index.html", site, title=f"helicalib report — {c.get('name') if c else 'empty'}", sortable=True,
                   rep=rep, images=images, sheets=sheets, hrefs={h["id"]: h["href"] for h in sheets},
-                  routine=ROUTINE_EVENTS)
+                  routine=ROUTINE_EVENTS, static_table=static_table,
+                  ov_json=script_json({"columns": ov["columns"], "rows": ov["rows"]}) if ov else None)
 
 
 def coverage_text(details: dict) -> str:
@@ -124,12 +140,42 @@ def cleanliness_svg(points: list[tuple[float, float]], limit: float | None, widt
             "limit": None if limit is None else f"{limit:g}", "limit_y": None if limit is None else xy(t0, limit)[1]}
 
 
+def error_svg(rows: list[dict], threshold_mrad: float, band_deg=(5.0, 15.0), width: int = 640, height: int = 220,
+              y_min_mrad: float = 0.1, y_max_mrad: float | None = None) -> dict | None:
+    """Coordinates of the sheet's small chart of placement errors against sun elevation (0–90°, log
+    error axis), when the page has no drawn plot: rising and setting points, invalid observations as
+    crosses along the bottom, the low band shaded and the loop threshold dashed."""
+    import math
+
+    if not rows:
+        return None
+    valid = [r for r in rows if r["valid"] and r["error_mrad"] is not None]
+    top = max([y_max_mrad or 0.0, 2.0 * threshold_mrad] + [r["error_mrad"] for r in valid])
+    lo_log, hi_log, pad = math.log10(y_min_mrad), math.log10(top), 34
+
+    def x(el):
+        return round(pad + max(0.0, min(90.0, float(el or 0.0))) / 90.0 * (width - 2 * pad), 1)
+
+    def y(e):
+        e = min(max(float(e), y_min_mrad), top)
+        return round(height - pad - (math.log10(e) - lo_log) / (hi_log - lo_log) * (height - 2 * pad), 1)
+
+    return {"width": width, "height": height, "pad": pad, "top": f"{top:.3g}", "bottom": f"{y_min_mrad:g}",
+            "band": [x(band_deg[0]), x(band_deg[1])], "threshold_y": y(threshold_mrad), "threshold": f"{threshold_mrad:g}",
+            "rising": [(x(r["sun_elevation_deg"]), y(r["error_mrad"])) for r in valid if r["sun_rising"]],
+            "setting": [(x(r["sun_elevation_deg"]), y(r["error_mrad"])) for r in valid if not r["sun_rising"]],
+            "invalid": [x(r["sun_elevation_deg"]) for r in rows if not (r["valid"] and r["error_mrad"] is not None)]}
+
+
 def sheet_page(sh: dict, plot_src: str | None, frames: dict | None, json_src: str, site: SiteTime | None = None,
-               limits: dict | None = None) -> str:
+               limits: dict | None = None, plot_note: str = "") -> str:
     """One heliostat's page: verdict with reasons, clause 8.2 by wind bin, plots, frames, fit, visits, observations."""
     cl = sh.get("cleanliness")
     svg = cleanliness_svg([(r["time_s"], r["cleanliness_measured"]) for r in cl["measured"]], cl["threshold"]) \
         if cl and cl.get("measured") else None
+    lim = limits or {}
+    errors = None if plot_src else error_svg(sh["observation_rows"], float(lim.get("loop_threshold_mrad", 3.5)),
+                                             tuple(lim.get("low_band_deg", (5.0, 15.0))))
     return render("sheet.html", site, title=f"helicalib — heliostat {sh['id']}", sortable=True, sh=sh,
-                  plot_src=plot_src, frames=frames, json_src=json_src, svg=svg,
+                  plot_src=plot_src, frames=frames, json_src=json_src, svg=svg, errors=errors, plot_note=plot_note,
                   coverage=coverage_text((sh["verdict"] or {}).get("details") or {}), limits=limits or {})
