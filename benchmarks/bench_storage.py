@@ -138,31 +138,19 @@ def real_frames(folder: Path, sample: int) -> dict:
             "levers_encode_cpu_ms": {k: round(1e3 * v / len(picked), 1) for k, v in encode_s.items() if k != "stored"}}
 
 
-def copy_campaign(src: Path, dst: Path) -> Path:
-    """A copy of the database and a hard-linked copy of its frames (deleting a link is deleting a file)."""
-    if dst.exists():
-        shutil.rmtree(dst)
-    dst.mkdir(parents=True)
-    shutil.copy(src, dst / src.name)
-    if (src.parent / "images").is_dir():
-        subprocess.run(["cp", "-al", str(src.parent / "images"), str(dst)], check=True)
-    return dst / src.name
-
-
 def timed(fn):
     t0 = time.perf_counter()
     out = fn()
     return out, round(time.perf_counter() - t0, 2)
 
 
-def retention_times(db: Path, work: Path) -> dict:
-    """The retention passes on a copy of ``db`` (module docstring)."""
+def retention_times(db: Path) -> dict:
+    """The retention passes on ``db`` itself (module docstring): files really deleted, not links of a copy."""
     from helicalib.store.retention import retain_frames
     from helicalib.store.sqlite import Store
 
-    copy = copy_campaign(db, work)
     out: dict = {}
-    with Store.open(copy, owner="bench_storage") as s:
+    with Store.open(db, owner="bench_storage") as s:
         tracemalloc.start()
         r, out["dry_run_s"] = timed(lambda: retain_frames(s, DEFAULT_KEEP, dry_run=True))
         out["dry_run_peak_mb"] = round(tracemalloc.get_traced_memory()[1] / 1e6, 1)
@@ -174,29 +162,25 @@ def retention_times(db: Path, work: Path) -> dict:
         out["files_per_s"] = round(r.files / max(out["first_prune_s"], 1e-3))
         r, out["idle_nightly_s"] = timed(lambda: retain_frames(s, 2))
         out["idle_nightly"] = r.as_dict()
-    copy = copy_campaign(db, work)
-    cmd = [sys.executable, "-m", "helicalib", "prune-frames", str(copy), "--keep-last", "1", "--json"]
+    cmd = [sys.executable, "-m", "helicalib", "prune-frames", str(db), "--keep-last", "1", "--json"]
     done, out["command_s"] = timed(lambda: subprocess.run(cmd, capture_output=True, text=True, check=True))
     out["command"] = json.loads(done.stdout)
-    shutil.rmtree(work)
     return out
 
 
-def steady_state(db: Path, work: Path, heliostats: int, days: float) -> dict:
+def steady_state(db: Path, heliostats: int, days: float) -> dict:
     """Frames kept per heliostat under the default retention after ``days`` (a long campaign): the
     bounded part (the newest ``DEFAULT_KEEP`` observations' frames) and the rejected ones beyond it,
     which are kept for ever and grow with the months."""
     from helicalib.store.retention import retain_frames
     from helicalib.store.sqlite import Store
 
-    copy = copy_campaign(db, work)
-    with Store.open(copy, owner="bench_storage") as s:
+    with Store.open(db, owner="bench_storage") as s:
         r = retain_frames(s, DEFAULT_KEEP)
         older = s._read("SELECT COUNT(*) FROM (SELECT valid, ROW_NUMBER() OVER (PARTITION BY heliostat_id ORDER BY "
                         "id DESC) AS k FROM observations WHERE before_frame_path IS NOT NULL) WHERE k > ?",
                         (DEFAULT_KEEP,))[0][0]
         rejected = s._read("SELECT COUNT(*) FROM observations WHERE valid = 0")[0][0]
-    shutil.rmtree(work)
     hm = heliostats * days / MONTH_DAYS
     per_obs = 2  # the synthetic campaign writes a before and an after frame per observation
     return {"heliostats": heliostats, "days": days, **r.as_dict(), "rejected_observations": rejected,
@@ -219,7 +203,7 @@ def main(argv=None) -> int:
     ap.add_argument("--months-heliostats", type=int, default=1000)
     ap.add_argument("--months-days", type=float, default=120.0, help="the steady-state database's days")
     ap.add_argument("--real-db", default=None, help="a real run's database: its tables' figures too")
-    ap.add_argument("--work", default=None, help="work folder (default a temporary one, removed)")
+    ap.add_argument("--work", default=None, help="work folder, kept (default a temporary one, removed at the end)")
     ap.add_argument("--out", default=str(OUT / "bench_storage.json"))
     args = ap.parse_args(argv)
 
@@ -250,14 +234,12 @@ def main(argv=None) -> int:
         if n == n_rows:
             res["rows"] = table_figures(db, n, args.days)
             log(f"rows: {res['rows']['file_bytes'] / 1e6:.0f} MB for {n} heliostats x {args.days:g} days")
-        res["timed"][str(n)].update(retention_times(db, work / "copy"))
+        res["timed"][str(n)].update(retention_times(db))
         log(f"retention at {n}: {res['timed'][str(n)]}")
-        shutil.rmtree(db.parent)
 
     db = work / "months" / "syn.db"
     build(cfg, db, args.months_heliostats, args.months_days, shape)
-    res["steady_state"] = steady_state(db, work / "copy", args.months_heliostats, args.months_days)
-    shutil.rmtree(db.parent)
+    res["steady_state"] = steady_state(db, args.months_heliostats, args.months_days)
     log(f"steady state: {res['steady_state']}")
 
     res["per_10k_heliostat_months"] = per_10k(res)
