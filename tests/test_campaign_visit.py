@@ -94,6 +94,8 @@ class _ApproachSpy:
         if len(holding):
             _uv, _hit, on = sim.truth.spots(sim.true_beams(jitter=False), sim.targets)
             for i in holding[on[holding]]:
+                if sim.targets[i].id != self.target.id:  # held on another board (its camera's frames judge it)
+                    continue
                 # direction from the truth (independent of the campaign's model): strokes now and 5 min later
                 true = sim.truth.model_at(t).subset([i])
                 centre = np.asarray(self.target.center_enu_m)

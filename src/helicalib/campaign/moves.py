@@ -31,6 +31,10 @@ APPROACH_LEAD_S = 300.0
 """Plant seconds ahead at which the tracking direction of each actuator is read off the model."""
 APPROACH_MIN_MM = 0.01
 """A move shorter than this leaves the actuator's approach direction as it was."""
+MOVE_POLL_S = 1.0
+"""Plant seconds between polls of a visit's move (:func:`~.status.wait` polls every 2 s by default):
+a move of a few millimetres holds within seconds, and half a poll is lost on average after each
+of a visit's three or more moves, on a board whose band time is scarce (docs/benchmarks.md)."""
 
 
 def in_range(ctx: VisitContext, strokes_mm: np.ndarray) -> bool:
@@ -62,7 +66,7 @@ def move_and_hold(ctx: VisitContext, strokes_mm: np.ndarray, on_board: bool = Tr
                   ) -> Generator[float, None, tuple[float, float]]:
     """Command strokes (:func:`send_move`) and wait for "holding"; returns the read-back strokes,
     or raises the status's :class:`~.status.MoveFailed`."""
-    read = yield from wait(send_move(ctx, strokes_mm, on_board))
+    read = yield from wait(send_move(ctx, strokes_mm, on_board), MOVE_POLL_S)
     ctx.held_mm = np.asarray(read, dtype=float)
     return read
 
