@@ -81,6 +81,7 @@ class Console:
         self._table: tuple[float, dict, list] | None = None
         """(when, the view the rows were built with, the rows)."""
         self._files_seen = None
+        self._panels: tuple[dict, dict] | None = None
         self._draw_lock = threading.Lock()
 
     # ------------------------------------------------------------------ figures
@@ -172,7 +173,14 @@ class Console:
                       token_mode=self.token is not None, **context)
 
     def panels(self, v: dict) -> dict[str, str]:
-        return {p: self.render(f"panel_{p}.html", v=v) for p in PANELS}
+        """The panels drawn from the figures ``v``; drawn once per figures (every open page's stream
+        asks each second, and at 10⁴ heliostats drawing them costs tenths of a second)."""
+        drawn = self._panels
+        if drawn is not None and drawn[0] is v:
+            return drawn[1]
+        panels = {p: self.render(f"panel_{p}.html", v=v) for p in PANELS}
+        self._panels = (v, panels)
+        return panels
 
     def report_data(self):
         """(CampaignData, report figures) of the campaign, recomputed at most every :data:`REPORT_EVERY_S`."""
