@@ -295,8 +295,8 @@ def _sheet_chunk(ids: list[str]) -> list[dict]:
             sheet["latest_frames"]["remeasured"] = shown["remeasured"]
             sheet["latest_frames"]["note"] = shown["note"]
             frames_info = {"src": shown["png"].name if shown["png"] is not None else None, "note": shown["note"]}
-        (out / "heliostats" / f"{stem}.json").write_text(
-            json.dumps(sheet, indent=1, ensure_ascii=False, default=_json_default))
+        (out / "heliostats" / f"{stem}.json").write_text(  # compact: json's C encoder (indent is pure Python)
+            json.dumps(sheet, ensure_ascii=False, default=_json_default))
         (out / "heliostats" / f"{stem}.html").write_text(
             html.sheet_page(sheet, plot.name if plot else None, frames_info, f"{stem}.json", j["site"], page_limits,
                             plot_note="" if plot else _PLOT_NOTE.format(n=j["n_heliostats"])), encoding="utf-8")

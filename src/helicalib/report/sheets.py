@@ -79,17 +79,19 @@ def observation_rows(obs: pd.DataFrame) -> list[dict]:
             "cleanliness_measured": 4,
             "valid": None, "reason": None, "error_mrad": 4, "offset_u_m": 4, "offset_v_m": 4}
     rows = []
-    for r in obs.sort_values("id").itertuples(index=False):
+    o = obs.sort_values("id")
+    columns = {c: o[c].tolist() for c in cols}  # column lists: itertuples is slow on a heliostat's group
+    for i, t in enumerate(columns["capture_time_s"]):
         d = {}
         for c, nd in cols.items():
-            x = getattr(r, c)
+            x = columns[c][i]
             if nd is None:
                 d[c] = None if x is None or (isinstance(x, float) and x != x) else (bool(x) if c != "reason" else str(x))
             elif nd == 0:
                 d[c] = None if x is None or x != x else int(x)
             else:
                 d[c] = num(x, nd)
-        d["time_utc"] = iso(r.capture_time_s)
+        d["time_utc"] = iso(t)
         rows.append(d)
     return rows
 
@@ -124,11 +126,11 @@ def cleanliness_history(obs: pd.DataFrame, limit: float | None) -> dict:
     rows = []
     if len(obs) and "cleanliness_measured" in obs:
         have = obs[obs["cleanliness_measured"].notna()].sort_values(["capture_time_s", "id"])
-        for r in have.itertuples(index=False):
-            rows.append({"id": int(r.id), "visit_id": None if pd.isna(r.visit_id) else int(r.visit_id),
-                         "time_s": num(r.capture_time_s, 1), "time_utc": iso(r.capture_time_s),
-                         "cleanliness_measured": num(r.cleanliness_measured),
-                         "plant_cleanliness": num(r.cleanliness)})
+        for i, vid, t, c, plant in zip(*(have[k].tolist() for k in ("id", "visit_id", "capture_time_s",
+                                                                    "cleanliness_measured", "cleanliness"))):
+            rows.append({"id": int(i), "visit_id": None if pd.isna(vid) else int(vid),
+                         "time_s": num(t, 1), "time_utc": iso(t),
+                         "cleanliness_measured": num(c), "plant_cleanliness": num(plant)})
     plant = obs[obs["cleanliness"].notna()].sort_values(["capture_time_s", "id"]) if len(obs) else obs
     present, source = None, None
     if rows:
