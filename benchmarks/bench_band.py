@@ -50,13 +50,16 @@ SCENARIO = ROOT / "simulations" / "scenarios" / "benchmark.yaml"
 OUT = ROOT / "benchmarks" / "out"
 SITE = (40.063, 94.426, 1267.0)
 EQUINOX = "2026-09-22T00:00:00+06:18"
-RATE_ONE = 90.0
-"""Heliostats with a band point per board-hour, one visit on a board at a time (bench500, equinox,
-fast fidelity; docs/benchmarks.md)."""
+RATE_ONE = 80.0
+"""Heliostats with a band point per board-hour, one visit on a board at a time: bench500 at the
+equinox, fast fidelity, 265 and 307 heliostats in the first 0.89 h crossings on 4 boards
+(measured 2026-11-26, before the one-point band visit; docs/benchmarks.md)."""
 HORIZON_DAYS = 45.0
 """Days of band crossings over which the bound is looked for (a slower field's is "not within")."""
-RATE_TURNS = 135.0
-"""The same with three visits per board whose beams take turns (``--spots-per-board auto``)."""
+RATE_TURNS = 140.0
+"""The same with three visits per board whose beams take turns (``--spots-per-board auto``) and one
+point per visit in the band: 499 heliostats in the first rising crossing (0.89 h, 4 boards;
+measured 2026-11-28, docs/benchmarks.md "Band throughput at the physical bound")."""
 
 
 @dataclass(frozen=True)
