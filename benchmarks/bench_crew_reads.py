@@ -232,7 +232,31 @@ def part_console(db: Path, field: Path, args) -> dict:
     return res
 
 
-PARTS = {"status": part_status, "console": part_console}
+_MEASURED = ("import resource, subprocess, sys, time; t = time.perf_counter(); subprocess.run(sys.argv[1:], check=True, "
+             "stdout=subprocess.DEVNULL); u = resource.getrusage(resource.RUSAGE_CHILDREN); print(time.perf_counter() - t, "
+             "u.ru_utime + u.ru_stime, u.ru_maxrss)")
+"""A child that runs a command and prints its wall [s], CPU [s] and largest resident set of it and its
+worker processes [KB] (getrusage of the waited-for descendants)."""
+
+
+def part_report_export(db: Path, field: Path, args, what: str) -> dict:
+    """``report`` (build time) or ``export-paint --no-frames`` (peak RSS: it streams), once each."""
+    out = db.parent / f"{what}_out"
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = [sys.executable, "-m", "helicalib"] + (
+        ["report", str(db), "--out", str(out), "--no-frames", "--jobs", "2"] if what == "report" else
+        ["export-paint", str(db), "--out", str(out), "--field", str(field), "--no-frames"])
+    done = subprocess.run([sys.executable, "-c", _MEASURED, *cmd], stdout=subprocess.PIPE, text=True, check=True)
+    wall, cpu, rss_kb = (float(x) for x in done.stdout.split())
+    res = {"wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "peak_rss_mb": round(rss_kb / 1024, 1)}
+    log(f"{what}: {res}")
+    shutil.rmtree(out, ignore_errors=True)
+    return res
+
+
+PARTS = {"status": part_status, "console": part_console,
+         "report": lambda db, field, args: part_report_export(db, field, args, "report"),
+         "export": lambda db, field, args: part_report_export(db, field, args, "export")}
 """The parts ``--what`` names, in the order they run."""
 
 
