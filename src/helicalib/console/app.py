@@ -44,7 +44,7 @@ COOKIE = "helicalib_console"
 PANELS = ("clock", "gate", "boards", "map", "progress", "events", "actions")
 VIEW_EVERY_S = 1.0
 """The page's figures are read from the database at most this often (shared by every viewer)."""
-VIEW_MAX_AGE_S = 10.0
+VIEW_MAX_AGE_S = 30.0
 """``console DB`` reads the figures again after this long even when the database's files look unchanged."""
 TABLE_EVERY_S = 5.0
 """The heliostats table's rows are read from the database at most this often."""
