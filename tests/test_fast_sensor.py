@@ -115,3 +115,52 @@ def test_faint_spots_are_judged_on_the_fitted_contrast_scale_and_no_spot_fractio
     assert verdict(0.7 * edge, scale=1.4) == "low_contrast"  # 0.98 of the limit
     assert verdict(0.45 * edge) == "no_spot" and verdict(0.45 * edge, no_spot=0.3) == "low_contrast"
     assert verdict(0.55 * edge) == "low_contrast" and verdict(0.55 * edge, no_spot=0.6) == "no_spot"
+
+
+def test_a_camera_with_exposure_control_is_exposed_as_the_policy_exposes_it(cfg):
+    """policy_exposure puts the spot's brightest grey level (board light included) at TARGET_GREY,
+    within the camera's range; judge_spot scales the light by
+    the exposure and judges no_spot on the peak over the renderer's noise growth."""
+    from helicalib.campaign.exposure import TARGET_GREY
+    from helicalib.sim.camera import noise_scale
+    from helicalib.sim.fast_sensor import SpotPhysics, judge_spot, peak_wm2, policy_exposure
+    from helicalib.sim.scenario import parse_scenario
+    from helicalib.vision.spot import SpotLimits
+
+    target, spec, lim = cfg.targets[0], parse_scenario({}).camera, SpotLimits()
+    gain = spec.gain_counts_per_wm2 * spec.board_albedo
+    width, sigma = np.array([1.5, 1.2]), np.array([0.3, 0.3])
+
+    def spot(power):
+        return SpotPhysics(np.array([0.3, -0.2]), width, sigma, power, True)
+
+    # the peak by direct numerical integration of the box ⊗ Gaussian profile at the spot's centre
+    from scipy.integrate import quad
+
+    per_axis = [quad(lambda t, s=s: np.exp(-0.5 * (t / s) ** 2), -w / 2, w / 2, epsabs=0, epsrel=1e-12)[0]
+                / (np.sqrt(2 * np.pi) * s * w) for w, s in zip(width, sigma)]
+    assert peak_wm2(spot(1e4)) == pytest.approx(1e4 * per_axis[0] * per_axis[1], rel=1e-6)
+
+    ambient = 100.0  # board at 18 grey levels at the nominal exposure
+    bright = spot(2e4)
+    e = policy_exposure(bright, spec, ambient)
+    assert gain * e * (ambient + peak_wm2(bright)) == pytest.approx(TARGET_GREY)
+    faint = spot(100.0)
+    narrow = spec.model_copy(update={"exposure_range_ms": (0.5, 2.0)})
+    assert policy_exposure(faint, spec, ambient) > 2.0
+    assert policy_exposure(faint, narrow, ambient) == pytest.approx(2.0)
+    assert policy_exposure(spot(1e7), narrow, ambient) == pytest.approx(0.5)
+
+    # a faint spot: low contrast at the nominal exposure, read at the policy's
+    peak_nominal = gain * peak_wm2(faint)
+    assert peak_nominal < lim.min_contrast
+    e = policy_exposure(faint, spec, ambient)
+    assert e * peak_nominal >= lim.min_contrast
+    assert judge_spot(faint, target, spec, lim, 0.35, ambient, ambient)[0] in ("low_contrast", "no_spot")
+    assert judge_spot(faint, target, spec, lim, 0.35, ambient, ambient, exposure=e)[0] == "ok"
+    # below min_contrast even exposed: no_spot when the peak over the noise's growth is under the fraction
+    dim = spot(100.0 * 0.5 * lim.min_contrast / (e * peak_nominal))  # exposed peak 0.5 · min_contrast
+    exposed_peak = e * gain * peak_wm2(dim)
+    assert exposed_peak == pytest.approx(0.5 * lim.min_contrast)
+    assert exposed_peak / noise_scale(e, spec.read_noise_share) < 0.5 * lim.min_contrast
+    assert judge_spot(dim, target, spec, lim, 0.35, ambient, ambient, exposure=e)[0] == "no_spot"

@@ -16,6 +16,14 @@ instead of from pixels:
 * ``ambient_change``: the ambient light changed by more than ``max_ambient_change`` between the
   before and the after frames (DNI moved);
 * ``jitter``: with several after frames, the RMS spread of their spot centres above the limit;
+* exposure (PLANT_INTERFACE 1.1; the scenario's ``camera.exposure``): a camera that takes one is
+  exposed as the controller's policy exposes it once it has learnt the camera's gain
+  (:mod:`helicalib.campaign.exposure`): the spot's brightest grey level, board light included, at
+  ``TARGET_GREY`` (so the white board stays under it), within the camera's range
+  (:func:`policy_exposure`). Light scales with the exposure and the sensor's noise as the
+  renderer's (:func:`helicalib.sim.camera.noise_scale`), so a faint spot is judged on its peak at
+  that exposure (``low_contrast``) and on its peak over the noise's growth (``no_spot``). A camera
+  without exposure control stays at the nominal exposure, where the error model was fitted;
 * ``ambient_change`` with ``before_beam``: another heliostat's beam lay on the board at the before
   frame (one the plant shows moving, drawn as the renderer would, not stopped by another board) and
   its light is gone in the after frames over at least ``max_lost_light_share`` of the spot's area,
@@ -39,8 +47,9 @@ from pathlib import Path
 import numpy as np
 from scipy.special import ndtr
 
+from helicalib.campaign.exposure import TARGET_GREY
 from helicalib.devices.protocols import Before, Reading
-from helicalib.sim.camera import spot_geometry, stopped_before
+from helicalib.sim.camera import noise_scale, spot_geometry, stopped_before
 from helicalib.vision.spot import SATURATED_LEVEL, SpotLimits
 
 MODEL_PATH = Path(__file__).with_name("fast_sensor.json")
@@ -97,15 +106,36 @@ class SpotPhysics:
     on_plane: bool
 
 
+def peak_wm2(s: SpotPhysics) -> float:
+    """The spot's peak irradiance [W/m²] (its centre's, wherever that lands)."""
+    width, sigma = np.asarray(s.width_m, dtype=float), np.maximum(np.asarray(s.sigma_m, dtype=float), 1e-9)
+    per_axis = (2.0 * ndtr(width / (2.0 * sigma)) - 1.0) / width
+    return float(s.power_w * per_axis[0] * per_axis[1])
+
+
+def policy_exposure(s: SpotPhysics, spec, ambient_wm2: float, contrast_scale: float = 1.0) -> float:
+    """The exposure, relative to the nominal one, the controller's policy gives a camera that takes
+    one for spot ``s`` on a board lit by ``ambient_wm2``: the after frame's brightest grey level at
+    ``TARGET_GREY``, within ``spec.exposure_range_ms``."""
+    gain = spec.gain_counts_per_wm2 * spec.board_albedo
+    board, spot = gain * ambient_wm2, contrast_scale * gain * peak_wm2(s)
+    e = TARGET_GREY / max(board + spot, 1e-9)
+    lo, hi = (float(x) / float(spec.exposure_ms) for x in spec.exposure_range_ms)
+    return float(min(max(e, lo), hi))
+
+
 def judge_spot(s: SpotPhysics, target, spec, limits: SpotLimits, threshold_fraction: float, ambient_before: float,
-               ambient_after: float, contrast_scale: float = 1.0, no_spot_fraction: float = 0.5):
+               ambient_after: float, contrast_scale: float = 1.0, no_spot_fraction: float = 0.5,
+               exposure: float = 1.0):
     """(reason, message, centroid (2,) or None) of one spot by the vision's limits: ``spec`` is the
     scenario's camera (gain, albedo), ``threshold_fraction`` the annex A threshold over the peak;
-    ``contrast_scale`` and ``no_spot_fraction`` as in :class:`SensorErrorModel`."""
+    ``contrast_scale`` and ``no_spot_fraction`` as in :class:`SensorErrorModel`; ``exposure`` the
+    frames' exposure relative to the nominal one (light scales with it, noise by
+    :func:`~helicalib.sim.camera.noise_scale`)."""
     lim, half = limits, np.asarray(target.size_m, dtype=float) / 2.0
     if not s.on_plane or not np.all(np.isfinite(s.uv_m)):
         return "no_spot", "no spot on the board.", None
-    gain = spec.gain_counts_per_wm2 * spec.board_albedo
+    gain = spec.gain_counts_per_wm2 * spec.board_albedo * exposure
     # the irradiance over the spot's support (clipped to the board), on a 64 × 64 grid
     reach = s.width_m / 2.0 + 3.0 * s.sigma_m
     lo, hi = np.maximum(s.uv_m - reach, -half), np.minimum(s.uv_m + reach, half)
@@ -118,7 +148,8 @@ def judge_spot(s: SpotPhysics, target, spec, limits: SpotLimits, threshold_fract
     diff = gain * flux
     peak = contrast_scale * float(diff.max())
     if peak < lim.min_contrast:
-        return ("no_spot" if peak < no_spot_fraction * lim.min_contrast else "low_contrast",
+        over_noise = peak if exposure == 1.0 else peak / noise_scale(exposure, spec.read_noise_share)
+        return ("no_spot" if over_noise < no_spot_fraction * lim.min_contrast else "low_contrast",
                 f"the spot's peak difference {peak:.0f} grey levels is below {lim.min_contrast:.0f}.", None)
     region = diff >= threshold_fraction * peak
     w = np.where(region, flux, 0.0)
@@ -271,9 +302,11 @@ class FastSensor:
         s = spots[-1]
         m = self.model
         ref = before.state
+        ambient = self._ambient_wm2(times[-1])
+        exposure = policy_exposure(s, self.spec, ambient, m.contrast_scale) if self.spec.exposure else 1.0
         reason, message, centroid = judge_spot(s, self.target, self.spec, self.limits, m.threshold_fraction,
-                                               ref.ambient_wm2, self._ambient_wm2(times[-1]), m.contrast_scale,
-                                               m.no_spot_fraction)
+                                               ref.ambient_wm2, ambient, m.contrast_scale, m.no_spot_fraction,
+                                               exposure)
         if reason in ("ok", "clipped", "saturated") and ref.others:  # where the vision tests for lost light
             share = lost_light_share(s, ref.others, self.target, m.threshold_fraction, m.contrast_scale)
             if share >= self.limits.max_lost_light_share:
