@@ -1,7 +1,8 @@
 """Write calibration observations in PAINT's layout: the exact inverse of :mod:`helicalib.realdata.paint`.
 
 Pure functions from a field config and observation rows (:class:`helicalib.calibration.observations.Observation`)
-to PAINT's JSON documents, plus :func:`write_export`, which lays them out on disk the way PAINT's
+to PAINT's JSON documents, plus :class:`PaintWriter` (heliostat by heliostat, for a campaign streamed
+from its database) and :func:`write_export` (rows in memory), which lay them out on disk the way PAINT's
 download client and ARTIST's loaders expect them::
 
     OUT/catalog.json                                   STAC catalogue (root), relative links
