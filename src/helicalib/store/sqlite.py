@@ -665,9 +665,6 @@ class Store:
 
 
 # ---------------------------------------------------------------------- helpers
-PARAMS_PER_QUERY = 10_000
-"""Bound parameters in one ``IN (...)`` list (SQLite's default limit is 32 766)."""
-
 
 def _recorded_folder(images_dir: Path, db: Path) -> str:
     """How a campaign records its frames folder: relative to the database's folder when inside it
