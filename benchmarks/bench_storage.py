@@ -23,7 +23,7 @@ It prints and writes to ``benchmarks/out/bench_storage.json``:
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_storage.py --field /tmp/f10k.yaml          # ≈ 15 min on 2 busy cores
+    .venv/bin/python benchmarks/bench_storage.py --field /tmp/f10k.yaml          # ≈ 20 min on 2 busy cores
     .venv/bin/python benchmarks/bench_storage.py --field F.yaml --sizes 1000 --days 10 --months-days 60  # quick
 
 Progress on stderr.
