@@ -12,6 +12,7 @@ A sweep file is YAML (``docs/sweep.md``)::
     fidelity: render                              # optional
     root_seed: 0                                  # optional
     keep_frames: false                            # optional
+    spots_per_board: auto                         # optional; 1 (default), N or auto: beams taking turns
 
 A *cell* is one (scenario, planner, start); a *run* is one cell with one seed ``k`` of ``seeds``.
 The integer seed a run gives ``simulate_campaign`` (hidden errors, weather, soiling, noise) is
@@ -66,6 +67,14 @@ class SweepFile(BaseModel):
     heliostats: Any = None
     root_seed: StrictInt = Field(default=0, ge=0)
     keep_frames: StrictBool = False
+    spots_per_board: Any = 1
+
+    @field_validator("spots_per_board", mode="before")
+    @classmethod
+    def _spots(cls, value):
+        if value == "auto" or (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+            return value
+        raise ValueError(f"expected a whole number ≥ 1 of visits on a board at once, or auto; got {value!r}")
 
     @field_validator("days", mode="before")
     @classmethod
@@ -133,6 +142,7 @@ class Run:
     keep_frames: bool
     run_dir: str
     digest: str
+    spots_per_board: int | str = 1
 
     def as_dict(self) -> dict:
         out = asdict(self)
@@ -176,10 +186,13 @@ class Sweep:
                 what = {"field": field_digest, "scenario": scenario_digest, "days": self.spec.days,
                         "heliostats": list(self.heliostat_ids), "planner": planner, "start_s": start_s,
                         "sim_seed": sim_seed, "fidelity": self.spec.fidelity}
+                if self.spec.spots_per_board != 1:  # a sweep of one visit per board keeps its earlier digests
+                    what["spots_per_board"] = self.spec.spots_per_board
                 runs.append(Run(cell=key, scenario=scen, planner=planner, start=text or "", start_s=start_s, seed=k,
                                 sim_seed=sim_seed, days=self.spec.days, heliostat_ids=self.heliostat_ids,
                                 fidelity=self.spec.fidelity, keep_frames=self.spec.keep_frames,
-                                run_dir=os.path.join(cell_dir, f"seed-{k}"), digest=_sha(json.dumps(what, sort_keys=True))))
+                                run_dir=os.path.join(cell_dir, f"seed-{k}"), digest=_sha(json.dumps(what, sort_keys=True)),
+                                spots_per_board=self.spec.spots_per_board))
                 if progress is not None and len(runs) % PROGRESS_EVERY == 0:
                     progress(len(runs), total)
         return runs

@@ -53,7 +53,8 @@ def _run(run: Run, cfg, scenario) -> dict:
     with open(out / "run.log", "w", encoding="utf-8") as log, redirect_stdout(log), redirect_stderr(log):
         result = simulate_campaign(cfg, out, SimulationOptions(run.days, seed=run.sim_seed, scenario=scenario,
                                                                start_s=run.start_s, planner=run.planner,
-                                                               heliostat_ids=list(run.heliostat_ids), **extra))
+                                                               heliostat_ids=list(run.heliostat_ids),
+                                                               spots_per_board=run.spots_per_board, **extra))
     record = {"run": run.as_dict(), "digest": run.digest, "summary": result.summary,
               **run_figures(result.database, result.summary, len(cfg.targets)),
               "wall_s": round(time.perf_counter() - wall0, 1), "cpu_s": round(time.process_time() - cpu0, 1),
