@@ -106,7 +106,7 @@ DAMAGE = [
     ("settings_json not an object", lambda db: _update(db, "UPDATE campaigns SET settings_json = '[1, 2]'"),
      r"table campaigns, row 1: settings_json is not a JSON object", {"status", "report", "export-paint"}),
     ("events.data_json not JSON", lambda db: _update(db, "UPDATE events SET data_json = 'visit=3' WHERE id = 3"),
-     r"c\.db: table events, row 3: data_json is not JSON", {"status", "report"}),
+     r"c\.db: table events, row 3: data_json is not JSON", {"report"}),  # status reads the events it shows
     ("after_frame_paths_json not JSON",
      lambda db: _update(db, f"UPDATE observations SET after_frame_paths_json = 'a.png' WHERE id = {_last_valid(db, 'H0001')}"),
      r"table observations, row \d+: after_frame_paths_json is not JSON", {"report", "export-paint", "prune-frames"}),
@@ -121,7 +121,7 @@ DAMAGE = [
      lambda db: _update(db, "UPDATE observations SET capture_time_s = 'noon' WHERE id = 2"),
      r"table observations, row 2: capture_time_s is not a number", {"report", "export-paint"}),
     ("text in events.time_s", lambda db: _update(db, "UPDATE events SET time_s = 'noon' WHERE id = 4"),
-     r"table events, row 4: time_s is not a number", {"status", "report"}),
+     r"table events, row 4: time_s is not a number", {"report"}),
     ("text in visits.started_s", lambda db: _update(db, "UPDATE visits SET started_s = 'x' WHERE id = 5"),
      r"table visits, row 5: started_s is not a number", {"report"}),
     ("text in verdicts.rms_mrad", lambda db: _update(db, "UPDATE verdicts SET rms_mrad = 'low' WHERE id = 6"),

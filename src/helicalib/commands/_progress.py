@@ -107,8 +107,8 @@ class ProgressReporter:
             self._bar.stop()
             self._bar = None
             return
-        if self._last_line is None and ok:
-            return                                   # never updated: nothing to close
+        if self._last_line is None:
+            return                                   # never shown: nothing to close (a failure says itself)
         state = "done" if ok else "stopped"
         latest = self._latest() if callable(self._latest) else self._latest
         text = f", {latest}" if latest else ""

@@ -643,7 +643,7 @@ class Store:
         visits = {r[0]: r[1] for r in self._read(
             "SELECT heliostat_id, COUNT(*) FROM visits WHERE campaign_id = ? GROUP BY heliostat_id", cid)}
         obs = {r["heliostat_id"]: (r["n"], r["n_valid"] or 0, r["error_mrad"]) for r in self._read(
-            "SELECT a.heliostat_id, a.n, a.n_valid, o.error_mrad FROM (SELECT heliostat_id, COUNT(*) AS n, "
+            "SELECT a.heliostat_id, a.n, a.n_valid, o.id, o.error_mrad FROM (SELECT heliostat_id, COUNT(*) AS n, "
             "SUM(valid = 1) AS n_valid, MAX(CASE WHEN valid = 1 THEN id END) AS last_id FROM observations "
             "WHERE campaign_id = ? GROUP BY heliostat_id) AS a LEFT JOIN observations AS o ON o.id = a.last_id", cid,
             table="observations")}
