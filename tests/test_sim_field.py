@@ -181,6 +181,17 @@ def test_a_large_field_gets_boards_its_far_heliostats_spots_fit(tmp_path):
     xs = [t.center_enu_m[0] for t in cfg.targets]
     assert np.allclose(np.diff(xs), side + 4.0)
     assert len(cfg.heliostats) == 2500 and _incidence_ok(cfg).all()
+    # past the 2016 heliostats PLANT_INTERFACE.md's map addresses, the same layout on several unit ids
+    from helicalib.devices.regmap import register_map_of
+
+    assert data["plant"]["register_map"] == "plant-interface-1-units"
+    m = register_map_of(cfg)
+    assert m.unit_steps(2500) == 2 and m.unit_step(2499) == 1 and m.unit_step(1999) == 0
+
+
+def test_a_field_the_default_map_addresses_keeps_it():
+    data, _rows = generate_field(120, 40.06, 94.43, 1267.0, targets=3, step_days=28.0, step_min=60.0)
+    assert "register_map" not in data["plant"]
 
 
 def test_the_last_layout_keeps_the_boards_it_was_checked_for(tmp_path, monkeypatch):

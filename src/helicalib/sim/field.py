@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from helicalib.config import write_field_config
+from helicalib.devices.regcheck import check_count
+from helicalib.devices.regmap import default_register_map
 from helicalib.geometry.drives import DriveArrays, angle_interval_rad, strokes_to_angles
 from helicalib.geometry.optics import AIM_ITERATIONS
 from helicalib.geometry.sun import year_sun_times
@@ -248,7 +250,7 @@ def _field_data(n: int, latitude_deg: float, longitude_deg: float, altitude_m: f
                      "position_enu_m": [t["center_enu_m"][0], sgn * (r0 * 0.8), 2.0], "resolution_px": [1280, 1024]}
                     for k, t in enumerate(target_list)],
         "drives": {DRIVE_NAME: _drive(south)},
-        "plant": {"scs": {"host": "127.0.0.1", "port": 5020, "unit": 1, "timeout_s": 2.0}, "clock": "plant"},
+        "plant": _plant(n),
         "calibration": {"loop_threshold_mrad": 3.5, "max_iterations": 5},
         "gating": {"wind_max_ms": 10.0, "wind_preferred_ms": 5.0, "stow_wind_ms": 15.0, "dni_min_wm2": 300,
                    "dni_preferred_wm2": 800, "cleanliness_min": 0.55, "cleanliness_preferred": 0.7},
@@ -421,3 +423,12 @@ def write_field(data: dict, rows: list[dict], out_path: str | Path):
         w.writeheader()
         w.writerows(rows)
     return write_field_config({**data, "heliostats_csv": csv_path.name}, out)
+
+
+def _plant(n: int) -> dict:
+    """The field's SCS on loopback: PLANT_INTERFACE.md's register map, or its layout repeated on
+    several Modbus unit ids (``plant-interface-1-units``) for a field that map cannot address."""
+    plant = {"scs": {"host": "127.0.0.1", "port": 5020, "unit": 1, "timeout_s": 2.0}, "clock": "plant"}
+    if check_count(default_register_map(), n):
+        plant["register_map"] = "plant-interface-1-units"
+    return plant
