@@ -501,22 +501,11 @@ class Store:
         read); ``target_u_m``/``target_v_m`` are the offsets from the aim point (the board centre);
         ``record_id`` is the observation's row id, ``source`` is ``campaign``. Returns the row count.
         """
-        import pandas as pd
-
-        from helicalib.calibration.observations import Observation as FitRow
         from helicalib.calibration.observations import write_observations
+        from helicalib.store.stream import fit_row
 
-        rows = []
-        for o in self.observations(campaign_id=campaign_id, valid=True):
-            if o.spot_enu_m is None or o.offset_u_m is None or o.offset_v_m is None:
-                continue
-            strokes = o.strokes_read_mm or o.strokes_cmd_mm
-            when = pd.Timestamp(o.capture_time_s, unit="s", tz="UTC").isoformat()
-            rows.append(FitRow(heliostat_id=o.heliostat_id, utc_time=when, sun_e=o.sun_enu[0], sun_n=o.sun_enu[1],
-                               sun_u=o.sun_enu[2], stroke1_mm=strokes[0], stroke2_mm=strokes[1], target_id=o.target_id,
-                               spot_e_m=o.spot_enu_m[0], spot_n_m=o.spot_enu_m[1], spot_u_m=o.spot_enu_m[2],
-                               target_u_m=o.offset_u_m, target_v_m=o.offset_v_m, spot_method=spot_method,
-                               source="campaign", record_id=str(o.id)))
+        rows = [r for o in self.observations(campaign_id=campaign_id, valid=True)
+                if (r := fit_row(o, spot_method)) is not None]
         write_observations(path, rows, comments=[f"helicalib campaign database {self.path}"
                                                  + ("" if campaign_id is None else f", campaign {campaign_id}")])
         return len(rows)
