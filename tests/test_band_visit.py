@@ -73,3 +73,18 @@ def test_above_the_band_a_visit_still_converges(cfg, tmp_path, rising):
     assert visits and not [v for v in visits if v.reason.startswith("band point")]
     second = [v for v in visits if sum(1 for o in obs if o.visit_id == v.id and o.valid and o.iteration >= 0) >= 2]
     assert second and all(o.sun_elevation_deg > hi for o in obs if o.valid)
+
+
+@pytest.mark.parametrize("check, crew, whole_loop", [(False, False, False), (False, True, True), (True, False, True)])
+def test_only_the_planner_s_visits_stop_at_the_band_point(cfg, tmp_path, check, crew, whole_loop):
+    """A crew's re-check and a drift check run their whole correction loop in the band too: only the
+    planner's visits leave after the band point."""
+    from campaign_helpers import inprocess_campaign
+
+    runner, *_rest = inprocess_campaign(cfg, tmp_path, 10, 2, IDS)
+    hid = IDS[0]
+    runner._choose = lambda target_id, now: (hid, check, crew)
+    assert runner._start_visit(cfg.heliostat(hid).target, runner.devices.clock.now_s())
+    settings = runner.state.active[hid].ctx.settings
+    assert settings.band_deg == (None if whole_loop else tuple(cfg.acceptance.low_band_deg))
+    assert runner.state.settings.band_deg == tuple(cfg.acceptance.low_band_deg)

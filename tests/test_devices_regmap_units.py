@@ -59,6 +59,13 @@ def test_a_units_map_is_refused_with_addresses_beyond_247_units_or_a_unit_too_fu
     with pytest.raises(ConfigError, match=r"heliostats.stride: the holding blocks of 3000 heliostats end at address "
                                           r"65991, beyond 65535"):
         load_register_map(units_map(tmp_path, per_unit=2031)).check_count(3000)
+    # from the SCS endpoint's own unit id: 10⁴ heliostats on 5 unit ids from unit 243 end at 247
+    units = load_register_map("plant-interface-1-units")
+    units.check_count(10_000, first_unit=243)
+    with pytest.raises(ConfigError, match=r"^plant.scs.unit: 10000 heliostats at 2000 a unit id \(register map .*"
+                                          r"plant-interface-1-units.yaml\) from unit 244 reach unit 248, beyond "
+                                          r"Modbus's 247$"):
+        units.check_count(10_000, first_unit=244)
 
 
 def f32(regs) -> float:
@@ -126,3 +133,5 @@ def test_the_cleanliness_of_many_heliostats_is_read_through_neighbouring_blocks_
         server.units.discard(3)                                  # a unit that does not answer: NaN, the others read
         got = mp.cleanliness_many(rows)
         assert np.isnan(got[4:6]).all() and np.isfinite(np.delete(got, [4, 5])).all()
+        beyond = mp.cleanliness_many([0, len(cfg.heliostats), 1])  # a heliostat the plant has not: NaN, as status
+        assert np.isnan(beyond[1]) and np.isfinite(beyond[[0, 2]]).all()

@@ -19,6 +19,8 @@ beams take turns on it (:mod:`.board`). Every observation goes to the store as s
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from helicalib.campaign import book as books
@@ -199,7 +201,7 @@ class CampaignRunner:
         """Boards with a visit under way."""
         return sorted({v.target_id for v in self.state.active.values()})
 
-    def _choose(self, target_id: str, now: float) -> tuple[str | None, bool]:
+    def _choose(self, target_id: str, now: float) -> tuple[str | None, bool, bool]:
         """The heliostat that goes on ``target_id`` now (the crew's re-check, a suspected drift's
         check, the planner's choice, an operation check), and whether its visit is a check."""
         st, cfg = self.state, self.cfg
@@ -212,7 +214,7 @@ class CampaignRunner:
         usable = lambda hid: self.reaches(hid, target_id, now)  # noqa: E731
         # operator actions (campaign/operation/crew.py): a queued re-check goes before the planner's choice
         choice = st.operator.next_for(self, target_id, now) if st.operator is not None else None
-        check = False
+        crew, check = choice is not None, False
         if choice is None and st.operation is not None:  # a suspected drift is checked again first
             choice = self.ops.suspect_for(target_id, now, busy)
             check = choice is not None
@@ -233,7 +235,7 @@ class CampaignRunner:
             choice = choices.choose_next(cfg, st.book, cands, now, cleanliness, planner=st.planner_kind,
                                         recheck=st.recheck, busy_heliostats=busy, target_id=target_id,
                                         guests=guests, usable=usable)
-        return choice, check
+        return choice, check, crew
 
     def _start_visit(self, target_id: str, now: float) -> bool:
         """Start the visit the planner (or the crew, or a drift check) puts on ``target_id`` now.
@@ -242,7 +244,7 @@ class CampaignRunner:
         board = st.boards[target_id]
         if not board.has_room:
             return False
-        hid, check = self._choose(target_id, now)
+        hid, check, crew = self._choose(target_id, now)
         if hid is None:
             return False
         if not st.armed:
@@ -257,7 +259,9 @@ class CampaignRunner:
             campaign_id=self.campaign_id, visit_id=visit_id, heliostat_id=hid,
             index=cfg.heliostat_index(hid), target=cfg.target(target_id), board=board,
             sensor=self.devices.sensors[target_id], plant=self.devices.plant, now=self.now, sun=self.sun,
-            model=st.models[hid], settings=st.check_settings if check else st.settings,
+            model=st.models[hid],
+            # a drift check or a crew's re-check runs its whole correction loop, in the low band too
+            settings=st.check_settings if check else replace(st.settings, band_deg=None) if crew else st.settings,
             time_slack_s=lambda: float(self.devices.clock.uncertainty_s), host=self.host,
         )
         st.book.visiting(hid, now)
@@ -265,6 +269,8 @@ class CampaignRunner:
         st.returning.pop(hid, None)  # the visit commands it now; it ends with its own return
         st.board_states[target_id] = BoardState(target_id, hid, None, None, now)
         st.active[hid] = RunningVisit(hid, target_id, run_visit(ctx), ctx, now)
+        if st.refresh_round is not None:  # the round's corrections for it are older than its visit's
+            st.refresh_round.visited.add(hid)
         st.stats.visits += 1
         st.stats.shared_visits += int(shared)
         st.stats.peak_on_board = max(st.stats.peak_on_board, len(board.visitors))

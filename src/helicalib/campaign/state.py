@@ -184,6 +184,8 @@ class RefreshRound:
     """(heliostat id, corrections (2,) [mm]) in the order they go out."""
     failed: list = field(default_factory=list)
     """(heliostat id, the plant's error) of each write that failed."""
+    visited: set = field(default_factory=set)
+    """Heliostats that began a visit since the round was due: their visits' corrections are newer."""
 
 
 @dataclass

@@ -202,20 +202,23 @@ class Tracking:
 
     def write_round(self) -> None:
         """Send the refresh round's next slice: track commands until :data:`REFRESH_SLICE_S` plant
-        seconds have passed by the controller's own clock (a virtual clock: the whole round), so
-        the visits are stepped again between slices. A heliostat that began a visit meanwhile is
-        skipped (its visit ends with corrections of its own); a stow ends the round."""
+        seconds have passed by the controller's own clock (a virtual clock: the whole round), or
+        until the next visit's wake-up if sooner, so the visits are stepped again between slices. A
+        heliostat that began a visit since the round was due is skipped (its visit ends with
+        corrections of its own, newer than the round's); a stow ends the round."""
         st, plant, clock = self.state, self.devices.plant, self.devices.clock
         r = st.refresh_round
         if r is None:
             return
-        end = clock.estimate_s() + REFRESH_SLICE_S
+        # a slice ends at the next visit's wake-up if that comes first (its moves are polled on time);
+        # one command at least goes out each tick, so a round always advances
+        end = min([clock.estimate_s() + REFRESH_SLICE_S, *(v.wake_s for v in st.active.values())])
         while r.queue:
             if st.stowed:  # the weather job stowed the field meanwhile (the plant client refuses the rest)
                 r.queue.clear()
                 break
             hid, c = r.queue.popleft()
-            if hid in st.active:
+            if hid in st.active or hid in r.visited:  # a visit's own corrections are newer than the round's
                 continue
             try:
                 plant.track(st.cfg.heliostat_index(hid), c)

@@ -64,7 +64,7 @@ def _whole(params, name: str, default: int, low: int, high: int) -> int:
     text = params.get(name)
     if text is None or str(text).strip() == "":
         return default
-    if not str(text).strip().isdigit():
+    if not (str(text).strip().isascii() and str(text).strip().isdigit()):
         raise ConfigError(f"heliostats table: {name}={str(text)[:40]!r} is not a whole number")
     value = int(text)
     if not low <= value <= high:

@@ -89,7 +89,7 @@ class ModbusPlant:
             self.weather_link = ModbusLink(w.host, w.port, w.unit, getattr(w, "timeout_s", endpoint.timeout_s), **kw)
         self.map = load_register_map(register_map)
         if heliostat_count is not None:
-            self.map.check_count(heliostat_count)
+            self.map.check_count(heliostat_count, endpoint.unit)
         self.guard = CommandGuard(armed, heliostat_ids, stroke_limits_mm)
         self._expected_count = heliostat_count
         self._count: int | None = None
@@ -265,10 +265,16 @@ class ModbusPlant:
         q = self.map.q["heliostats.status.cleanliness"]
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         out = np.full(idx.size, np.nan)
-        count = self.heliostat_count()
+        try:  # a count that cannot be read, or a heliostat the plant does not have: NaN, as status() gives
+            count = self.heliostat_count()
+        except PlantError:
+            return out
         by_unit: dict[int, list[int]] = {}
         for k, i in enumerate(idx.tolist()):
-            self.guard.check_index(i, count)
+            try:
+                self.guard.check_index(i, count)
+            except PlantError:
+                continue
             by_unit.setdefault(self.map.unit_step(i), []).append(k)
         for step, ks in by_unit.items():
             at = {self.map.address(q, int(idx[k])): k for k in ks}

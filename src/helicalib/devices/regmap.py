@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from helicalib.devices.regcheck import check_count, check_map, check_stroke_ranges
+from helicalib.devices.regcheck import MAX_UNITS, check_count, check_map, check_stroke_ranges
 from helicalib.devices.regschema import PLACES, Defaults, MapFile, Q, Reg, get_key, resolve, writable_key
 from helicalib.errors import ConfigError
 
@@ -102,9 +102,15 @@ class RegisterMap:
             self._plant_regs_cache = out
         return self._plant_regs_cache
 
-    def check_count(self, n: int) -> None:
-        """Refuse a map that cannot address ``n`` heliostats (one line naming the key)."""
+    def check_count(self, n: int, first_unit: int | None = None) -> None:
+        """Refuse a map that cannot address ``n`` heliostats (one line naming the key); with
+        ``first_unit`` (the SCS endpoint's unit id), also one whose unit ids by block would pass
+        Modbus's last unit id (``plant.scs.unit``)."""
         self._refuse(check_count(self, n))
+        last = None if first_unit is None else int(first_unit) + self.unit_steps(n) - 1
+        if last is not None and self.doc.heliostats.per_unit and last > MAX_UNITS:
+            raise ConfigError(f"plant.scs.unit: {n} heliostats at {self.doc.heliostats.per_unit} a unit id (register "
+                              f"map {self.source}) from unit {first_unit} reach unit {last}, beyond Modbus's {MAX_UNITS}")
 
     def check_stroke_ranges(self, drives) -> None:
         """Refuse a map whose stroke demand registers cannot hold a drive's stroke range (one line per
@@ -180,7 +186,7 @@ def register_map_of(cfg, override: str | Path | None = None) -> RegisterMap:
         rmap = load_register_map(override, Path.cwd())
     else:
         rmap = load_register_map(cfg.plant.register_map, cfg.base_dir)
-    rmap.check_count(len(cfg.heliostats))
+    rmap.check_count(len(cfg.heliostats), cfg.plant.scs.unit if cfg.plant.scs is not None else None)
     used = dict.fromkeys(h.drive for h in cfg.heliostats)
     rmap.check_stroke_ranges({name: [a.stroke_range_mm for a in cfg.drives[name].actuators] for name in used})
     return rmap
