@@ -170,7 +170,8 @@ def test_a_cleanliness_of_3_is_implausible(field, capsys, served, monkeypatch):
 
     def dirty_reading(t_s, rows=None):
         out = np.array(real(t_s, rows), dtype=float)
-        out[4] = 3.0  # H0005's register reads 3
+        which = np.arange(out.size) if rows is None else np.asarray(rows).reshape(-1)
+        out[which == 4] = 3.0  # H0005's register reads 3 (the plant reads the field or a few rows)
         return out
 
     monkeypatch.setattr(soiling, "cleanliness", dirty_reading)
