@@ -253,7 +253,9 @@ def report(cfg, db: Path, start_s: float, days: float, rates: dict[str, float], 
         s["points_per_open_board_hour"] = round(s["heliostats_with_point"] / (h * boards), 1) if h > 0 else None
     _start, timeline = acceptance_timeline(db, n)
     first = [s for s in stats if s["heliostats_with_point"]]
-    used = [s for s in stats if s["open_hours"] > 0]
+    with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as con:  # how far the run got (an interrupted one)
+        reached = con.execute("SELECT MAX(capture_time_s) FROM observations").fetchone()[0] or start_s
+    used = [s for s, c in zip(stats, cross) if s["open_hours"] > 0 and c.end_s <= reached]
     measured = (sum(s["heliostats_with_point"] for s in used) / sum(s["open_hours"] * boards for s in used)
                 if used else None)
 
