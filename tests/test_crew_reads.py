@@ -178,7 +178,8 @@ def test_table_filters_by_board_verdict_and_error_and_sorts(crew_db, console_url
 def test_table_refuses_a_bad_parameter_in_one_line(console_url):
     for query, word in (("sort=nope", "sort='nope'"), ("limit=0", "limit=0"), ("min_error=x", "min_error='x'"),
                         ("verdict=maybe", "verdict='maybe'"), ("colour=red", "'colour'"),
-                        ("offset=%C2%B2", "offset='²'")):  # a digit to str.isdigit, not to int()
+                        ("offset=%C2%B2", "offset='²'"),  # a digit to str.isdigit, not to int()
+                        ("offset=" + "9" * 5000, "offset='999")):  # more digits than int() takes
         with pytest.raises(urllib.error.HTTPError) as err:
             table(console_url, query)
         assert err.value.code == 400

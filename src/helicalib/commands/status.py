@@ -6,7 +6,7 @@ import argparse
 import json
 
 from helicalib.commands._args import add_database
-from helicalib.campaign.progress_summary import ATTENTION_SHOWN, FULL_TABLE_MAX, summarise, summary_json
+from helicalib.campaign.progress_summary import ATTENTION_SHOWN, FULL_TABLE_MAX, first_missing, summarise, summary_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,13 +60,12 @@ def run(args) -> int:
     accepted = sum(1 for r in rows if r["accepted"])
     state = shown_status(camp.status, owner)
     plant = plant_state(events, newest_obs, last_event)
-    summary = summarise(rows, out_of_service)
     if args.json:
         print(json.dumps({"campaign": camp.id, "shown_because": why, "name": camp.name, "mode": camp.mode, "status": state,
                           "owner": owner, **plant, "accepted": accepted, "heliostats": rows,
                           "stows": sum(e.kind == "stow" for e in events),
                           "off_tracking": off_tracking(events), "out_of_service": sorted(out_of_service),
-                          "summary": summary_json(summary)}, indent=2, default=list))
+                          "summary": summary_json(summarise(rows, out_of_service))}, indent=2, default=list))
         return 0
     # every string below that a user or a device gave (ids, names, reasons, the owner's line) is
     # printed as rich Text, never parsed as markup: "[/]" must not crash, "[link=...]" not become a link
@@ -78,7 +77,7 @@ def run(args) -> int:
     if args.all or len(rows) <= FULL_TABLE_MAX:
         console.print(heliostat_table(title, rows))
     else:
-        for part in summary_view(title, summary):
+        for part in summary_view(title, summarise(rows, out_of_service)):
             console.print(part)
     stranded = off_tracking(events)
     if stranded:
@@ -104,7 +103,7 @@ def heliostat_table(title, rows, columns=("heliostat", "target", "visits", "vali
     for col in columns:
         table.add_column(col, justify="right" if col not in ("heliostat", "target", "verdict") else "left")
     for r in rows:
-        verdict = "accepted" if r["accepted"] else ("—" if r["accepted"] is None else (r["reasons"] or ["not accepted"])[0])
+        verdict = "—" if r["accepted"] is None else (first_missing(r) or "accepted")
         table.add_row(Text(r["heliostat_id"]), Text(r["target_id"]), str(r["visits"]), str(r["valid"]),
                       _mrad(r["last_error_mrad"]), _mrad(r["rms_mrad"]), Text(verdict))
     return table

@@ -66,6 +66,8 @@ def _whole(params, name: str, default: int, low: int, high: int) -> int:
         return default
     if not (str(text).strip().isascii() and str(text).strip().isdigit()):
         raise ConfigError(f"heliostats table: {name}={str(text)[:40]!r} is not a whole number")
+    if len(str(text).strip()) > 12:  # int() refuses more than 4300 digits; no page is that far
+        raise ConfigError(f"heliostats table: {name}={str(text)[:40]!r} is not in {low}..{high}")
     value = int(text)
     if not low <= value <= high:
         raise ConfigError(f"heliostats table: {name}={value} is not in {low}..{high}")

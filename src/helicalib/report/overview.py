@@ -20,6 +20,16 @@ ROW_KEYS = ("id", "href", "board", "status", "visits", "valid_observations", "ob
             "east_m", "north_m")
 """The overview row's fields, in the order the page's table script reads them (``report.json``'s
 ``overview.columns``)."""
+_K = {name: i for i, name in enumerate(ROW_KEYS)}
+"""Each field's index in an overview row."""
+
+
+def _limits(data: CampaignData) -> tuple[float, float, float]:
+    """The low band (paper: 5–15°) and the high-elevation limit of the campaign's field config."""
+    if data.cfg is None:
+        return 5.0, 15.0, 15.0
+    lo, hi = map(float, data.cfg.acceptance.low_band_deg)
+    return lo, hi, float(data.cfg.acceptance.high_elevation_deg)
 
 
 def band_coverage(data: CampaignData) -> dict[str, tuple[int, int, int]]:
@@ -28,8 +38,7 @@ def band_coverage(data: CampaignData) -> dict[str, tuple[int, int, int]]:
     obs = data.observations
     if not len(obs):
         return {}
-    lo, hi = (5.0, 15.0) if data.cfg is None else map(float, data.cfg.acceptance.low_band_deg)
-    high = 15.0 if data.cfg is None else float(data.cfg.acceptance.high_elevation_deg)
+    lo, hi, high = _limits(data)
     ok = obs["valid"].to_numpy(dtype=bool) & obs["error_mrad"].notna().to_numpy()
     el = obs["sun_elevation_deg"].to_numpy(dtype=float)
     rising = obs["sun_rising"].to_numpy(dtype=float)  # 1 rising, 0 setting, NaN unknown
@@ -63,7 +72,7 @@ def _median(values) -> float | None:
 
 def board_views(rows: list[list]) -> list[dict]:
     """Per board: heliostats, accepted / not accepted / no verdict, band coverage and the median errors."""
-    k = {name: i for i, name in enumerate(ROW_KEYS)}
+    k = _K
     boards: dict[str, list[list]] = {}
     for r in rows:
         boards.setdefault(str(r[k["board"]]), []).append(r)
@@ -92,9 +101,8 @@ def _band_counts(rs: list[list], k: dict) -> dict:
 def band_view(data: CampaignData, rows: list[list]) -> dict:
     """The field's band coverage: heliostats with a valid point in the rising band, the setting band,
     both, neither, and with points above the high-elevation limit; the limits used."""
-    k = {name: i for i, name in enumerate(ROW_KEYS)}
-    lo, hi = (5.0, 15.0) if data.cfg is None else map(float, data.cfg.acceptance.low_band_deg)
-    high = 15.0 if data.cfg is None else float(data.cfg.acceptance.high_elevation_deg)
+    k = _K
+    lo, hi, high = _limits(data)
     return {"low_band_deg": [lo, hi], "high_elevation_deg": high, "heliostats": len(rows), **_band_counts(rows, k)}
 
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from helicalib.errors import ConfigError
-from helicalib.store.damage import loads, read_error
+from helicalib.store.damage import loads
 
 CHUNK_ROWS = 5000
 """Observation rows read at a time."""
@@ -139,20 +139,21 @@ def _plan(store, files: _Files, keep_last: int, keep_invalid: bool, campaign_id:
 
 def _rows_with_frames(store, campaign_id: int | None) -> Iterator[sqlite3.Row]:
     """The observations that still have a frame path, newest first, read :data:`CHUNK_ROWS` at a time
-    and checked against the declared column types (the caller holds the store's lock)."""
+    (paged by id) through the store's checked reader."""
     where = "(before_frame_path IS NOT NULL OR after_frame_paths_json != '[]')"
     params: tuple = ()
     if campaign_id is not None:
         where, params = f"campaign_id = ? AND {where}", (int(campaign_id),)
-    try:
-        cur = store._conn.execute("SELECT id, heliostat_id, visit_id, valid, before_frame_path, after_frame_paths_json"
-                                  f" FROM observations WHERE {where} ORDER BY id DESC", params)
-        cur.row_factory = sqlite3.Row
-        while rows := cur.fetchmany(CHUNK_ROWS):
-            store._check.check("observations", rows)
-            yield from rows
-    except sqlite3.Error as exc:
-        raise read_error(store.path, exc, "observations") from None
+    last = None
+    while True:
+        older, extra = ("", ()) if last is None else (" AND id < ?", (last,))
+        rows = store._read("SELECT id, heliostat_id, visit_id, valid, before_frame_path, after_frame_paths_json"
+                           f" FROM observations WHERE {where}{older} ORDER BY id DESC LIMIT {CHUNK_ROWS}",
+                           params + extra, table="observations")
+        yield from rows
+        if len(rows) < CHUNK_ROWS:
+            return
+        last = int(rows[-1]["id"])
 
 
 class _Files:
