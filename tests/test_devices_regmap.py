@@ -159,8 +159,9 @@ def test_codec_round_trip(kind, word, byte, scale, offset, u):
     regs = encode(q, value)
     assert len(regs) == q.width and all(0 <= r <= 0xFFFF for r in regs)
     back = decode(q, regs)
-    if kind == "f32":
-        assert back == pytest.approx(value, rel=1e-6, abs=1e-3 * abs(scale))
+    if kind == "f32":  # the register holds raw = (value - offset) / scale as a float32: half an ulp of it
+        half_ulp = abs((value - offset) / scale) * 2.0 ** -24 * abs(scale)
+        assert back == pytest.approx(value, rel=1e-6, abs=max(1e-3 * abs(scale), half_ulp))
     elif kind == "f64":
         assert back == pytest.approx(value, rel=1e-12, abs=1e-9)
     else:
