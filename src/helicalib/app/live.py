@@ -7,7 +7,8 @@ Three jobs run in a background scheduler (UTC, module-level callables, fixed ids
   the tick keeps the lock beyond :data:`WEATHER_WAIT_S`, it reads the weather and stows the field
   on its own (the visits' commands are then refused, and the tick ends the visits when it is back);
 * ``helicalib-tick``: the runner's tick (visits stepped when due, planner when a target is free),
-  every :data:`TICK_PLANT_S` plant seconds;
+  every :data:`TICK_PLANT_S` plant seconds; each camera's frames are fetched on a thread of their own
+  (:mod:`helicalib.campaign.frames`), so a visit waiting for its frames never holds the other boards';
 * ``helicalib-daylight``: at the next sunrise/sunset through the low band's lower edge, an event
   that opens or closes the day (the tick also gates on the sun, so a missed job loses nothing).
 
@@ -30,6 +31,7 @@ import traceback
 from dataclasses import dataclass, field
 
 from helicalib.campaign.field import WEATHER_POLL_S
+from helicalib.campaign.frames import frames_off_thread
 from helicalib.campaign.loop import CampaignRunner
 from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.modbus_link import quiet_pymodbus
@@ -186,6 +188,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     if output is not None and output.on_event not in runner.journal.listeners:
         runner.journal.listeners.append(output.on_event)
     rate = _rate(runner.devices.clock)
+    stop_frames = frames_off_thread(runner.devices.sensors)  # a board's frames never hold the other boards' visits
     scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
     common = dict(replace_existing=True, coalesce=True, max_instances=1, misfire_grace_time=None)
     scheduler.add_job(_weather_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, WEATHER_POLL_S / rate),
@@ -270,6 +273,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
                 lock.release()
             show()
         finally:
+            stop_frames()
             if output is not None:
                 _quietly(output.stop)
             for sig, handler in previous.items():

@@ -36,6 +36,7 @@ from collections.abc import Generator
 import numpy as np
 
 from helicalib.campaign.exposure import AfterImages, BeforeState, ExposurePolicy, SpotFigures, board_grey, expected_peak_wm2
+from helicalib.campaign.frames import FrameWorker, run_now
 from helicalib.devices.protocols import Before, CaptureTimeError, Reading, SpotSensor
 from helicalib.errors import HelicalibError, MeasurementError
 from helicalib.flux.visit import cleanliness_from_visit
@@ -90,16 +91,31 @@ class CameraSensor:
         self._marks_uses = 0
         self._marks_frames = 0  # before frames the marks were last sought on
         self._recent: deque = deque(maxlen=MARKS_MEAN_FRAMES)  # the last before images
+        self.frames: FrameWorker | None = None
+        """The camera's frame worker in a live run (:func:`~.frames.frames_off_thread`); None: grabs on
+        the visit's thread (simulations on a virtual clock)."""
 
     # ------------------------------------------------------------------ frames
     def _grab(self, ctx, exposure_ms: float | None = None):
+        """One frame and its image, waited for on this thread (:meth:`_grab_waiting`)."""
+        return run_now(self._grab_waiting(ctx, exposure_ms, block=True))
+
+    def _grab_waiting(self, ctx, exposure_ms: float | None = None, block: bool = False):
         """One frame and its image, at ``exposure_ms`` if given and the camera takes one (a camera
         whose frames carry no exposure is never asked); refused (:class:`CaptureTimeError`) unless its
         capture time lies within ``max_capture_skew_s`` (plus the clock's uncertainty) of the plant
-        time around the grab."""
+        time around the grab. With a frame worker (:attr:`frames`, a live run) the grab runs on the
+        camera's thread and this generator yields short waits until the frame is there (``block``:
+        waited for, in the camera's order); without one, on this thread and without a wait."""
         t0 = ctx.now()
         ask = exposure_ms is not None and self.exposure_control
-        frame = self.camera.grab(exposure_ms=exposure_ms) if ask else self.camera.grab()
+        grab = (lambda: self.camera.grab(exposure_ms=exposure_ms)) if ask else self.camera.grab
+        if self.frames is None:
+            frame, image = grab(), None
+        elif block:
+            frame, image = self.frames.now(grab)
+        else:
+            frame, image = yield from self.frames.fetch(grab)
         t1 = ctx.now()
         self._saw_exposure(frame.exposure_ms)
         slack = ctx.settings.max_capture_skew_s + (ctx.time_slack_s() if ctx.time_slack_s is not None else 0.0)
@@ -108,7 +124,7 @@ class CameraSensor:
             off = f"{t - t1:+.6g} s from" if math.isfinite(t - t1) else "nowhere near"
             raise CaptureTimeError(f"{ctx.heliostat_id}: the camera's capture time {t:.6g} lies {off} the plant "
                                    f"time of the grab (tolerance {slack:.1f} s): is the camera's clock set?", frame)
-        return frame, decode_frame(frame.data, expected_shape=None)
+        return frame, image if image is not None else decode_frame(frame.data, expected_shape=None)
 
     def _saw_exposure(self, exposure_ms: float | None) -> None:
         """What a frame says of the camera's exposure control (the first: Fe's reference exposure and
@@ -176,13 +192,19 @@ class CameraSensor:
     def before(self, ctx, exposure_ms: float | None = None) -> Before:
         """The before frame, at ``exposure_ms`` (a retake's) or the exposure the policy chooses for
         the visit's spot (a camera with exposure control, known from its first frame: the first
-        visit keeps the camera's own exposure)."""
+        visit keeps the camera's own exposure). Waited for on this thread (:meth:`before_waiting`)."""
+        return run_now(self.before_waiting(ctx, exposure_ms, block=True))
+
+    def before_waiting(self, ctx, exposure_ms: float | None = None, block: bool = False
+                       ) -> Generator[float, None, Before]:
+        """:meth:`before` as a generator of plant-second waits: with a frame worker (a live run) it
+        yields while its frames are on their way, so the loop steps the other boards meanwhile."""
         expected = self._expected_peak(ctx) if self.exposure_control else None
         want = exposure_ms if exposure_ms is not None else self.exposure.choose(expected)
-        frame, image = self._grab(ctx, want)
+        frame, image = yield from self._grab_waiting(ctx, want, block)
         marks = self._marks_for(image, ctx.target)
         if not marks.found:
-            marks = self._marks_on_more_frames(ctx, image, marks, frame.exposure_ms)
+            marks = yield from self._marks_on_more_frames(ctx, image, marks, frame.exposure_ms, block)
         board = None
         if frame.exposure_ms is not None:
             board = board_grey(image, marks, ctx.target)
@@ -190,7 +212,7 @@ class CameraSensor:
         return Before(capture_time_s=float(frame.capture_time_s), data=frame.data,
                       state=BeforeState(image, marks, frame.exposure_ms, expected, board))
 
-    def _marks_on_more_frames(self, ctx, image, failed, exposure_ms=None):
+    def _marks_on_more_frames(self, ctx, image, failed, exposure_ms=None, block: bool = True):
         """The marks sought once more on the mean of this frame and :data:`MARKS_MEAN_FRAMES` − 1 more
         grabbed now, when this frame alone shows none (beams are off the board during ``before``). On a
         board lit dimly (the camera exposed for the spot, a low sun: the board at some 10–15 grey levels)
@@ -201,7 +223,7 @@ class CameraSensor:
         frames = [image]
         try:
             for _ in range(MARKS_MEAN_FRAMES - 1):
-                frames.append(self._grab(ctx, exposure_ms)[1])
+                frames.append((yield from self._grab_waiting(ctx, exposure_ms, block))[1])
         except MeasurementError:
             return failed
         if any(f.shape != image.shape for f in frames):
@@ -231,10 +253,13 @@ class CameraSensor:
         return new, self._judge(ctx, new, reading.state, reading.frames, reading.capture_time_s)
 
     def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
+        """The after frames, a plant second apart (each fetched off the loop's thread in a live run:
+        :attr:`frames`; there the reading is judged as soon as its last frame is in, not a second later)."""
         frames, images, reason, message, refused = [], [], None, "", []
-        for _ in range(ctx.settings.after_frames):
+        n = ctx.settings.after_frames
+        for k in range(n):
             try:
-                f, img = self._grab(ctx, getattr(before.state, "exposure_ms", None))
+                f, img = yield from self._grab_waiting(ctx, getattr(before.state, "exposure_ms", None))
                 frames.append(f)
                 images.append(img)
             except MeasurementError as err:
@@ -242,7 +267,7 @@ class CameraSensor:
                 if isinstance(err, CaptureTimeError):
                     refused.append(err.frame.data)  # kept with the observation that refuses it
                 break
-            if ctx.settings.after_frames > 1:
+            if n > 1 and not (self.frames is not None and k == n - 1):
                 yield 1.0
         # the spot is the mean over the after frames, so its sun is the sun at their mean capture time
         capture_s = float(np.mean([f.capture_time_s for f in frames])) if frames else float(ctx.now())

@@ -1,0 +1,92 @@
+"""Frames fetched off the tick's thread: one worker thread per camera in a live run.
+
+A live tick steps the boards' visits one after another. A visit that fetched its frames itself
+would hold the tick for each frame (a fraction of a real second over HTTP; at a plant rate of 10×
+several plant seconds), and every other board's visit would wait for it. With a
+:class:`FrameWorker` the camera's grab (and the image's decoding) runs on the camera's own thread,
+while the visit's generator yields :data:`FRAME_POLL_S` waits until the frame is there, so the
+tick goes on with the other boards. One thread per camera keeps a camera's grabs in the order they
+were asked and never two at once. The frame keeps the capture time the camera gave it.
+
+A grab that fails raises its error where the visit waits for it (as a grab on the tick's thread
+would: an invalid reading with its reason, or the visit's fault). Simulations on a virtual clock
+never get a worker: their grabs stay on the loop's thread, frame for frame as before.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
+
+from helicalib.devices.protocols import Frame
+from helicalib.vision.frames import decode_frame
+
+FRAME_POLL_S = 0.25
+"""Plant seconds a visit waits between looks at a frame still on its way (less than a live tick's
+:data:`~helicalib.app.live.TICK_PLANT_S`: the visit is looked at again on the next tick)."""
+
+
+class FrameWorker:
+    """One camera's grabs on a thread of their own (module docstring)."""
+
+    def __init__(self, name: str):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"helicalib-camera-{name}")
+
+    def submit(self, grab: Callable[[], Frame]) -> Future:
+        """``grab()`` on the camera's thread; the future's result is ``(frame, image)``, the image
+        decoded there (None when it cannot be: the caller decodes it again for the error)."""
+        return self._pool.submit(_fetch, grab)
+
+    def fetch(self, grab: Callable[[], Frame]) -> Generator[float, None, tuple[Frame, np.ndarray | None]]:
+        """``(frame, image)`` of ``grab()``, yielding :data:`FRAME_POLL_S` plant seconds until it is there;
+        the grab's error is raised here."""
+        fut = self.submit(grab)
+        while not fut.done():
+            yield FRAME_POLL_S
+        return fut.result()
+
+    def now(self, grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:
+        """``(frame, image)`` of ``grab()``, waited for (a step that cannot yield: still in the camera's order)."""
+        return self.submit(grab).result()
+
+    def close(self) -> None:
+        """No more grabs; one on its way ends on its own (its visit was stopped)."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _fetch(grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:
+    frame = grab()
+    try:
+        image = decode_frame(frame.data, expected_shape=None)
+    except Exception:  # noqa: BLE001 - decoded again on the visit's side, where its error belongs
+        image = None
+    return frame, image
+
+
+def frames_off_thread(sensors: dict) -> Callable[[], None]:
+    """Give every camera sensor among ``sensors`` (target id → spot sensor) a :class:`FrameWorker`;
+    returns the function that takes them back and closes them (a live run's end)."""
+    from helicalib.campaign.sensor import CameraSensor
+
+    given = {tid: s for tid, s in sensors.items() if isinstance(s, CameraSensor)}
+    for tid, sensor in given.items():
+        sensor.frames = FrameWorker(tid)
+
+    def stop() -> None:
+        for sensor in given.values():
+            worker, sensor.frames = sensor.frames, None
+            if worker is not None:
+                worker.close()
+    return stop
+
+
+def run_now(steps: Generator):
+    """The value of a generator of waits that does not wait (a grab on the caller's thread)."""
+    try:
+        wait = next(steps)
+    except StopIteration as done:
+        return done.value
+    steps.close()
+    raise RuntimeError(f"a step that cannot wait asked to wait {wait} s")
