@@ -152,9 +152,9 @@ class Meter:
                 meter.last_frame[cam.url] = time.monotonic()
             return frame
 
-        def command(plant, index, cmd, fields):
+        def command(plant, index, cmd, fields, *a, **kw):
             t = time.monotonic()
-            out = saved[1][2](plant, index, cmd, fields)
+            out = saved[1][2](plant, index, cmd, fields, *a, **kw)
             meter.on_command(index, t, cmd.name)
             return out
 

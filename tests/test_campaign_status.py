@@ -110,7 +110,8 @@ def test_the_simulated_plant_declares_bulk_writes_and_reads_and_the_modbus_clien
     assert abilities_of(sim) == PlantAbilities(bulk_tracking=True, bulk_cleanliness=True, hurries=False)
     client = ModbusPlant.from_config(cfg, armed=False)
     try:
-        assert abilities_of(client) == PlantAbilities(bulk_tracking=False, bulk_cleanliness=True, hurries=True)
+        assert abilities_of(client) == PlantAbilities(bulk_tracking=False, parallel_tracking=True, bulk_cleanliness=True,
+                                                      hurries=True)
     finally:
         client.close()
     assert abilities_of(object()) == PlantAbilities()

@@ -17,23 +17,24 @@ import numpy as np
 from test_live_faults import _network_runner, cfg, served  # noqa: F401 - fixtures
 from helicalib.app import live
 from helicalib.devices import registers as R
+from helicalib.devices.modbus_link import ModbusLink
 
 
-def test_no_track_or_move_is_accepted_after_a_gust_stows_the_field_mid_refresh(cfg, tmp_path, served):
+def test_no_track_or_move_is_accepted_after_a_gust_stows_the_field_mid_refresh(cfg, tmp_path, served, monkeypatch):
     ids = [h.id for h in cfg.heliostats[:12]]
     runner, store, cid = _network_runner(cfg, tmp_path, served, ids)
     plant, _cams, clock, sim, _server = served
     runner.state.book.points = lambda hid: [hid]  # every heliostat calibrated: the refresh writes each one's corrections
     wire, busy = [], threading.Event()
-    write, weather = plant.scs.write, plant.weather
+    write, weather = ModbusLink.write, plant.weather
 
-    def slow_write(address, values, what):  # a slow SCS: 30 ms a write
+    def slow_write(link, address, values, what, **kw):  # a slow SCS: 30 ms a write, on every connection
         busy.set()
         time.sleep(0.03)
-        write(address, values, what)
+        write(link, address, values, what, **kw)
         wire.append((address, what))
 
-    plant.scs.write = slow_write
+    monkeypatch.setattr(ModbusLink, "write", slow_write)  # the refresh's batches go on connections of their own
     plant.weather = lambda: dataclasses.replace(weather(), wind_ms=cfg.gating.stow_wind_ms + 5.0)  # a gust
     lock = threading.Lock()
 
@@ -52,6 +53,7 @@ def test_no_track_or_move_is_accepted_after_a_gust_stows_the_field_mid_refresh(c
     ticking.join(30.0)
     events = store.events(campaign_id=cid)
     store.close()
+    assert runner.devices.abilities.parallel_tracking and plant._batch is not None   # the round went out in batches
     assert runner.state.stowed and [e.kind for e in events if e.kind == "stow"] == ["stow"]
     stow_at = next(k for k, (addr, _w) in enumerate(wire) if addr == R.REG_FIELD_COMMAND)
     assert 0 < stow_at, "the gust came before the refresh wrote anything"

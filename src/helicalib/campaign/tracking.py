@@ -9,7 +9,9 @@ model only near the sun position the offset was computed for, so the corrections
 for the whole field every :data:`~helicalib.campaign.verdict.TRACKING_REFRESH_S`: one array write
 on a plant that declares :class:`~helicalib.devices.protocols.BulkTracking`, else a round of track
 commands sent a slice of :data:`REFRESH_SLICE_S` plant seconds per tick after the visits are
-stepped, so a field of 10⁴ heliostats never holds a visit back for the whole round.
+stepped, so a field of 10⁴ heliostats never holds a visit back for the whole round; a plant client
+that declares :class:`~helicalib.devices.protocols.ParallelTracking` (Modbus) takes the slice's
+commands in batches, several in flight at once.
 """
 
 from __future__ import annotations
@@ -38,6 +40,9 @@ from helicalib.geometry.heliostat import HeliostatModel
 
 REFRESH_SLICE_S = 2.0
 """Plant seconds a tick spends at most on a refresh round's track commands (one status poll's time)."""
+REFRESH_BATCH = 16
+"""Track commands handed at once to a plant that sends several at a time (``track_each``): a few per
+connection, so a batch ends soon after the slice's end."""
 
 
 class Tracking:
@@ -213,6 +218,9 @@ class Tracking:
         # a slice ends at the next visit's wake-up if that comes first (its moves are polled on time);
         # one command at least goes out each tick, so a round always advances
         end = min([clock.estimate_s() + REFRESH_SLICE_S, *(v.wake_s for v in st.active.values())])
+        if self.devices.abilities.parallel_tracking:
+            self._write_batches(r, end)
+            return
         while r.queue:
             if st.stowed:  # the weather job stowed the field meanwhile (the plant client refuses the rest)
                 r.queue.clear()
@@ -228,6 +236,31 @@ class Tracking:
                 break
             except PlantError as err:
                 r.failed.append((hid, err))
+            if clock.estimate_s() >= end:
+                break
+        if not r.queue:
+            self._round_done()
+
+    def _write_batches(self, r: RefreshRound, end: float) -> None:
+        """:meth:`write_round`'s slice on a plant that sends track commands several at a time: batches
+        of :data:`REFRESH_BATCH` until the slice ends (the same skips; a stow ends the round)."""
+        st, plant, clock = self.state, self.devices.plant, self.devices.clock
+        while r.queue:
+            batch = []
+            while r.queue and len(batch) < REFRESH_BATCH:
+                hid, c = r.queue.popleft()
+                if hid not in st.active and hid not in r.visited:
+                    batch.append((hid, c))
+            results = plant.track_each([(st.cfg.heliostat_index(hid), c) for hid, c in batch]) if batch else []
+            for (hid, c), err in zip(batch, results):
+                if err is None:
+                    st.corrections[hid] = c
+                elif isinstance(err, FieldStowedError):
+                    r.queue.clear()
+                else:
+                    r.failed.append((hid, err))
+            if st.stowed:
+                r.queue.clear()
             if clock.estimate_s() >= end:
                 break
         if not r.queue:

@@ -11,13 +11,18 @@ protocols:
 * **the stow gate**: once the client sent STOW ALL, every move and track command is refused
   (:class:`~helicalib.devices.protocols.FieldStowedError`) until it sends RESUME TRACKING.
   :attr:`lock` serialises a heliostat command's writes against a field command, so a stow sent
-  from another thread never lands inside a command and no waiting command is sent after it.
+  from another thread never lands inside a command and no waiting command is sent after it; the
+  commands of a batch sent several at once (each on its own connection) hold it together
+  (:meth:`GateLock.shared`), and a field command still waits for them and goes before any command
+  that asks after it.
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -27,6 +32,49 @@ from helicalib.errors import PlantError
 
 GATED = frozenset({HeliostatCommand.MOVE, HeliostatCommand.TRACK})
 """Commands the stow gate holds back (a stow command always passes)."""
+
+
+class GateLock:
+    """The stow gate's lock: ``with lock:`` alone (a field command, or one heliostat command), or
+    :meth:`shared` by the commands of a batch in flight together. Those waiting to hold it alone go
+    in the order they asked, and before any :meth:`shared` asked after them (a stow is never
+    overtaken by commands asked after it)."""
+
+    def __init__(self):
+        self._cond = threading.Condition(threading.Lock())
+        self._sharing = 0
+        self._alone = False
+        self._queue: deque[object] = deque()  # tickets of those waiting to hold it alone
+
+    @contextmanager
+    def shared(self) -> Iterator[None]:
+        """Held with the other commands of a batch, never with one holding it alone."""
+        with self._cond:
+            while self._alone or self._queue:
+                self._cond.wait()
+            self._sharing += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._sharing -= 1
+                if not self._sharing:
+                    self._cond.notify_all()
+
+    def __enter__(self) -> GateLock:
+        ticket = object()
+        with self._cond:
+            self._queue.append(ticket)
+            while self._alone or self._sharing or self._queue[0] is not ticket:
+                self._cond.wait()
+            self._queue.popleft()
+            self._alone = True
+        return self
+
+    def __exit__(self, *exc) -> None:
+        with self._cond:
+            self._alone = False
+            self._cond.notify_all()
 
 
 class CommandGuard:
@@ -46,8 +94,8 @@ class CommandGuard:
         self.armed = bool(armed)
         self.heliostat_ids = list(heliostat_ids) if heliostat_ids is not None else None
         self.stroke_limits_mm = None if stroke_limits_mm is None else np.asarray(stroke_limits_mm, dtype=float)
-        self.lock = threading.Lock()
-        """Held for one heliostat command's writes, or one field command."""
+        self.lock = GateLock()
+        """Held for one heliostat command's writes, or one field command (shared by a batch's commands)."""
         self._stowed = False
 
     @classmethod

@@ -33,6 +33,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from helicalib.devices.guard import CommandGuard
+from helicalib.devices.modbus_batch import TrackBatch
 from helicalib.devices.modbus_link import ModbusLink, quiet_pymodbus
 from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, plan_reads, raw_within, state_name
@@ -94,6 +95,8 @@ class ModbusPlant:
         self._expected_count = heliostat_count
         self._count: int | None = None
         self._last_sent: dict[int, int] = {}
+        self._batch: TrackBatch | None = None
+        self._link_kw = dict(kw, timeout_s=endpoint.timeout_s)
         q = self.map.q
         self._hs = self.map.doc.heliostats.command.handshake
         self._status_q = [q[k] for k in STATUS_PATHS] + [q[HANDSHAKE + "done"]]
@@ -117,8 +120,12 @@ class ModbusPlant:
         """Two attempts per request from now on, no back-off (a stopping controller must not wait out retries)."""
         self.scs.hurry()
         self.weather_link.hurry()
+        if self._batch is not None:
+            self._batch.hurry()
 
     def close(self) -> None:
+        if self._batch is not None:
+            self._batch.close()
         self.scs.close()
         if self.weather_link is not self.scs:
             self.weather_link.close()
@@ -162,14 +169,14 @@ class ModbusPlant:
         return {q.path: [image.get((q.table, m.address(q, index) + k), 0) for k in range(q.width)] for q in qs}
 
     def _write(self, table: str, address: int, values: list[int], what: str, retry: bool = True,
-               index: int | None = None) -> None:
+               index: int | None = None, link: ModbusLink | None = None) -> None:
         kw = {} if retry else {"retry": False}
         if index is not None and self.map.unit_step(index):
             kw["unit"] = self.scs.unit + self.map.unit_step(index)
         if table == "holding":
-            self.scs.write(address, values, what, **kw)
+            (link or self.scs).write(address, values, what, **kw)
         else:
-            self.scs.write(address, values, what, table=table, **kw)
+            (link or self.scs).write(address, values, what, table=table, **kw)
 
     def _value(self, q: Q, regs: list[int], who: str, index: int | None = None) -> float:
         """The value of ``q`` (of heliostat ``index``, named ``who``); not finite: a PlantError naming its register."""
@@ -227,9 +234,9 @@ class ModbusPlant:
                              f"map {self.map.name} ({sorted(q.values)})")
         return FieldState[name.upper()]
 
-    def _block(self, index: int, qs: list[Q]) -> dict[str, list[int]]:
+    def _block(self, index: int, qs: list[Q], link: ModbusLink | None = None) -> dict[str, list[int]]:
         self._check_index(index)
-        return self._read(qs, f"{self._label(index)} block", index)
+        return self._read(qs, f"{self._label(index)} block", index, link)
 
     def _status(self, index: int, regs: dict[str, list[int]]) -> HeliostatStatus:
         q = self.map.q
@@ -337,7 +344,10 @@ class ModbusPlant:
             raise PlantError(f"plant {self.scs.name}: {self._label(index)}: {q.path} at {self._where(q, index)}: "
                              f"{exc}") from None
 
-    def _command(self, index: int, command: HeliostatCommand, fields: list[tuple[Q, list[int]]]) -> int:
+    def _command(self, index: int, command: HeliostatCommand, fields: list[tuple[Q, list[int]]],
+                 link: ModbusLink | None = None) -> int:
+        """One heliostat command by the map's handshake, on ``link`` (default the SCS connection; another:
+        a batch's command, in flight with the batch's others under the stow gate's shared lock)."""
         what = f"{command.name} command to {self._label(index)}"
         self.guard.refuse_unarmed(what)
         mq = self.map.q["heliostats.command.mode"]
@@ -346,9 +356,9 @@ class ModbusPlant:
             raise PlantError(f"plant {self.scs.name}: the register map {self.map.name} has no mode value for "
                              f"{command.name.lower()} ({mq.path}.values)")
         label = self._label(index)
-        with self.guard.lock:
+        with self.guard.lock if link is None else self.guard.lock.shared():
             self.guard.gate(command, what)
-            regs = self._block(index, self._command_q)
+            regs = self._block(index, self._command_q, link)
             done = int(decode_raw(self.map.q[HANDSHAKE + "done"], regs[HANDSHAKE + "done"]))
             if self._hs.kind == "sequence":
                 sq = self.map.q[HANDSHAKE + "sequence"]
@@ -363,28 +373,30 @@ class ModbusPlant:
                 token = (done + 1) & 0xFFFF
                 go = (eq, 1, "execute")
             for q, values in fields:
-                self._write(q.table, self.map.address(q, index), values, f"{label} {q.meaning or q.path}", index=index)
+                self._write(q.table, self.map.address(q, index), values, f"{label} {q.meaning or q.path}", index=index,
+                            link=link)
             if int(decode_raw(mq, regs[mq.path])) != mode:  # (a refresh's track after a track: already there)
                 self._write(mq.table, self.map.address(mq, index), encode_raw(mq, mode),
-                            f"{label} command {command.name}", index=index)
+                            f"{label} command {command.name}", index=index, link=link)
             if self._hs.kind == "sequence":   # a retried write rewrites the same number: no second command
-                self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", index=index)
+                self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", index=index,
+                            link=link)
             else:                             # the plant acts on every execute write: sent once
                 try:
                     self._write(go[0].table, self.map.address(go[0], index), [go[1]], f"{label} {go[2]}", retry=False,
-                                index=index)
+                                index=index, link=link)
                 except PlantUnreachableError:
-                    self._check_taken(index, token, what)
+                    self._check_taken(index, token, what, link)
             self._last_sent[index] = token
         return token
 
-    def _check_taken(self, index: int, token: int, what: str) -> None:
+    def _check_taken(self, index: int, token: int, what: str, link: ModbusLink | None = None) -> None:
         """After an execute write without an answer: returns if the plant's counter shows ``token``
         (it took the command), else raises; the command is never sent again."""
         dq, eq = self.map.q[HANDSHAKE + "done"], self.map.q[HANDSHAKE + "execute"]
         where = self._where(eq, index)
         try:
-            regs = self._block(index, [dq, eq])
+            regs = self._block(index, [dq, eq], link)
         except PlantUnreachableError as exc:
             raise PlantUnreachableError(f"plant {self.scs.name}: {what}: no answer to the execute write at {where} "
                                         f"and none to the check of its counter ({exc}); the command may or may not "
@@ -419,16 +431,26 @@ class ModbusPlant:
         return self._command(index, HeliostatCommand.MOVE,
                              self._pair(index, "strokes_mm", s, None if lim is None else lim[index]))
 
-    def track(self, index: int, corrections_mm) -> int:
+    def track(self, index: int, corrections_mm, link: ModbusLink | None = None) -> int:
         """Return to tracking with these stroke corrections (actuator 1, 2) [mm]; returns the token.
 
         ``corrections_mm=None`` leaves the correction registers as they are: the plant tracks with
-        the corrections it already has (never wipe a plant's corrections by accident).
+        the corrections it already has (never wipe a plant's corrections by accident). ``link``: a
+        batch's connection (:meth:`track_each`).
         """
         if corrections_mm is None:
-            return self._command(index, HeliostatCommand.TRACK, [])
+            return self._command(index, HeliostatCommand.TRACK, [], link)
         c = self.guard.corrections(index, corrections_mm)
-        return self._command(index, HeliostatCommand.TRACK, self._pair(index, "corrections_mm", c))
+        return self._command(index, HeliostatCommand.TRACK, self._pair(index, "corrections_mm", c), link)
+
+    def track_each(self, items) -> list[PlantError | None]:
+        """Track commands for distinct heliostats ``items`` ``[(index, corrections_mm), ...]``, up to
+        :data:`~.modbus_batch.BATCH_LINKS` in flight at once, each on a connection of its own (a
+        refresh round of 10⁴ heliostats in one period); per item, in order, None (taken) or the
+        :class:`PlantError` that refused it. The stow gate holds for the batch as for one command."""
+        if self._batch is None:
+            self._batch = TrackBatch(self)
+        return self._batch.track_each(items)
 
     def stow(self, index: int) -> int:
         """Send one heliostat to stow; returns the token."""

@@ -210,6 +210,17 @@ class BulkTracking(Protocol):
 
 
 @runtime_checkable
+class ParallelTracking(Protocol):
+    """A plant client that sends the track commands of many heliostats several at a time (the Modbus
+    client, over connections of its own): each the same command as :meth:`Plant.track`."""
+
+    def track_each(self, items) -> list:
+        """Track commands for distinct heliostats ``items`` ``[(index, corrections_mm), ...]``; per
+        item, in order, None (taken) or the :class:`~helicalib.errors.PlantError` that refused it."""
+        ...
+
+
+@runtime_checkable
 class BulkCleanliness(Protocol):
     """A plant that reads the cleanliness registers of many heliostats in one read: what
     :meth:`Plant.status` gives for each."""
@@ -233,6 +244,7 @@ class PlantAbilities:
     """What a plant offers beyond :class:`Plant`, read once from the object (``abilities_of``)."""
 
     bulk_tracking: bool = False
+    parallel_tracking: bool = False
     bulk_cleanliness: bool = False
     hurries: bool = False
 
@@ -240,5 +252,6 @@ class PlantAbilities:
 def abilities_of(plant: object) -> PlantAbilities:
     """The optional abilities ``plant`` declares (its methods, by the protocols above)."""
     return PlantAbilities(bulk_tracking=isinstance(plant, BulkTracking),
+                          parallel_tracking=isinstance(plant, ParallelTracking),
                           bulk_cleanliness=isinstance(plant, BulkCleanliness),
                           hurries=isinstance(plant, Hurries))

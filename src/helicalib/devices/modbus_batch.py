@@ -1,0 +1,62 @@
+"""Track commands of many heliostats in flight at once over Modbus TCP (a tracking refresh round).
+
+One track command by the map's handshake is three round trips (the block read, the corrections,
+the sequence number); one after another, a refresh of 10⁴ heliostats takes longer than its
+15-minute period at a plant rate of 10× (docs/benchmarks.md). :class:`TrackBatch` sends a batch's
+commands on :data:`BATCH_LINKS` connections of their own to the plant's endpoint, one command per
+connection at a time (pymodbus's synchronous client serves one request at a time; each link is
+used by one thread at a time). The rules of a single command hold for each: ``armed``, the
+corrections checked (:class:`~.guard.CommandGuard`), the handshake, the execute write sent once; the
+commands of a batch hold the stow gate's lock together (:meth:`~.guard.GateLock.shared`), so a STOW
+ALL waits for those in flight and none asked after it is sent.
+"""
+
+from __future__ import annotations
+
+import queue
+from concurrent.futures import ThreadPoolExecutor
+
+from helicalib.devices.modbus_link import ModbusLink
+from helicalib.errors import PlantError
+
+BATCH_LINKS = 4
+"""Connections (and commands in flight) of a batch. Modbus TCP servers take several clients at
+once (many a gateway at least 4); the plant's own SCS connection stays free for the visits."""
+
+
+class TrackBatch:
+    """A :class:`~.modbus.ModbusPlant`'s track commands several at a time (module docstring)."""
+
+    def __init__(self, plant, links: int = BATCH_LINKS):
+        e = plant.scs
+        kw = plant._link_kw
+        self.plant = plant
+        self.links = [ModbusLink(e.host, e.port, e.unit, **kw) for _ in range(max(1, int(links)))]
+        self._free: queue.SimpleQueue[ModbusLink] = queue.SimpleQueue()
+        for link in self.links:
+            self._free.put(link)
+        self._pool = ThreadPoolExecutor(max_workers=len(self.links), thread_name_prefix="helicalib-track")
+
+    def _one(self, index: int, corrections_mm) -> PlantError | None:
+        link = self._free.get()
+        try:
+            self.plant.track(index, corrections_mm, link=link)
+        except PlantError as err:
+            return err
+        finally:
+            self._free.put(link)
+        return None
+
+    def track_each(self, items) -> list[PlantError | None]:
+        """Per item ``(index, corrections_mm)``, in order: None (taken) or the refusal."""
+        futures = [self._pool.submit(self._one, int(i), c) for i, c in items]
+        return [f.result() for f in futures]
+
+    def hurry(self) -> None:
+        for link in self.links:
+            link.hurry()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+        for link in self.links:
+            link.close()

@@ -1,0 +1,70 @@
+"""The tracking refresh with several track commands in flight (devices/modbus_batch.py) against the
+simulated plant served on loopback Modbus TCP, with the real client: every heliostat's corrections
+written exactly once, on several connections at once, and a refused write reported as one fault line.
+
+Every write on any connection is slowed a little (a slow SCS) and logged; the one heliostat whose
+writes the SCS refuses stands for a plant that says no.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+from collections import Counter
+
+import numpy as np
+
+from test_live_faults import _network_runner, cfg, served  # noqa: F401 - fixtures
+from helicalib.devices.modbus_link import ModbusLink
+from helicalib.errors import PlantError
+
+GO = re.compile(r"\((\S+)\) (sequence number|execute)$")
+"""The write that makes the plant act on a command: its label names the heliostat."""
+REFUSED = "H0005"
+
+
+def test_a_parallel_refresh_writes_every_heliostat_s_corrections_once(cfg, tmp_path, served, monkeypatch):
+    ids = [h.id for h in cfg.heliostats[:24]]
+    runner, store, cid = _network_runner(cfg, tmp_path, served, ids)
+    plant, _cams, _clock, sim, _server = served
+    st = runner.state
+    st.book.points = lambda hid: [hid]  # every heliostat calibrated: the refresh writes each one's corrections
+    assert runner.devices.abilities.parallel_tracking and not runner.devices.abilities.bulk_tracking
+    acted, links, lock = Counter(), set(), threading.Lock()
+    flight = {"now": 0, "peak": 0}
+    write = ModbusLink.write
+
+    def logged(link, address, values, what, **kw):
+        with lock:
+            flight["now"] += 1
+            flight["peak"] = max(flight["peak"], flight["now"])
+            links.add(id(link))
+        try:
+            time.sleep(0.004)
+            if f"({REFUSED})" in what:
+                raise PlantError(f"plant {link.name}: write of {what} refused: Modbus exception 4 (device failure)")
+            write(link, address, values, what, **kw)
+        finally:
+            with lock:
+                flight["now"] -= 1
+        go = GO.search(what)
+        if go:
+            with lock:
+                acted[go.group(1)] += 1
+
+    monkeypatch.setattr(ModbusLink, "write", logged)
+    kept = st.corrections[REFUSED]
+    runner.tracking.refresh(runner.devices.clock.now_s())
+    while st.refresh_round is not None:
+        runner.tracking.write_round()
+    written = [h for h in ids if h != REFUSED]
+    assert acted == Counter({h: 1 for h in written})          # each heliostat's command once, the refused one never
+    for hid in written:                                        # in the plant's registers (0.01 mm resolution)
+        assert np.allclose(sim.corrections_mm[cfg.heliostat_index(hid)], st.corrections[hid], atol=0.006)
+    assert st.corrections[REFUSED] is kept                    # the campaign keeps what the plant has
+    assert flight["peak"] >= 2 and len(links) >= 2            # several commands in flight, on their own connections
+    faults = store.events(campaign_id=cid, kind="fault")
+    store.close()
+    assert len(faults) == 1 and "1 heliostat(s)" in faults[0].reason and REFUSED in faults[0].reason
+    assert "device failure" in faults[0].reason
