@@ -158,6 +158,8 @@ class CampaignRunner:
                 self._step(hid, now)
         if st.refresh_round is not None and st.faults.plant_unreachable_since_s is None:
             self.tracking.write_round()  # a slice, after the visits: they never wait for a whole round
+        if field.spread_cleanliness and st.faults.plant_unreachable_since_s is None:
+            field.refresh_cleanliness(now)  # a live run: a few per tick, never a board's candidates at once
         free = self._free_targets()
         gate = None
         if free and not st.stowed:

@@ -1,0 +1,68 @@
+"""A live run's cleanliness reads spread over ticks (campaign/field.py): a choice reads only the
+candidates never read; those read before are re-read a few per tick, the oldest first, once half
+their maximum age; without the spread (simulations) a choice reads what is due, as it always did.
+
+The in-process simulated plant, its bulk cleanliness read logged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from campaign_helpers import inprocess_campaign
+from helicalib.campaign.field import CLEANLINESS_MAX_AGE_S, CLEANLINESS_SPREAD_ROWS
+from helicalib.config import load_field_config
+
+
+class Logged:
+    """The simulated plant, each bulk cleanliness read's heliostat indices logged."""
+
+    def __init__(self, sim):
+        self.sim, self.reads = sim, []
+
+    def __getattr__(self, name):
+        return getattr(self.sim, name)
+
+    def cleanliness_many(self, indices):
+        self.reads.append([int(i) for i in indices])
+        return self.sim.cleanliness_many(indices)
+
+
+def test_a_live_choice_reads_only_what_was_never_read_and_the_ticks_refresh_the_rest(demo_field_path, tmp_path):
+    cfg = load_field_config(demo_field_path)
+    ids = [h.id for h in cfg.heliostats]
+    runner, sim, _store, _cid, _cams = inprocess_campaign(cfg, tmp_path, 10, 2, ids, plant=Logged)
+    plant, field = runner.devices.plant, runner.field
+    assert runner.devices.abilities.bulk_cleanliness
+    rows = np.arange(len(ids))
+    now = runner.devices.clock.now_s()
+    field.spread_cleanliness = True
+    first = field.cleanliness_of_rows(rows[:30], now)              # never read: read now, in one read
+    assert plant.reads == [[int(runner.state.plant_index[r]) for r in rows[:30]]]
+    assert np.array_equal(first, sim.cleanliness_many(runner.state.plant_index[:30]))
+    later = now + 2 * CLEANLINESS_MAX_AGE_S                         # all of them stale now
+    again = field.cleanliness_of_rows(rows[:40], later)            # the 10 new ones only; the 30 served as read
+    assert plant.reads[1] == [int(runner.state.plant_index[r]) for r in rows[30:40]]
+    assert np.array_equal(again[:30], first)
+    field.state.clean_rows[1][:30] = now + np.arange(30)[::-1]     # read at different times: row 29 the oldest
+    field.refresh_cleanliness(later)
+    oldest = rows[:30][::-1][:CLEANLINESS_SPREAD_ROWS]
+    assert sorted(plant.reads[2]) == sorted(int(runner.state.plant_index[r]) for r in oldest)
+    assert np.all(field.state.clean_rows[1][oldest] == later)
+    field.refresh_cleanliness(later + 1.0)                          # the next tick: the rest of the stale ones
+    assert len(plant.reads[3]) == 30 - CLEANLINESS_SPREAD_ROWS
+    field.refresh_cleanliness(later + 2.0)                          # none stale: nothing read
+    assert len(plant.reads) == 4
+
+
+def test_without_the_spread_a_choice_reads_every_due_candidate(demo_field_path, tmp_path):
+    cfg = load_field_config(demo_field_path)
+    ids = [h.id for h in cfg.heliostats]
+    runner, _sim, _store, _cid, _cams = inprocess_campaign(cfg, tmp_path, 10, 2, ids, plant=Logged)
+    plant, field = runner.devices.plant, runner.field
+    rows = np.arange(len(ids))
+    now = runner.devices.clock.now_s()
+    field.cleanliness_of_rows(rows[:30], now)
+    field.cleanliness_of_rows(rows[:30], now + CLEANLINESS_MAX_AGE_S - 1.0)   # fresh: nothing read
+    field.cleanliness_of_rows(rows[:30], now + CLEANLINESS_MAX_AGE_S)         # due: all 30 again
+    assert [len(r) for r in plant.reads] == [30, 30]
