@@ -249,3 +249,21 @@ def test_next_sun_above_in_one_call_is_the_step_by_step_answer():
             assert got == want
             seen.add(want - now)
     assert 86400.0 in seen and len(seen) > 10
+
+
+def test_cooldown_doubles_after_invalid_visits_in_a_row_and_resets_on_a_valid_point():
+    """30, 60, 120, 240, 240 minutes after invalid visits in a row; a fault neither counts nor resets;
+    a valid point goes back to 20 minutes and a new run starts at 30."""
+    from helicalib.campaign import book as books
+    from helicalib.campaign.visit_types import VisitOutcome
+
+    b = books.HeliostatBook()
+    invalid = VisitOutcome(status="invalid", reason="clipped")
+    waits = [books.cooldown_s(b, invalid) for _ in range(5)]
+    assert waits == [1800.0, 3600.0, 7200.0, 14400.0, 14400.0]
+    assert books.cooldown_s(b, VisitOutcome(status="fault", reason="camera_timeout")) == 14400.0
+    assert b.failed_in_row == 5
+    assert books.cooldown_s(b, VisitOutcome(status="converged", reason="ok", valid_points=1)) == books.COOLDOWN_VALID_S
+    assert b.failed_in_row == 0
+    assert books.cooldown_s(b, invalid) == 1800.0
+    assert books.cooldown_s(b, VisitOutcome(status="refused", reason="range")) == 1800.0

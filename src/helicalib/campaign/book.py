@@ -22,6 +22,15 @@ FIELD_CURSOR = "*"
 """``Book.cursor`` key of the heliostat that last went on any board (field-wide round robin)."""
 COOLDOWN_INVALID_S = 1800.0
 """After a visit without a valid point a heliostat waits this long [plant s] before its next try."""
+COOLDOWN_INVALID_MAX_S = 14400.0
+"""The wait after visits whose readings all failed (``invalid``) doubles with each such visit in a row
+(:data:`COOLDOWN_INVALID_S`, twice that, ..., at most this long) until one gives a valid point: a
+heliostat whose spot the board cannot measure at this time of day (a beam as large as the board, a
+model pulled off by a bad point, a first beam that lands farther off than a search on the board can
+reach) gives its board time to others, and is tried again as the sun moves. Faults and refusals (the
+plant's, a camera's, the drive's range) neither add to the run nor end it. At a 30-minute wait, 419
+of a 10⁴ field's heliostats took 7 890 visits that searched beyond a third placement in 4.35 days (a quarter
+of all readings, 0.6 % of them valid), most of them from 121 heliostats never found at all."""
 COOLDOWN_VALID_S = 1200.0
 """After a valid visit the heliostat waits this long (the next point should see another sun)."""
 MAX_VISIT_POINTS = 240
@@ -65,6 +74,7 @@ class HeliostatBook:
     last_visit_s: float = -math.inf                 # start of its newest visit (operation: time since a check)
     drifted: bool = False                           # since a confirmed drift (until a repair): the smaller cap
     earlier: Earlier | None = None                  # after a drift: the points before it, for the fits (epochs)
+    failed_in_row: int = 0                          # visits in a row whose readings all failed (back-off)
 
     def __setattr__(self, name: str, value) -> None:
         object.__setattr__(self, name, value)
@@ -105,7 +115,7 @@ class Book:
 
     def visited(self, hid: str, now_s: float, outcome) -> None:
         b = self.h[hid]
-        b.cooldown_until_s = now_s + (COOLDOWN_VALID_S if outcome.valid_points else COOLDOWN_INVALID_S)
+        b.cooldown_until_s = now_s + cooldown_s(b, outcome)
         if outcome.first_error_mrad is not None and outcome.observations and outcome.observations[0].valid:
             b.last_first_error_mrad = outcome.first_error_mrad
 
@@ -130,6 +140,19 @@ class Book:
     def first_time(self, default: float) -> float:
         times = [p.capture_time_s for b in self.h.values() for p in b.points]
         return min(times + [default])
+
+
+def cooldown_s(b: HeliostatBook, outcome) -> float:
+    """The wait [plant s] after ``outcome``, one visit of the heliostat whose book is ``b`` (whose
+    ``failed_in_row`` it updates): :data:`COOLDOWN_VALID_S` after a valid point, else
+    :data:`COOLDOWN_INVALID_S` doubled for each ``invalid`` visit in a row, at most
+    :data:`COOLDOWN_INVALID_MAX_S`."""
+    if outcome.valid_points:
+        b.failed_in_row = 0
+        return COOLDOWN_VALID_S
+    if outcome.status == "invalid":
+        b.failed_in_row += 1
+    return min(COOLDOWN_INVALID_S * 2.0 ** max(0, b.failed_in_row - 1), COOLDOWN_INVALID_MAX_S)
 
 
 def located(obs) -> bool:
