@@ -1,6 +1,8 @@
 """The tracking refresh with several track commands in flight (devices/modbus_batch.py) against the
-simulated plant served on loopback Modbus TCP, with the real client: every heliostat's corrections
-written exactly once, on several connections at once, and a refused write reported as one fault line.
+simulated plant served on loopback Modbus TCP, with the real client: a batch goes out while the tick
+goes on, and is waited for only before the tick commands one of its heliostats; every heliostat's
+corrections written exactly once, on several connections at once; a refused write reported as one
+fault line.
 
 Every write on any connection is slowed a little (a slow SCS) and logged; the one heliostat whose
 writes the SCS refuses stands for a plant that says no.
@@ -56,6 +58,14 @@ def test_a_parallel_refresh_writes_every_heliostat_s_corrections_once(cfg, tmp_p
     monkeypatch.setattr(ModbusLink, "write", logged)
     kept = st.corrections[REFUSED]
     runner.tracking.refresh(runner.devices.clock.now_s())
+    runner.tracking.write_round()                              # a batch sent: the tick goes on meanwhile
+    r = st.refresh_round
+    assert r.sent is not None and not r.sent.done() and [h for h, _c in r.flight] == ids[:len(r.flight)]
+    runner.tracking.land({"nobody"})                           # none of its heliostats commanded: no wait
+    assert r.sent is not None
+    runner.tracking.land({ids[2]})                             # a command of the tick's own to one of them waits
+    assert r.sent is None and not r.flight
+    assert np.allclose(st.corrections[ids[2]], sim.corrections_mm[cfg.heliostat_index(ids[2])], atol=0.006)
     while st.refresh_round is not None:
         runner.tracking.write_round()
     written = [h for h in ids if h != REFUSED]

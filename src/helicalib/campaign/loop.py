@@ -138,6 +138,9 @@ class CampaignRunner:
     def tick(self, now: float) -> float:
         """Do everything due at plant time ``now``; returns the plant time of the next thing due."""
         st, field = self.state, self.field
+        if st.refresh_round is not None and st.refresh_round.sent is not None:
+            # the refresh's batch on its way must be answered before this tick commands one of its heliostats
+            self.tracking.land({*st.active, *(h for h, r in st.returning.items() if r.next_check_s <= now)})
         if "scs" in st.faults.lost_links:  # does the plant's SCS answer again?
             self.journal.probe_scs(now)
         if st.operator is not None:  # operator actions (campaign/operation/crew.py): the crew's requests first
@@ -386,6 +389,7 @@ class CampaignRunner:
         confirmed is checked once. Returns the heliostats left off tracking: each has an
         ``off_tracking`` event, and the next run on this database retries them first."""
         st, clock = self.state, self.devices.clock
+        self.tracking.land()  # the refresh's batch on its way: answered before the beams leave
         leaving = []
         for hid in list(st.active):
             v = st.active.pop(hid)

@@ -186,6 +186,10 @@ class RefreshRound:
     """(heliostat id, the plant's error) of each write that failed."""
     visited: set = field(default_factory=set)
     """Heliostats that began a visit since the round was due: their visits' corrections are newer."""
+    flight: list = field(default_factory=list)
+    """(heliostat id, corrections) of the batch on its way (a plant that sends several at a time)."""
+    sent: object | None = None
+    """That batch's answers to come (``done()``, ``results()``); None: none on its way."""
 
 
 @dataclass

@@ -10,8 +10,9 @@ for the whole field every :data:`~helicalib.campaign.verdict.TRACKING_REFRESH_S`
 on a plant that declares :class:`~helicalib.devices.protocols.BulkTracking`, else a round of track
 commands sent a slice of :data:`REFRESH_SLICE_S` plant seconds per tick after the visits are
 stepped, so a field of 10⁴ heliostats never holds a visit back for the whole round; a plant client
-that declares :class:`~helicalib.devices.protocols.ParallelTracking` (Modbus) takes the slice's
-commands in batches, several in flight at once.
+that declares :class:`~helicalib.devices.protocols.ParallelTracking` (Modbus) takes the round in
+batches sent while the tick goes on, several commands in flight at once (the tick waits for a batch
+only before a command of its own to one of its heliostats: :meth:`Tracking.land`).
 """
 
 from __future__ import annotations
@@ -40,9 +41,10 @@ from helicalib.geometry.heliostat import HeliostatModel
 
 REFRESH_SLICE_S = 2.0
 """Plant seconds a tick spends at most on a refresh round's track commands (one status poll's time)."""
-REFRESH_BATCH = 16
-"""Track commands handed at once to a plant that sends several at a time (``track_each``): a few per
-connection, so a batch ends soon after the slice's end."""
+REFRESH_BATCH = 48
+"""Track commands handed at once to a plant that sends several at a time (``send_tracks``): they go
+out while the tick steps the visits, and the next batch follows on the first tick that finds them
+all answered."""
 
 
 class Tracking:
@@ -200,6 +202,7 @@ class Tracking:
             return
         items = [(ids[k], corr[k]) for k in ok]
         if st.refresh_round is not None:  # superseded: its heliostats not yet written go first, with these corrections
+            self.land()  # (the answers of its batch on the way belong to it)
             late = {hid for hid, _c in st.refresh_round.queue}
             items.sort(key=lambda item: item[0] not in late)  # (stable: the field's order otherwise)
             self._round_done()
@@ -210,17 +213,18 @@ class Tracking:
         seconds have passed by the controller's own clock (a virtual clock: the whole round), or
         until the next visit's wake-up if sooner, so the visits are stepped again between slices. A
         heliostat that began a visit since the round was due is skipped (its visit ends with
-        corrections of its own, newer than the round's); a stow ends the round."""
+        corrections of its own, newer than the round's); a stow ends the round. A plant that sends
+        several at a time gets the round a batch at a time instead (:meth:`_write_batches`)."""
         st, plant, clock = self.state, self.devices.plant, self.devices.clock
         r = st.refresh_round
         if r is None:
             return
+        if self.devices.abilities.parallel_tracking:
+            self._write_batches(r)
+            return
         # a slice ends at the next visit's wake-up if that comes first (its moves are polled on time);
         # one command at least goes out each tick, so a round always advances
         end = min([clock.estimate_s() + REFRESH_SLICE_S, *(v.wake_s for v in st.active.values())])
-        if self.devices.abilities.parallel_tracking:
-            self._write_batches(r, end)
-            return
         while r.queue:
             if st.stowed:  # the weather job stowed the field meanwhile (the plant client refuses the rest)
                 r.queue.clear()
@@ -241,30 +245,49 @@ class Tracking:
         if not r.queue:
             self._round_done()
 
-    def _write_batches(self, r: RefreshRound, end: float) -> None:
-        """:meth:`write_round`'s slice on a plant that sends track commands several at a time: batches
-        of :data:`REFRESH_BATCH` until the slice ends (the same skips; a stow ends the round)."""
-        st, plant, clock = self.state, self.devices.plant, self.devices.clock
-        while r.queue:
-            batch = []
-            while r.queue and len(batch) < REFRESH_BATCH:
-                hid, c = r.queue.popleft()
-                if hid not in st.active and hid not in r.visited:
-                    batch.append((hid, c))
-            results = plant.track_each([(st.cfg.heliostat_index(hid), c) for hid, c in batch]) if batch else []
-            for (hid, c), err in zip(batch, results):
-                if err is None:
-                    st.corrections[hid] = c
-                elif isinstance(err, FieldStowedError):
-                    r.queue.clear()
-                else:
-                    r.failed.append((hid, err))
-            if st.stowed:
-                r.queue.clear()
-            if clock.estimate_s() >= end:
-                break
-        if not r.queue:
+    def _write_batches(self, r: RefreshRound) -> None:
+        """:meth:`write_round` on a plant that sends track commands several at a time, while the tick
+        goes on: the answers of the batch sent before, once all are in, then the next batch of up to
+        :data:`REFRESH_BATCH` (the same skips; a stow ends the round). The round ends with its last
+        batch's answers."""
+        if r.sent is not None:
+            if not r.sent.done():
+                return
+            self._landed(r)
+        st = self.state
+        if st.stowed:
+            r.queue.clear()
+        while r.queue and len(r.flight) < REFRESH_BATCH:
+            hid, c = r.queue.popleft()
+            if hid not in st.active and hid not in r.visited:
+                r.flight.append((hid, c))
+        if r.flight:
+            r.sent = self.devices.plant.send_tracks([(st.cfg.heliostat_index(hid), c) for hid, c in r.flight])
+        elif not r.queue:
             self._round_done()
+
+    def _landed(self, r: RefreshRound) -> None:
+        """The answers of ``r``'s batch (waited for): corrections kept, refusals noted, a stow ends the round."""
+        st = self.state
+        for (hid, c), err in zip(r.flight, r.sent.results()):
+            if err is None:
+                st.corrections[hid] = c
+            elif isinstance(err, FieldStowedError):
+                r.queue.clear()
+            else:
+                r.failed.append((hid, err))
+        r.flight, r.sent = [], None
+
+    def land(self, hids=None) -> None:
+        """Wait for the refresh's batch on its way, if any (with ``hids``: only if it commands one of
+        them), before the tick sends a command of its own to one of its heliostats (a visit's move,
+        a return to tracking): never two commands to one heliostat at once."""
+        r = self.state.refresh_round
+        if r is None or r.sent is None:
+            return
+        if hids is not None and not any(hid in hids for hid, _c in r.flight):
+            return
+        self._landed(r)
 
     def _round_done(self) -> None:
         """End the refresh round: its failed writes said in one line (a dead plant is not one line per heliostat)."""

@@ -33,7 +33,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from helicalib.devices.guard import CommandGuard
-from helicalib.devices.modbus_batch import TrackBatch
+from helicalib.devices.modbus_batch import Sent, TrackBatch
 from helicalib.devices.modbus_link import ModbusLink, quiet_pymodbus
 from helicalib.devices.protocols import HeliostatStatus, PlantUnreachableError, Weather
 from helicalib.devices.regcodec import decode, decode_raw, encode, encode_raw, plan_reads, raw_within, state_name
@@ -443,14 +443,19 @@ class ModbusPlant:
         c = self.guard.corrections(index, corrections_mm)
         return self._command(index, HeliostatCommand.TRACK, self._pair(index, "corrections_mm", c), link)
 
-    def track_each(self, items) -> list[PlantError | None]:
-        """Track commands for distinct heliostats ``items`` ``[(index, corrections_mm), ...]``, up to
-        :data:`~.modbus_batch.BATCH_LINKS` in flight at once, each on a connection of its own (a
-        refresh round of 10⁴ heliostats in one period); per item, in order, None (taken) or the
-        :class:`PlantError` that refused it. The stow gate holds for the batch as for one command."""
+    def send_tracks(self, items) -> Sent:
+        """Track commands for distinct heliostats ``items`` ``[(index, corrections_mm), ...]`` sent
+        while the caller goes on, up to :data:`~.modbus_batch.BATCH_LINKS` in flight at once, each
+        on a connection of its own (a refresh round of 10⁴ heliostats in one period); the returned
+        :class:`~.modbus_batch.Sent` gives, per item, None (taken) or the :class:`PlantError` that
+        refused it. The stow gate holds for the batch as for one command."""
         if self._batch is None:
             self._batch = TrackBatch(self)
-        return self._batch.track_each(items)
+        return self._batch.send(items)
+
+    def track_each(self, items) -> list[PlantError | None]:
+        """:meth:`send_tracks`, waited for."""
+        return self.send_tracks(items).results()
 
     def stow(self, index: int) -> int:
         """Send one heliostat to stow; returns the token."""

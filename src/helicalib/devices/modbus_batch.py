@@ -14,7 +14,7 @@ ALL waits for those in flight and none asked after it is sent.
 from __future__ import annotations
 
 import queue
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 from helicalib.devices.modbus_link import ModbusLink
 from helicalib.errors import PlantError
@@ -22,6 +22,20 @@ from helicalib.errors import PlantError
 BATCH_LINKS = 4
 """Connections (and commands in flight) of a batch. Modbus TCP servers take several clients at
 once (many a gateway at least 4); the plant's own SCS connection stays free for the visits."""
+
+
+class Sent:
+    """A batch of track commands on its way: :meth:`done` once every command has been answered or
+    refused; :meth:`results` per item, in order, None (taken) or the refusal (waits for them)."""
+
+    def __init__(self, futures: list[Future]):
+        self._futures = futures
+
+    def done(self) -> bool:
+        return all(f.done() for f in self._futures)
+
+    def results(self) -> list[PlantError | None]:
+        return [f.result() for f in self._futures]
 
 
 class TrackBatch:
@@ -47,10 +61,9 @@ class TrackBatch:
             self._free.put(link)
         return None
 
-    def track_each(self, items) -> list[PlantError | None]:
-        """Per item ``(index, corrections_mm)``, in order: None (taken) or the refusal."""
-        futures = [self._pool.submit(self._one, int(i), c) for i, c in items]
-        return [f.result() for f in futures]
+    def send(self, items) -> Sent:
+        """The track commands of ``items`` ``[(index, corrections_mm), ...]`` on their way (the caller goes on)."""
+        return Sent([self._pool.submit(self._one, int(i), c) for i, c in items])
 
     def hurry(self) -> None:
         for link in self.links:

@@ -214,9 +214,11 @@ class ParallelTracking(Protocol):
     """A plant client that sends the track commands of many heliostats several at a time (the Modbus
     client, over connections of its own): each the same command as :meth:`Plant.track`."""
 
-    def track_each(self, items) -> list:
-        """Track commands for distinct heliostats ``items`` ``[(index, corrections_mm), ...]``; per
-        item, in order, None (taken) or the :class:`~helicalib.errors.PlantError` that refused it."""
+    def send_tracks(self, items):
+        """Track commands for distinct heliostats ``items`` ``[(index, corrections_mm), ...]`` sent
+        while the caller goes on; the answer's ``done()`` says whether all were answered, its
+        ``results()`` (waiting for them) per item, in order, None (taken) or the
+        :class:`~helicalib.errors.PlantError` that refused it."""
         ...
 
 
