@@ -21,6 +21,7 @@ STORED = frozenset({"stow", "resume", "gated", "ungated", "fault", "note", "trac
 
 KINDS = {
     "campaign": "the campaign starts, resumes or stops",
+    "opening": "how far a resumed campaign's reading back has come (every 5 s while it takes longer)",
     "stow": "the field is stowed for wind",
     "resume": "the field tracks again after a stow",
     "gated": "calibration paused (wind, DNI): the reason says which",

@@ -394,6 +394,23 @@ class Store:
                    f" ORDER BY id DESC LIMIT {max(0, int(newest))}) ORDER BY id")
         return [Visit(**{k: r[k] for k in r.keys()}) for r in self._read(sql, params, table="visits")]
 
+    def visits_of(self, campaign_id: int, heliostat_ids: Sequence[str]) -> dict[str, list[Visit]]:
+        """The visits of each of ``heliostat_ids`` in a campaign (recording order), by heliostat id,
+        in one query (heliostats without a visit are left out); as :meth:`visits` for each of them."""
+        return self._rows_of("visits", campaign_id, heliostat_ids, lambda r: Visit(**{k: r[k] for k in r.keys()}))
+
+    def _rows_of(self, table: str, campaign_id: int, heliostat_ids: Sequence[str], make) -> dict[str, list]:
+        """``make(row)`` of each row of ``table`` of a campaign and of ``heliostat_ids``, in recording
+        order, by heliostat id (one query)."""
+        ids = list(heliostat_ids)
+        out: dict[str, list] = {}
+        if ids:
+            rows = self._read(f"SELECT * FROM {table} WHERE campaign_id = ? AND heliostat_id IN ({_marks(ids)}) "
+                              "ORDER BY id", (int(campaign_id), *ids), table=table)
+            for r in rows:
+                out.setdefault(r["heliostat_id"], []).append(make(r))
+        return out
+
     def count_visits(self, campaign_id: int) -> int:
         """How many visits a campaign has (any outcome, running ones too)."""
         return int(self._read("SELECT COUNT(*) FROM visits WHERE campaign_id = ?", (int(campaign_id),))[0][0])
@@ -457,6 +474,11 @@ class Store:
                                valid=None if valid is None else int(bool(valid)))
         return [observation_from_row(r, self.path)
                 for r in self._read(f"SELECT * FROM observations{where} ORDER BY id", params, table="observations")]
+
+    def observations_of(self, campaign_id: int, heliostat_ids: Sequence[str]) -> dict[str, list[Observation]]:
+        """The observations of each of ``heliostat_ids`` in a campaign (recording order), by heliostat
+        id, in one query (heliostats without one are left out); as :meth:`observations` for each."""
+        return self._rows_of("observations", campaign_id, heliostat_ids, lambda r: observation_from_row(r, self.path))
 
     def observations_frame(self, campaign_id: int | None = None, heliostat_id: str | None = None,
                            valid: bool | None = None):
@@ -525,6 +547,18 @@ class Store:
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
         rows = self._read(f"SELECT * FROM fits{where} ORDER BY id DESC LIMIT 1", params, table="fits")
         return _fit(self.path, rows[0]) if rows else None
+
+    def latest_fits(self, heliostat_ids: Sequence[str], campaign_id: int | None = None) -> dict[str, Fit]:
+        """The newest fit of each of ``heliostat_ids`` (in a campaign, or in any when ``campaign_id`` is
+        None), by heliostat id, in one query; as :meth:`latest_fit` for each (none: left out)."""
+        ids = list(heliostat_ids)
+        if not ids:
+            return {}
+        where = "" if campaign_id is None else "campaign_id = ? AND "
+        params = (() if campaign_id is None else (int(campaign_id),)) + tuple(ids)
+        rows = self._read(f"SELECT * FROM fits WHERE id IN (SELECT MAX(id) FROM fits WHERE {where}heliostat_id IN "
+                          f"({_marks(ids)}) GROUP BY heliostat_id)", params, table="fits")
+        return {r["heliostat_id"]: _fit(self.path, r) for r in rows}
 
     def fits(self, campaign_id: int | None = None, heliostat_id: str | None = None) -> list[Fit]:
         where, params = _where(campaign_id=campaign_id, heliostat_id=heliostat_id)
@@ -775,6 +809,11 @@ def _lock_holder(path: Path) -> str | None:
 
 def _opt(value: float | None) -> float | None:
     return None if value is None else float(value)
+
+
+def _marks(values: Sequence[Any]) -> str:
+    """``?, ?, ...``: one parameter mark for each of ``values`` (an ``IN (...)`` list)."""
+    return ", ".join("?" * len(values))
 
 
 def _where(**filters: Any) -> tuple[str, tuple]:
