@@ -10,11 +10,11 @@ protocols:
   range is refused before it is sent (a second guard behind the controller's own check);
 * **the stow gate**: once the client sent STOW ALL, every move and track command is refused
   (:class:`~helicalib.devices.protocols.FieldStowedError`) until it sends RESUME TRACKING.
-  :attr:`lock` serialises a heliostat command's writes against a field command, so a stow sent
-  from another thread never lands inside a command and no waiting command is sent after it; the
-  commands of a batch sent several at once (each on its own connection) hold it together
-  (:meth:`GateLock.shared`), and a field command still waits for them and goes before any command
-  that asks after it.
+  :attr:`lock` serialises heliostat commands' writes against a field command, so a stow sent
+  from another thread never lands inside a command and no waiting command is sent after it;
+  heliostat commands in flight at once (each on its own connection) hold it together
+  (:meth:`GateLock.shared`), and a field command waits for them and goes before any command that
+  asks after it.
 """
 
 from __future__ import annotations
@@ -35,10 +35,10 @@ GATED = frozenset({HeliostatCommand.MOVE, HeliostatCommand.TRACK})
 
 
 class GateLock:
-    """The stow gate's lock: ``with lock:`` alone (a field command, or one heliostat command), or
-    :meth:`shared` by the commands of a batch in flight together. Those waiting to hold it alone go
-    in the order they asked, and before any :meth:`shared` asked after them (a stow is never
-    overtaken by commands asked after it)."""
+    """The stow gate's lock: ``with lock:`` alone (a field command), or :meth:`shared` by heliostat
+    commands in flight together (each on its own connection). Those waiting to hold it alone go in
+    the order they asked, and before any :meth:`shared` asked after them (a stow is never overtaken
+    by commands asked after it)."""
 
     def __init__(self):
         self._cond = threading.Condition(threading.Lock())
@@ -48,7 +48,7 @@ class GateLock:
 
     @contextmanager
     def shared(self) -> Iterator[None]:
-        """Held with the other commands of a batch, never with one holding it alone."""
+        """Held with other heliostat commands, never with one holding it alone."""
         with self._cond:
             while self._alone or self._queue:
                 self._cond.wait()
@@ -95,7 +95,7 @@ class CommandGuard:
         self.heliostat_ids = list(heliostat_ids) if heliostat_ids is not None else None
         self.stroke_limits_mm = None if stroke_limits_mm is None else np.asarray(stroke_limits_mm, dtype=float)
         self.lock = GateLock()
-        """Held for one heliostat command's writes, or one field command (shared by a batch's commands)."""
+        """Held alone by a field command, shared by heliostat commands in flight together."""
         self._stowed = False
 
     @classmethod

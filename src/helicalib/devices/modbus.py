@@ -27,7 +27,9 @@ already waiting is sent after it.
 from __future__ import annotations
 
 import math
+import threading
 import time
+from contextlib import nullcontext
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -46,6 +48,7 @@ __all__ = ["ModbusLink", "ModbusPlant", "quiet_pymodbus"]
 """``ModbusLink`` and ``quiet_pymodbus`` live in :mod:`helicalib.devices.modbus_link`; named here too
 for the callers that know the plant client's module."""
 
+_NOTHING = nullcontext()
 HANDSHAKE = "heliostats.command.handshake."
 STATUS_PATHS = ("heliostats.status.state", "heliostats.status.fault", "heliostats.status.strokes_mm[0]",
                 "heliostats.status.strokes_mm[1]", "heliostats.status.cleanliness")
@@ -96,6 +99,7 @@ class ModbusPlant:
         self._count: int | None = None
         self._last_sent: dict[int, int] = {}
         self._batch: TrackBatch | None = None
+        self._one_at_a_time = threading.Lock()  # the SCS connection's heliostat commands, one after another
         self._link_kw = dict(kw, timeout_s=endpoint.timeout_s)
         q = self.map.q
         self._hs = self.map.doc.heliostats.command.handshake
@@ -346,8 +350,10 @@ class ModbusPlant:
 
     def _command(self, index: int, command: HeliostatCommand, fields: list[tuple[Q, list[int]]],
                  link: ModbusLink | None = None) -> int:
-        """One heliostat command by the map's handshake, on ``link`` (default the SCS connection; another:
-        a batch's command, in flight with the batch's others under the stow gate's shared lock)."""
+        """One heliostat command by the map's handshake, on ``link`` (default the SCS connection, one
+        command at a time there; another: a batch's). Commands hold the stow gate's lock together (never
+        two to one heliostat at once: the campaign waits for a batch before commanding one of its
+        heliostats); a field command holds it alone."""
         what = f"{command.name} command to {self._label(index)}"
         self.guard.refuse_unarmed(what)
         mq = self.map.q["heliostats.command.mode"]
@@ -356,7 +362,8 @@ class ModbusPlant:
             raise PlantError(f"plant {self.scs.name}: the register map {self.map.name} has no mode value for "
                              f"{command.name.lower()} ({mq.path}.values)")
         label = self._label(index)
-        with self.guard.lock if link is None else self.guard.lock.shared():
+        # one command at a time on the SCS connection; beside a batch's (other heliostats: Tracking.land)
+        with self.guard.lock.shared(), (self._one_at_a_time if link is None else _NOTHING):
             self.guard.gate(command, what)
             regs = self._block(index, self._command_q, link)
             done = int(decode_raw(self.map.q[HANDSHAKE + "done"], regs[HANDSHAKE + "done"]))
