@@ -1,6 +1,7 @@
 """A live run's cleanliness reads spread over ticks (campaign/field.py): a choice reads only the
 candidates never read; those read before are re-read a few per tick, the oldest first, once half
-their maximum age; without the spread (simulations) a choice reads what is due, as it always did.
+their maximum age, on a thread of the field's while the ticks go on; without the spread
+(simulations) a choice reads what is due, as it always did.
 
 The in-process simulated plant, its bulk cleanliness read logged.
 """
@@ -44,15 +45,21 @@ def test_a_live_choice_reads_only_what_was_never_read_and_the_ticks_refresh_the_
     again = field.cleanliness_of_rows(rows[:40], later)            # the 10 new ones only; the 30 served as read
     assert plant.reads[1] == [int(runner.state.plant_index[r]) for r in rows[30:40]]
     assert np.array_equal(again[:30], first)
-    field.state.clean_rows[1][:30] = now + np.arange(30)[::-1]     # read at different times: row 29 the oldest
-    field.refresh_cleanliness(later)
+    values, read_at = field.state.clean_rows
+    read_at[:30] = now + np.arange(30)[::-1]                       # read at different times: row 29 the oldest
+    values[:30] = -1.0
+    field.refresh_cleanliness(later)                               # asked on the field's reader thread
+    field._clean_pending[1].result()
     oldest = rows[:30][::-1][:CLEANLINESS_SPREAD_ROWS]
     assert sorted(plant.reads[2]) == sorted(int(runner.state.plant_index[r]) for r in oldest)
-    assert np.all(field.state.clean_rows[1][oldest] == later)
-    field.refresh_cleanliness(later + 1.0)                          # the next tick: the rest of the stale ones
+    assert np.all(read_at[oldest] == later) and np.all(values[oldest] == -1.0)   # in on the next tick
+    field.refresh_cleanliness(later + 1.0)                          # the next tick: taken in, the rest asked
+    assert np.array_equal(values[oldest], sim.cleanliness_many(runner.state.plant_index[oldest]))
+    field._clean_pending[1].result()
     assert len(plant.reads[3]) == 30 - CLEANLINESS_SPREAD_ROWS
-    field.refresh_cleanliness(later + 2.0)                          # none stale: nothing read
-    assert len(plant.reads) == 4
+    field.refresh_cleanliness(later + 2.0)                          # taken in; none stale: nothing asked
+    assert field._clean_pending is None and len(plant.reads) == 4 and np.all(values[:30] >= 0.0)
+    field.close()
 
 
 def test_without_the_spread_a_choice_reads_every_due_candidate(demo_field_path, tmp_path):

@@ -275,6 +275,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
             show()
         finally:
             stop_frames()
+            runner.field.close()
             if output is not None:
                 _quietly(output.stop)
             for sig, handler in previous.items():

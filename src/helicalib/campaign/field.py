@@ -10,6 +10,7 @@ heliostats in one read.
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -43,6 +44,8 @@ class Field:
         self.state, self.devices, self.journal = state, devices, journal
         self.spread_cleanliness = False
         """A live run: the gaps planner's cleanliness reads spread over ticks (:meth:`refresh_cleanliness`)."""
+        self._clean_reader: ThreadPoolExecutor | None = None
+        self._clean_pending: tuple[np.ndarray, Future] | None = None
 
     def sun(self, t_s: float):
         return self.state.sun_table.position(t_s)
@@ -179,11 +182,37 @@ class Field:
     def refresh_cleanliness(self, now: float) -> None:
         """A live tick's share of the cleanliness reads: up to :data:`CLEANLINESS_SPREAD_ROWS` of the
         heliostats read before, the oldest first, once their read is half :data:`CLEANLINESS_MAX_AGE_S`
-        old, so that a choice never waits for a board's candidates (1250 at 10⁴: 2.3 s real a choice)."""
-        _values, read_at = self.state.clean_rows
+        old, so that a choice never waits for a board's candidates (1250 at 10⁴: 2.3 s real a choice).
+        A plant with bulk reads is read on a thread of the field's while the tick goes on: the values
+        are taken on the first tick that finds them in (stamped with the plant time they were asked)."""
+        values, read_at = self.state.clean_rows
+        if self._clean_pending is not None:
+            rows, fut = self._clean_pending
+            if not fut.done():
+                return
+            self._clean_pending = None
+            try:
+                values[rows] = fut.result()
+            except PlantError:
+                values[rows] = np.nan
         stale = np.flatnonzero(np.isfinite(read_at) & (now - read_at >= CLEANLINESS_MAX_AGE_S / 2))
-        if stale.size:
-            self._read_cleanliness(stale[np.argsort(read_at[stale], kind="stable")[:CLEANLINESS_SPREAD_ROWS]], now)
+        if not stale.size:
+            return
+        rows = stale[np.argsort(read_at[stale], kind="stable")[:CLEANLINESS_SPREAD_ROWS]]
+        if not self.devices.abilities.bulk_cleanliness:
+            self._read_cleanliness(rows, now)
+            return
+        if self._clean_reader is None:
+            self._clean_reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="helicalib-cleanliness")
+        read_at[rows] = now
+        self._clean_pending = (rows, self._clean_reader.submit(self.devices.plant.cleanliness_many,
+                                                               self.state.plant_index[rows]))
+
+    def close(self) -> None:
+        """The cleanliness reader's thread ends (a live run's end); a read on its way is dropped."""
+        if self._clean_reader is not None:
+            self._clean_reader.shutdown(wait=False, cancel_futures=True)
+            self._clean_reader, self._clean_pending = None, None
 
     def _read_cleanliness(self, due: np.ndarray, now: float) -> None:
         """Read the cleanliness of the heliostats at rows ``due`` into the campaign's table (NaN: none)."""
