@@ -1,7 +1,7 @@
 """A campaign's state rebuilt from its store after a restart (also after kill -9).
 
-Valid points, visit counts, fits and verdicts come from the store (a heliostat without a fit in
-this campaign starts from its newest fit of any earlier one); visits a killed process left open
+Valid points, visit counts, cool-downs, fits and verdicts come from the store (a heliostat without
+a fit in this campaign starts from its newest fit of any earlier one); visits a killed process left open
 are closed as 'interrupted' and their heliostats sent back to tracking; a field the campaign
 stowed for wind stays stowed until the wind allows a resume.
 """
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import time
+from types import SimpleNamespace
 
 from helicalib.campaign import book as books
 from helicalib.campaign import verdict as verdicts
@@ -78,6 +79,10 @@ def _resume_one(runner, hid: str, observations: list, visits: list, fit, epochs:
     b.visits = len(visits)
     if visits:
         b.last_visit_s = max(v.started_s for v in visits)
+    for v in visits:  # the cool-down and the back-off's run as the visits left them (Book.visited)
+        if v.outcome != "running":
+            ended = SimpleNamespace(status=v.outcome, valid_points=v.iterations)
+            b.cooldown_until_s = (v.started_s if v.ended_s is None else v.ended_s) + books.cooldown_s(b, ended)
     if fit is not None:
         st.models[hid] = verdicts.model_from_fit(st.models[hid], fit)
     if st.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)
