@@ -11,8 +11,10 @@ refresh rewrites that many heliostats' corrections every 15 plant minutes.
 Measured here (the controller's plant client and cameras are wrapped to time-stamp each call):
 
 * **reading → next command**: for each move or track command of a heliostat in a visit, the real
-  time since the last frame its board's camera delivered, × rate = plant seconds the plant waited
-  on the controller; p50/p95/p99, and p99 against the median visit's plant time (goal ≤ 5 %);
+  time since the last frame its board's camera delivered for that visit, × rate = plant seconds the
+  plant waited on the controller; p50/p95/p99, and p99 against the median visit's plant time (goal
+  ≤ 5 %). A visit's first command follows the board's previous visit's frames, and the previous
+  heliostat's move off the board lies between: that time is reported apart (``turnover_plant_s``);
 * **tracking refresh lag**: per calibrated heliostat and refresh, plant seconds from when its
   refresh was due to when its track command went out; max and p99 against the 15-minute period;
 * **controller RSS**: this process's peak (``VmHWM``; goal < 2 GB), the plant's for reference;
@@ -133,6 +135,8 @@ class Meter:
         self.rss_peak_mb = 0.0
         self.profile = None
         self.gap_log: list[tuple[float, str, str, float]] = []  # (real time, heliostat, command, gap real s)
+        self.visit_seen: dict[int, float] = {}           # visit id → real time of its first command
+        self.turnover_s: list[float] = []                # real seconds, a board's last frame → the next visit's first command
 
     def install(self):
         """Wrap the classes the run builds (undone by the returned function)."""
@@ -198,10 +202,14 @@ class Meter:
                 self.refresh_lags_s.append(runner.devices.clock.estimate_s() - self.refresh_due_s)
             return
         cam = next((c.url for c in runner.cfg.cameras if c.target == visit.target_id), None)
+        first = self.visit_seen.setdefault(visit.ctx.visit_id, t)   # the visit's first command: before its frames
         with self.lock:
             last = self.last_frame.get(cam)
         if last is not None and self.seen_frame.get(hid) != last and last <= t:
             self.seen_frame[hid] = last
+            if last < first:  # the board's last frame is an earlier visit's: the board changed hands
+                self.turnover_s.append(t - last)
+                return
             self.gaps_s.append(t - last)
             self.gap_log.append((t, hid, what, t - last))
 
@@ -333,6 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     plant_t0 = opened.time_s if opened is not None else start_s
     plant_end = r.journal.safe_now()[0] if r is not None else float("nan")
     gaps_plant = np.asarray(meter.gaps_s) * a.rate
+    turnover = np.asarray(meter.turnover_s) * a.rate
     visit_plant = float(np.median(durations)) if durations else None
     p99 = pct(gaps_plant, 99)
     lags = np.asarray(meter.refresh_lags_s)
@@ -345,6 +354,7 @@ def main(argv: list[str] | None = None) -> int:
         "reading_to_command_plant_s": {"p50": pct(gaps_plant, 50), "p95": pct(gaps_plant, 95), "p99": p99,
                                        "max": None if not len(gaps_plant) else round(float(gaps_plant.max()), 3)},
         "reading_to_command_p99_over_visit": None if (p99 is None or not visit_plant) else round(p99 / visit_plant, 4),
+        "turnover_plant_s": {"n": len(turnover), "p50": pct(turnover, 50), "p99": pct(turnover, 99)},
         "refreshes": meter.refreshes, "refresh_writes": int(len(lags)),
         "refresh_lag_plant_s": {"p99": pct(lags, 99), "max": None if not len(lags) else round(float(lags.max()), 1),
                                 "period": 900.0},

@@ -33,6 +33,7 @@ def test_a_parallel_refresh_writes_every_heliostat_s_corrections_once(cfg, tmp_p
     st = runner.state
     st.book.points = lambda hid: [hid]  # every heliostat calibrated: the refresh writes each one's corrections
     assert runner.devices.abilities.parallel_tracking and not runner.devices.abilities.bulk_tracking
+    runner.tracking.batches = True      # as run_live sets it
     acted, links, lock = Counter(), set(), threading.Lock()
     flight = {"now": 0, "peak": 0}
     write = ModbusLink.write

@@ -190,6 +190,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     rate = _rate(runner.devices.clock)
     stop_frames = frames_off_thread(runner.devices.sensors)  # a board's frames never hold the other boards' visits
     runner.field.spread_cleanliness = True  # nor does a choice's reading of its candidates' cleanliness
+    runner.tracking.batches = runner.devices.abilities.parallel_tracking  # nor the tracking refresh
     scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
     common = dict(replace_existing=True, coalesce=True, max_instances=1, misfire_grace_time=None)
     scheduler.add_job(_weather_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, WEATHER_POLL_S / rate),

@@ -10,8 +10,8 @@ for the whole field every :data:`~helicalib.campaign.verdict.TRACKING_REFRESH_S`
 on a plant that declares :class:`~helicalib.devices.protocols.BulkTracking`, else a round of track
 commands sent a slice of :data:`REFRESH_SLICE_S` plant seconds per tick after the visits are
 stepped, so a field of 10⁴ heliostats never holds a visit back for the whole round; a plant client
-that declares :class:`~helicalib.devices.protocols.ParallelTracking` (Modbus) takes the round in
-batches sent while the tick goes on, several commands in flight at once (the tick waits for a batch
+that declares :class:`~helicalib.devices.protocols.ParallelTracking` (Modbus) takes the round, in a
+live run, in batches sent while the tick goes on, several commands in flight at once (the tick waits for a batch
 only before a command of its own to one of its heliostats: :meth:`Tracking.land`).
 """
 
@@ -52,6 +52,9 @@ class Tracking:
 
     def __init__(self, state: CampaignState, devices: CampaignDevices, journal: Journal):
         self.state, self.devices, self.journal = state, devices, journal
+        self.batches = False
+        """A live run on a plant that declares ``ParallelTracking``: rounds go out in batches while the
+        ticks go on (:meth:`_write_batches`); else a slice per tick, as a virtual clock needs."""
 
     def sun(self, t_s: float):
         return self.state.sun_table.position(t_s)
@@ -219,7 +222,7 @@ class Tracking:
         r = st.refresh_round
         if r is None:
             return
-        if self.devices.abilities.parallel_tracking:
+        if self.batches:
             self._write_batches(r)
             return
         # a slice ends at the next visit's wake-up if that comes first (its moves are polled on time);
