@@ -5,8 +5,7 @@ would hold the tick for each frame (a fraction of a real second over HTTP; at a 
 several plant seconds), and every other board's visit would wait for it. With a
 :class:`FrameWorker` the camera's grab (and the image's decoding) runs on the camera's own thread,
 while the visit's generator yields :data:`FRAME_POLL_S` waits until the frame is there, so the
-tick goes on with the other boards; the vision of a reading's frames runs there too
-(:meth:`FrameWorker.compute`). One thread per camera keeps a camera's grabs in the order they
+tick goes on with the other boards. One thread per camera keeps a camera's grabs in the order they
 were asked and never two at once. The frame keeps the capture time the camera gave it.
 
 A grab that fails raises its error where the visit waits for it (as a grab on the tick's thread
@@ -18,14 +17,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Generator
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import TypeVar
 
 import numpy as np
 
 from helicalib.devices.protocols import Frame
 from helicalib.vision.frames import decode_frame
-
-T = TypeVar("T")
 
 FRAME_POLL_S = 0.25
 """Plant seconds a visit waits between looks at a frame still on its way (less than a live tick's
@@ -46,11 +42,10 @@ class FrameWorker:
     def fetch(self, grab: Callable[[], Frame]) -> Generator[float, None, tuple[Frame, np.ndarray | None]]:
         """``(frame, image)`` of ``grab()``, yielding :data:`FRAME_POLL_S` plant seconds until it is there;
         the grab's error is raised here."""
-        return (yield from _waited(self.submit(grab)))
-
-    def compute(self, fn: Callable[[], T]) -> Generator[float, None, T]:
-        """``fn()`` (the vision of a reading's frames) on the camera's thread, waited for as :meth:`fetch`."""
-        return (yield from _waited(self._pool.submit(fn)))
+        fut = self.submit(grab)
+        while not fut.done():
+            yield FRAME_POLL_S
+        return fut.result()
 
     def now(self, grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:
         """``(frame, image)`` of ``grab()``, waited for (a step that cannot yield: still in the camera's order)."""
@@ -59,12 +54,6 @@ class FrameWorker:
     def close(self) -> None:
         """No more grabs; one on its way ends on its own (its visit was stopped)."""
         self._pool.shutdown(wait=False, cancel_futures=True)
-
-
-def _waited(fut: Future) -> Generator[float, None, object]:
-    while not fut.done():
-        yield FRAME_POLL_S
-    return fut.result()
 
 
 def _fetch(grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:

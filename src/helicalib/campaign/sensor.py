@@ -274,23 +274,16 @@ class CameraSensor:
         data = tuple(f.data for f in frames) + tuple(refused)
         if reason is not None:
             return Reading(False, reason, message, capture_s, frames=data)
-        return (yield from self._judge_waiting(ctx, before, images, data, capture_s))
+        return self._judge(ctx, before, images, data, capture_s)
 
     def _judge(self, ctx, before: Before, images: list, data: tuple, capture_s: float) -> Reading:
         """The spot of the after ``images`` against ``before`` (``data``: the frames to store)."""
-        return run_now(self._judge_waiting(ctx, before, images, data, capture_s, block=True))
-
-    def _judge_waiting(self, ctx, before: Before, images: list, data: tuple, capture_s: float, block: bool = False):
-        """:meth:`_judge`; with a frame worker (a live run) the vision runs on the camera's thread while
-        this generator yields, so the loop steps the other boards meanwhile."""
         image, marks = before.state
         # the jitter limit as an angle: a far heliostat's beam wanders as many metres for less mrad
         distance_m = float(np.linalg.norm(np.asarray(ctx.target.center_enu_m, dtype=float) - ctx.model.pivots_enu[0]))
         limits = SpotLimits(max_jitter_m=1e-3 * ctx.settings.max_jitter_mrad * distance_m)
-        method, config = ctx.settings.spot_method, self.camera_config
-        spot_of = lambda: measure_spot(image, images, ctx.target, config, method=method,  # noqa: E731
-                                       marks=marks, limits=limits)
-        spot = spot_of() if self.frames is None or block else (yield from self.frames.compute(spot_of))
+        spot = measure_spot(image, images, ctx.target, self.camera_config, method=ctx.settings.spot_method,
+                            marks=marks, limits=limits)
         if spot.reason in MARKS_DOUBT:
             self._forget_marks()
         images = AfterImages(images)
