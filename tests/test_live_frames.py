@@ -17,7 +17,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from helicalib.campaign.frames import FRAME_POLL_S, FrameWorker, frames_off_thread, run_now
+from helicalib.campaign.frames import FRAME_POLL_S, FrameWait, FrameWorker, frames_off_thread, run_now
+from helicalib.campaign.state import RunningVisit
 from helicalib.campaign.sensor import CameraSensor
 from helicalib.devices.camera_http import HttpCamera
 from helicalib.vision.frames import encode_png
@@ -124,6 +125,7 @@ def test_a_frame_on_the_camera_s_thread_keeps_its_capture_time_and_the_visit_wai
     assert ended > taken
     assert np.array_equal(image, cam.image)                # decoded on the camera's thread
     assert waits["a"] and set(waits["a"]) == {FRAME_POLL_S}  # the visit yielded while the frame was on its way
+    assert all(isinstance(w, FrameWait) for w in waits["a"])
 
 
 def test_two_boards_grabs_overlap_in_the_cameras_logs(cameras):
@@ -185,3 +187,32 @@ def test_without_a_worker_a_reading_waits_as_it_always_did(cameras):
         gen.send(None)
     frame, image = run_now(sensor._grab_waiting(ctx_of("H3")))
     assert frame.capture_time_s == ok.log[-1][2] and np.array_equal(image, ok.image)
+
+
+def test_a_live_tick_steps_again_the_visits_whose_frame_is_on_its_way(demo_field_path, tmp_path):
+    """A frame that came in while the tick stepped the other boards is used in that tick."""
+    from campaign_helpers import inprocess_campaign
+    from helicalib.config import load_field_config
+
+    cfg = load_field_config(demo_field_path)
+    runner = inprocess_campaign(cfg, tmp_path, 10, 2, [cfg.heliostats[0].id])[0]
+    steps = []
+
+    def visit(name, frame_waits):
+        for _ in range(frame_waits):
+            steps.append(name)
+            yield FrameWait(FRAME_POLL_S)   # its frame still on its way
+        steps.append(name)
+        yield 1.0                           # its frame in: on to its next move
+
+    now = runner.devices.clock.now_s()
+    runner.state.active = {"A": RunningVisit("A", "T1", visit("A", 1), None, now, frame=True),
+                           "B": RunningVisit("B", "T2", visit("B", 5), None, now, frame=True),
+                           "C": RunningVisit("C", "T3", visit("C", 0), None, now, frame=False)}
+    runner._frames_in(now)                  # simulations: frame_passes 0, nothing stepped again
+    assert steps == []
+    runner.frame_passes = 3
+    runner._frames_in(now)
+    assert steps == ["A", "B", "A", "B", "B"]   # A's frame came in at its second look; C waits on its move
+    assert not runner.state.active["A"].frame and runner.state.active["B"].frame
+    runner.state.active = {}

@@ -40,6 +40,8 @@ from helicalib.errors import HelicalibError
 
 TICK_PLANT_S = 2.0
 """Plant seconds between ticks (the visit loop's status-poll granularity)."""
+FRAME_PASSES = 3
+"""Times a live tick steps again the visits whose frames are on their way (:meth:`CampaignRunner.tick`)."""
 MIN_REAL_INTERVAL_S = 0.05
 WEATHER_WAIT_S = 0.5
 """Real seconds the weather job waits for a tick in progress before it reads the weather and stows
@@ -191,6 +193,7 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     stop_frames = frames_off_thread(runner.devices.sensors)  # a board's frames never hold the other boards' visits
     runner.field.spread_cleanliness = True  # nor does a choice's reading of its candidates' cleanliness
     runner.tracking.batches = runner.devices.abilities.parallel_tracking  # nor the tracking refresh
+    runner.frame_passes = FRAME_PASSES  # a frame that came in during the tick is used in that tick
     scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
     common = dict(replace_existing=True, coalesce=True, max_instances=1, misfire_grace_time=None)
     scheduler.add_job(_weather_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, WEATHER_POLL_S / rate),

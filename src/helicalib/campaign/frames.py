@@ -28,6 +28,12 @@ FRAME_POLL_S = 0.25
 :data:`~helicalib.app.live.TICK_PLANT_S`: the visit is looked at again on the next tick)."""
 
 
+class FrameWait(float):
+    """A visit's wait for a frame on its way (:data:`FRAME_POLL_S`): a live tick steps such a visit
+    again before it ends (:meth:`~.loop.CampaignRunner.tick`), so a frame that came in meanwhile is
+    used at once."""
+
+
 class FrameWorker:
     """One camera's grabs on a thread of their own (module docstring)."""
 
@@ -44,7 +50,7 @@ class FrameWorker:
         the grab's error is raised here."""
         fut = self.submit(grab)
         while not fut.done():
-            yield FRAME_POLL_S
+            yield FrameWait(FRAME_POLL_S)
         return fut.result()
 
     def now(self, grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:

@@ -28,6 +28,7 @@ from helicalib.campaign import choice as choices
 from helicalib.campaign import verdict as verdicts
 from helicalib.campaign.events import BoardState, RunEvent, Snapshot
 from helicalib.campaign.field import WEATHER_POLL_S, Field
+from helicalib.campaign.frames import FrameWait
 from helicalib.campaign.host import Host
 from helicalib.campaign.journal import Journal
 from helicalib.campaign.moves import leave_board
@@ -104,6 +105,9 @@ class CampaignRunner:
         """Operation's checks and drift detection (:mod:`.operation.checks`)."""
         self.host = Host(st, self.devices, self.journal, self.tracking, self.ops)
         """The visits' host: their writes and fits (:mod:`.host`)."""
+        self.frame_passes = 0
+        """A live run (:func:`~helicalib.app.live.run_live`): how many times a tick steps again the
+        visits waiting for a frame on its way (0: simulations, each visit once a tick)."""
         resume_from_store(self)
 
     # ------------------------------------------------------------------ time, sun, events
@@ -159,6 +163,8 @@ class CampaignRunner:
         for _wake, hid in due:
             if hid in st.active:
                 self._step(hid, now)
+        if self.frame_passes:  # a live tick: the visits whose frames came in meanwhile go on now
+            self._frames_in(now)
         if st.refresh_round is not None and st.faults.plant_unreachable_since_s is None:
             self.tracking.write_round()  # a slice, after the visits: they never wait for a whole round
         if field.spread_cleanliness and st.faults.plant_unreachable_since_s is None:
@@ -187,6 +193,19 @@ class CampaignRunner:
         nxt = min(wakes)
         field.account(now, nxt, gate)
         return max(nxt, now + 1e-3)
+
+    def _frames_in(self, now: float) -> None:
+        """Step again, up to :attr:`frame_passes` times, the visits waiting for a frame on its way
+        (:class:`~.frames.FrameWait`): one whose frame came in while the tick stepped the others goes
+        on in this tick, not the next (a step of one still waiting costs nothing)."""
+        for _ in range(self.frame_passes):
+            waiting = [hid for hid, v in self.state.active.items() if v.frame]
+            if not waiting:
+                return
+            t = max(now, self.devices.clock.estimate_s())
+            for hid in waiting:
+                if hid in self.state.active:
+                    self._step(hid, t)
 
     def _steady(self) -> bool:
         """Operation with nothing but checks to plan: every heliostat accepted, none suspected of drift,
@@ -320,6 +339,7 @@ class CampaignRunner:
             self._finish(hid, VisitOutcome(status="fault", reason=f"error_{type(err).__name__}: {err}"), now)
             return
         v.wake_s = now + float(wait)
+        v.frame = isinstance(wait, FrameWait)
 
     def _finish(self, hid: str, out: VisitOutcome, now: float) -> None:
         st, store = self.state, self.devices.store

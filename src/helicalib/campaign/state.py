@@ -127,6 +127,8 @@ class RunningVisit:
     gen: object
     ctx: VisitContext
     wake_s: float
+    frame: bool = False
+    """Whether it waits for a frame on its way (:class:`~.frames.FrameWait`)."""
 
 
 @dataclass
