@@ -1,6 +1,7 @@
 """A live run's cleanliness reads spread over ticks (campaign/field.py): a choice reads only the
 candidates never read; those read before are re-read a few per tick, the oldest first, once half
-their maximum age, on a thread of the field's while the ticks go on; without the spread
+their maximum age (those never read first), on a thread of the field's while the ticks go on;
+without the spread
 (simulations) a choice reads what is due, as it always did.
 
 The in-process simulated plant, its bulk cleanliness read logged.
@@ -59,6 +60,11 @@ def test_a_live_choice_reads_only_what_was_never_read_and_the_ticks_refresh_the_
     assert len(plant.reads[3]) == 30 - CLEANLINESS_SPREAD_ROWS
     field.refresh_cleanliness(later + 2.0)                          # taken in; none stale: nothing asked
     assert field._clean_pending is None and len(plant.reads) == 4 and np.all(values[:30] >= 0.0)
+    read_at[5:8] = -np.inf                                         # never read: asked first, before any stale one
+    read_at[20:30] = later - CLEANLINESS_MAX_AGE_S
+    field.refresh_cleanliness(later + 3.0)
+    field._clean_pending[1].result()
+    assert plant.reads[4] == [int(runner.state.plant_index[r]) for r in (5, 6, 7)]
     field.close()
 
 

@@ -32,6 +32,9 @@ CLEANLINESS_MAX_AGE_S = 1800.0
 """The gaps planner re-reads a heliostat's cleanliness register when its last read is this old
 [plant s]. Soiling changes over days; a washed mirror counts as clean within half an hour. Re-read
 every minute, a 10⁴-heliostat field would cost 10⁴ register reads a minute."""
+CLEANLINESS_WARM_ROWS = 128
+"""Heliostats never read whose cleanliness a live tick asks at once on the field's reader thread (a
+10⁴ field's first reads in about 80 ticks, while a choice would read a board's borrowed candidates)."""
 CLEANLINESS_SPREAD_ROWS = 16
 """Heliostats whose cleanliness a live tick re-reads at most (:meth:`Field.refresh_cleanliness`): about
 4 requests; 10⁴ heliostats every 30 plant minutes at a tick every 2 plant seconds need 11."""
@@ -183,8 +186,9 @@ class Field:
         """A live tick's share of the cleanliness reads: up to :data:`CLEANLINESS_SPREAD_ROWS` of the
         heliostats read before, the oldest first, once their read is half :data:`CLEANLINESS_MAX_AGE_S`
         old, so that a choice never waits for a board's candidates (1250 at 10⁴: 2.3 s real a choice).
-        A plant with bulk reads is read on a thread of the field's while the tick goes on: the values
-        are taken on the first tick that finds them in (stamped with the plant time they were asked)."""
+        A plant with bulk reads is read on a thread of the field's while the tick goes on (the values
+        taken on the first tick that finds them in, stamped with the plant time they were asked), and
+        first the heliostats never read, :data:`CLEANLINESS_WARM_ROWS` at a time."""
         values, read_at = self.state.clean_rows
         if self._clean_pending is not None:
             rows, fut = self._clean_pending
@@ -195,11 +199,16 @@ class Field:
                 values[rows] = fut.result()
             except PlantError:
                 values[rows] = np.nan
+        bulk = self.devices.abilities.bulk_cleanliness
+        never = np.flatnonzero(~np.isfinite(read_at)) if bulk else read_at[:0].astype(np.int64)
         stale = np.flatnonzero(np.isfinite(read_at) & (now - read_at >= CLEANLINESS_MAX_AGE_S / 2))
-        if not stale.size:
+        if never.size:  # the field's first reads, in the background: a choice then reads few itself
+            rows = never[:CLEANLINESS_WARM_ROWS]
+        elif stale.size:
+            rows = stale[np.argsort(read_at[stale], kind="stable")[:CLEANLINESS_SPREAD_ROWS]]
+        else:
             return
-        rows = stale[np.argsort(read_at[stale], kind="stable")[:CLEANLINESS_SPREAD_ROWS]]
-        if not self.devices.abilities.bulk_cleanliness:
+        if not bulk:
             self._read_cleanliness(rows, now)
             return
         if self._clean_reader is None:
