@@ -231,6 +231,8 @@ class CampaignRunner:
         st, cfg = self.state, self.cfg
         cands = st.home[target_id]
         busy = list(st.active)
+        if st.refresh_round is not None and st.refresh_round.flight:  # its track command on its way: not now
+            busy += [hid for hid, _c in st.refresh_round.flight]
         spreads = None
         if st.refine:
             spreads = choices.model_spreads(cfg, st.book, st.models, st.nominal_rows,

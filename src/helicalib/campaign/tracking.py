@@ -41,7 +41,7 @@ from helicalib.geometry.heliostat import HeliostatModel
 
 REFRESH_SLICE_S = 2.0
 """Plant seconds a tick spends at most on a refresh round's track commands (one status poll's time)."""
-REFRESH_BATCH = 48
+REFRESH_BATCH = 96
 """Track commands handed at once to a plant that sends several at a time (``send_tracks``): they go
 out while the tick steps the visits, and the next batch follows on the first tick that finds them
 all answered."""
