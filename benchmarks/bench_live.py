@@ -342,6 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     plant_end = r.journal.safe_now()[0] if r is not None else float("nan")
     gaps_plant = np.asarray(meter.gaps_s) * a.rate
     turnover = np.asarray(meter.turnover_s) * a.rate
+    both = np.concatenate([gaps_plant, turnover])      # a visit's first command included: one figure, as first measured
     visit_plant = float(np.median(durations)) if durations else None
     p99 = pct(gaps_plant, 99)
     lags = np.asarray(meter.refresh_lags_s)
@@ -355,6 +356,7 @@ def main(argv: list[str] | None = None) -> int:
                                        "max": None if not len(gaps_plant) else round(float(gaps_plant.max()), 3)},
         "reading_to_command_p99_over_visit": None if (p99 is None or not visit_plant) else round(p99 / visit_plant, 4),
         "turnover_plant_s": {"n": len(turnover), "p50": pct(turnover, 50), "p99": pct(turnover, 99)},
+        "with_turnover_plant_s": {"p50": pct(both, 50), "p95": pct(both, 95), "p99": pct(both, 99)},
         "refreshes": meter.refreshes, "refresh_writes": int(len(lags)),
         "refresh_lag_plant_s": {"p99": pct(lags, 99), "max": None if not len(lags) else round(float(lags.max()), 1),
                                 "period": 900.0},
