@@ -56,10 +56,12 @@ EXPOSED = "frames retaken at"
 """Words in the message of a reading taken again at another exposure."""
 
 
-def take_before(ctx: VisitContext) -> Before:
+def take_before(ctx: VisitContext) -> Generator[float, None, Before]:
     """The visit's "before" reference from its spot sensor (the beam at standby); its frame is
-    saved once, and every observation of the visit points to it."""
-    before = ctx.sensor.before(ctx)
+    saved once, and every observation of the visit points to it. A sensor that waits for its frame
+    off the loop's thread (``before_waiting``: a live run's camera) yields meanwhile."""
+    waiting = getattr(ctx.sensor, "before_waiting", None)
+    before = (yield from waiting(ctx)) if waiting is not None else ctx.sensor.before(ctx)
     if before.data is not None:
         ctx.before_path = ctx.host.save_frame(ctx, before.data, 0, before.capture_time_s, "before")
     return before

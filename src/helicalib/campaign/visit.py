@@ -90,7 +90,7 @@ def run_visit(ctx: VisitContext) -> Generator[float, None, VisitOutcome]:
     try:
         yield from to_standby(ctx)
         yield from take_turn(ctx)  # every other beam is off the board until this one is back at standby
-        before = take_before(ctx)
+        before = yield from take_before(ctx)
         p = first_placement(ctx)
         while True:
             read = yield from approach_and_hold(ctx, p.strokes_mm, p.aim_enu)
