@@ -16,6 +16,7 @@ import time
 from collections import Counter
 
 import numpy as np
+import pytest
 
 from test_live_faults import _network_runner, cfg, served  # noqa: F401 - fixtures
 from helicalib.devices.modbus_link import ModbusLink
@@ -79,3 +80,30 @@ def test_a_parallel_refresh_writes_every_heliostat_s_corrections_once(cfg, tmp_p
     store.close()
     assert len(faults) == 1 and "1 heliostat(s)" in faults[0].reason and REFUSED in faults[0].reason
     assert "device failure" in faults[0].reason
+
+
+def test_an_endpoint_that_takes_one_client_gets_the_refresh_one_command_at_a_time(cfg, served):
+    """The batch's own connections cannot connect (nothing listens where they go) while the SCS
+    connection answers: the commands go on the SCS connection, each heliostat's corrections taken."""
+    from conftest import free_port
+
+    from helicalib.devices.modbus_batch import TrackBatch
+
+    plant, _cams, _clock, sim, _server = served
+    plant.guard.armed = True
+    plant.weather()   # the SCS connection answers (the weather station is on it)
+    assert plant.scs.answered
+    batch = TrackBatch(plant, links=2)
+    nowhere = free_port()
+    for link in batch.links:
+        link.port, link.retries, link.backoff_s = nowhere, 0, 0.0
+    plant._batch = batch
+    items = [(i, np.array([0.1 * (i + 1), -0.05 * (i + 1)])) for i in range(6)]
+    try:
+        assert plant.send_tracks(items).results() == [None] * 6
+    finally:
+        plant.guard.armed = False
+    assert batch.direct is not None and "took no connection beside the SCS one" in batch.direct
+    assert not any(link.answered for link in batch.links)
+    for i, c in items:
+        assert sim.corrections_mm[i] == pytest.approx(c, abs=1e-3)

@@ -8,7 +8,9 @@ connection at a time (pymodbus's synchronous client serves one request at a time
 used by one thread at a time). The rules of a single command hold for each: ``armed``, the
 corrections checked (:class:`~.guard.CommandGuard`), the handshake, the execute write sent once; the
 commands of a batch hold the stow gate's lock together (:meth:`~.guard.GateLock.shared`), so a STOW
-ALL waits for those in flight and none asked after it is sent.
+ALL waits for those in flight and none asked after it is sent. An endpoint that takes no client
+beside the SCS connection (a link that never connects while that one answers) gets the commands one
+at a time on the SCS connection (:attr:`TrackBatch.direct`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import queue
 from concurrent.futures import Future, ThreadPoolExecutor
 
 from helicalib.devices.modbus_link import ModbusLink
+from helicalib.devices.protocols import PlantUnreachableError
 from helicalib.errors import PlantError
 
 BATCH_LINKS = 4
@@ -50,15 +53,31 @@ class TrackBatch:
         for link in self.links:
             self._free.put(link)
         self._pool = ThreadPoolExecutor(max_workers=len(self.links), thread_name_prefix="helicalib-track")
+        self.direct: str | None = None
+        """Why the commands go one at a time on the SCS connection (None: on the batch's links). Set
+        when a batch link cannot connect while the SCS connection answers: a plant or gateway that
+        takes one client only keeps its refresh, as before batches, one command at a time."""
 
     def _one(self, index: int, corrections_mm) -> PlantError | None:
-        link = self._free.get()
+        if self.direct is None:
+            link = self._free.get()
+            try:
+                self.plant.track(index, corrections_mm, link=link)
+                return None
+            except PlantUnreachableError as err:
+                if link.answered or not self.plant.scs.answered:
+                    return err
+                # nothing was sent on a link that never connected, while the SCS connection answers:
+                # the endpoint takes no more clients, so this command and all after it go on that one
+                self.direct = f"{err} (the endpoint took no connection beside the SCS one)"
+            except PlantError as err:
+                return err
+            finally:
+                self._free.put(link)
         try:
-            self.plant.track(index, corrections_mm, link=link)
+            self.plant.track(index, corrections_mm)
         except PlantError as err:
             return err
-        finally:
-            self._free.put(link)
         return None
 
     def send(self, items) -> Sent:

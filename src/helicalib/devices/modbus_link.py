@@ -73,6 +73,8 @@ class ModbusLink:
         self._client: ModbusTcpClient | None = None
         self.reconnects = 0
         """How many times the connection was reopened after a failure."""
+        self.answered = False
+        """Whether the plant has answered a request on this link (it has connected once)."""
 
     @property
     def name(self) -> str:
@@ -132,6 +134,7 @@ class ModbusLink:
                 name = EXCEPTION_NAMES.get(code, "unknown")
                 raise PlantError(f"plant {self.name}: {what} refused: Modbus exception {code} ({name})")
             self._down_until = -math.inf
+            self.answered = True
             return rr
         if retry:
             self._down_until = self._monotonic() + self.down_s
