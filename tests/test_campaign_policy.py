@@ -267,3 +267,25 @@ def test_cooldown_doubles_after_invalid_visits_in_a_row_and_resets_on_a_valid_po
     assert b.failed_in_row == 0
     assert books.cooldown_s(b, invalid) == 1800.0
     assert books.cooldown_s(b, VisitOutcome(status="refused", reason="range")) == 1800.0
+
+
+def test_resume_restores_the_cool_down_the_visits_left():
+    """Three invalid visits in a row, then one cut by a stow and one the kill left running (neither
+    judged by the loop): the back-off stands at 3 and the wait at 2 h from the third one's end; a
+    visit that faulted after a valid point resets it, as Book.visited did."""
+    from types import SimpleNamespace as V
+
+    from helicalib.campaign import book as books
+    from helicalib.campaign.resume import restore_cooldown
+
+    def visit(i, outcome, end):
+        return V(id=i, outcome=outcome, started_s=end - 100.0, ended_s=end, iterations=0)
+
+    b = books.HeliostatBook()
+    visits = [visit(1, "invalid", 1000.0), visit(2, "invalid", 5000.0), visit(3, "invalid", 9000.0),
+              visit(4, "aborted", 9500.0), visit(5, "running", 9900.0)]
+    restore_cooldown(b, visits, [V(visit_id=4, valid=True)])
+    assert b.failed_in_row == 3 and b.cooldown_until_s == 9000.0 + 7200.0
+    b = books.HeliostatBook()
+    restore_cooldown(b, [*visits[:3], visit(6, "fault", 12000.0)], [V(visit_id=6, valid=True)])
+    assert b.failed_in_row == 0 and b.cooldown_until_s == 12000.0 + books.COOLDOWN_VALID_S

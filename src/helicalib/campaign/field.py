@@ -218,9 +218,10 @@ class Field:
                                                                self.state.plant_index[rows]))
 
     def close(self) -> None:
-        """The cleanliness reader's thread ends (a live run's end); a read on its way is dropped."""
+        """The cleanliness reader's thread ends (a live run's end): a read not begun is dropped, one on
+        its way is waited for (the plant's connections are closed next)."""
         if self._clean_reader is not None:
-            self._clean_reader.shutdown(wait=False, cancel_futures=True)
+            self._clean_reader.shutdown(wait=True, cancel_futures=True)
             self._clean_reader, self._clean_pending = None, None
 
     def _read_cleanliness(self, due: np.ndarray, now: float) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import Counter
 from types import SimpleNamespace
 
 from helicalib.campaign import book as books
@@ -21,6 +22,8 @@ from helicalib.store.records import off_tracking
 READ_CHUNK = 500
 """Heliostats whose observations, visits and fits are read back in one query each: a 10⁴ field
 in 20 reads of each table instead of 10⁴, and never the whole campaign in memory at once."""
+NOT_FINISHED = frozenset({"running", "aborted", "interrupted"})
+"""Visit outcomes the loop never judged (cut by a stow, a stop or a killed process): no cool-down."""
 PROGRESS_EVERY_S = 5.0
 """Wall seconds between the ``opening`` events that say how far the reading back has come."""
 
@@ -63,6 +66,16 @@ def resume_from_store(runner) -> None:
                 runner.tracking.send_back(hid, None, now, why="left off tracking by the previous run")
 
 
+def restore_cooldown(b, visits: list, observations: list) -> None:
+    """Set the book ``b``'s cool-down and back-off run as :meth:`~.book.Book.visited` left them at
+    the end of each of its ``visits`` the loop judged (its valid points from ``observations``)."""
+    valid = Counter(o.visit_id for o in observations if o.valid)
+    for v in visits:
+        if v.outcome not in NOT_FINISHED:
+            ended = SimpleNamespace(status=v.outcome, valid_points=valid[v.id])
+            b.cooldown_until_s = (v.started_s if v.ended_s is None else v.ended_s) + books.cooldown_s(b, ended)
+
+
 def _resume_one(runner, hid: str, observations: list, visits: list, fit, epochs: dict, stored: dict,
                 now: float) -> None:
     """One heliostat's book, model, fit and verdict from its stored ``observations``, ``visits`` and
@@ -79,10 +92,7 @@ def _resume_one(runner, hid: str, observations: list, visits: list, fit, epochs:
     b.visits = len(visits)
     if visits:
         b.last_visit_s = max(v.started_s for v in visits)
-    for v in visits:  # the cool-down and the back-off's run as the visits left them (Book.visited)
-        if v.outcome != "running":
-            ended = SimpleNamespace(status=v.outcome, valid_points=v.iterations)
-            b.cooldown_until_s = (v.started_s if v.ended_s is None else v.ended_s) + books.cooldown_s(b, ended)
+    restore_cooldown(b, visits, observations)
     if fit is not None:
         st.models[hid] = verdicts.model_from_fit(st.models[hid], fit)
     if st.book.points(hid):  # the fit's covariance (planner) and linearisation (verdict)

@@ -55,6 +55,7 @@ class Tracking:
         self.batches = False
         """A live run on a plant that declares ``ParallelTracking``: rounds go out in batches while the
         ticks go on (:meth:`_write_batches`); else a slice per tick, as a virtual clock needs."""
+        self._said_direct = False
 
     def sun(self, t_s: float):
         return self.state.sun_table.position(t_s)
@@ -272,14 +273,22 @@ class Tracking:
     def _landed(self, r: RefreshRound) -> None:
         """The answers of ``r``'s batch (waited for): corrections kept, refusals noted, a stow ends the round."""
         st = self.state
-        for (hid, c), err in zip(r.flight, r.sent.results()):
+        try:
+            answers = r.sent.results()
+        except Exception as err:  # noqa: BLE001 - never on a tick or a stop: the batch's commands count as failed
+            answers = [PlantError(f"track command: {type(err).__name__}: {err}")] * len(r.flight)
+        for (hid, c), err in zip(r.flight, answers):
             if err is None:
                 st.corrections[hid] = c
             elif isinstance(err, FieldStowedError):
                 r.queue.clear()
             else:
                 r.failed.append((hid, err))
+        why = r.sent.direct
         r.flight, r.sent = [], None
+        if why and not self._said_direct:  # said once: the refresh goes slower from now on
+            self._said_direct = True
+            self.journal.event("note", f"the tracking refresh goes one command at a time on the SCS connection: {why}")
 
     def land(self, hids=None) -> None:
         """Wait for the refresh's batch on its way, if any (with ``hids``: only if it commands one of

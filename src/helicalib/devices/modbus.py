@@ -362,8 +362,10 @@ class ModbusPlant:
             raise PlantError(f"plant {self.scs.name}: the register map {self.map.name} has no mode value for "
                              f"{command.name.lower()} ({mq.path}.values)")
         label = self._label(index)
-        # one command at a time on the SCS connection; beside a batch's (other heliostats: Tracking.land)
-        with self.guard.lock.shared(), (self._one_at_a_time if link is None else _NOTHING):
+        # one command at a time on the SCS connection, its turn taken before the gate's shared lock (a
+        # command waiting for its turn must not hold a stow up); beside a batch's (other heliostats:
+        # Tracking.land). A field command never takes the turn: no deadlock.
+        with (self._one_at_a_time if link is None else _NOTHING), self.guard.lock.shared():
             self.guard.gate(command, what)
             regs = self._block(index, self._command_q, link)
             done = int(decode_raw(self.map.q[HANDSHAKE + "done"], regs[HANDSHAKE + "done"]))

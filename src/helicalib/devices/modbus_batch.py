@@ -29,10 +29,17 @@ once (many a gateway at least 4); the plant's own SCS connection stays free for 
 
 class Sent:
     """A batch of track commands on its way: :meth:`done` once every command has been answered or
-    refused; :meth:`results` per item, in order, None (taken) or the refusal (waits for them)."""
+    refused; :meth:`results` per item, in order, None (taken) or the refusal (waits for them);
+    :attr:`direct` why the batch's commands went one at a time on the SCS connection (None: they
+    did not)."""
 
-    def __init__(self, futures: list[Future]):
+    def __init__(self, futures: list[Future], batch: TrackBatch | None = None):
         self._futures = futures
+        self._batch = batch
+
+    @property
+    def direct(self) -> str | None:
+        return None if self._batch is None else self._batch.direct
 
     def done(self) -> bool:
         return all(f.done() for f in self._futures)
@@ -65,24 +72,37 @@ class TrackBatch:
                 self.plant.track(index, corrections_mm, link=link)
                 return None
             except PlantUnreachableError as err:
-                if link.answered or not self.plant.scs.answered:
+                if link.answered or not self._scs_answers(index):
                     return err
                 # nothing was sent on a link that never connected, while the SCS connection answers:
                 # the endpoint takes no more clients, so this command and all after it go on that one
                 self.direct = f"{err} (the endpoint took no connection beside the SCS one)"
             except PlantError as err:
                 return err
+            except Exception as err:  # noqa: BLE001 - a worker's error is the command's answer, never lost
+                return PlantError(f"track command to {self.plant._label(index)}: {type(err).__name__}: {err}")
             finally:
                 self._free.put(link)
         try:
             self.plant.track(index, corrections_mm)
         except PlantError as err:
             return err
+        except Exception as err:  # noqa: BLE001
+            return PlantError(f"track command to {self.plant._label(index)}: {type(err).__name__}: {err}")
         return None
+
+    def _scs_answers(self, index: int) -> bool:
+        """Whether the SCS connection answers now (the heliostat's status read on it): a plant that is
+        down is not an endpoint that takes one client."""
+        try:
+            self.plant.status(index)
+        except Exception:  # noqa: BLE001 - any failure: not known to answer
+            return False
+        return True
 
     def send(self, items) -> Sent:
         """The track commands of ``items`` ``[(index, corrections_mm), ...]`` on their way (the caller goes on)."""
-        return Sent([self._pool.submit(self._one, int(i), c) for i, c in items])
+        return Sent([self._pool.submit(self._one, int(i), c) for i, c in items], self)
 
     def hurry(self) -> None:
         for link in self.links:

@@ -218,7 +218,8 @@ class ParallelTracking(Protocol):
         """Track commands for distinct heliostats ``items`` ``[(index, corrections_mm), ...]`` sent
         while the caller goes on; the answer's ``done()`` says whether all were answered, its
         ``results()`` (waiting for them) per item, in order, None (taken) or the
-        :class:`~helicalib.errors.PlantError` that refused it."""
+        :class:`~helicalib.errors.PlantError` that refused it, and its ``direct`` why they went one
+        at a time on the plant's own connection (None: they did not)."""
         ...
 
 
