@@ -17,7 +17,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from helicalib.campaign.frames import FRAME_POLL_S, FrameWait, FrameWorker, frames_off_thread, run_now
+from helicalib.campaign.frames import FRAME_POLL_S, FrameWait, FrameWorker, run_now
+from helicalib.campaign.sensor import frames_off_thread
 from helicalib.campaign.state import RunningVisit
 from helicalib.campaign.sensor import CameraSensor
 from helicalib.devices.camera_http import HttpCamera

@@ -31,8 +31,8 @@ import traceback
 from dataclasses import dataclass, field
 
 from helicalib.campaign.field import WEATHER_POLL_S
-from helicalib.campaign.frames import frames_off_thread
 from helicalib.campaign.loop import CampaignRunner
+from helicalib.campaign.sensor import frames_off_thread
 from helicalib.devices.clock import ClockJumpError
 from helicalib.devices.modbus_link import quiet_pymodbus
 from helicalib.devices.protocols import Clock, PlantUnreachableError

@@ -71,23 +71,6 @@ def _fetch(grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:
     return frame, image
 
 
-def frames_off_thread(sensors: dict) -> Callable[[], None]:
-    """Give every camera sensor among ``sensors`` (target id → spot sensor) a :class:`FrameWorker`;
-    returns the function that takes them back and closes them (a live run's end)."""
-    from helicalib.campaign.sensor import CameraSensor
-
-    given = {tid: s for tid, s in sensors.items() if isinstance(s, CameraSensor)}
-    for tid, sensor in given.items():
-        sensor.frames = FrameWorker(tid)
-
-    def stop() -> None:
-        for sensor in given.values():
-            worker, sensor.frames = sensor.frames, None
-            if worker is not None:
-                worker.close()
-    return stop
-
-
 def run_now(steps: Generator):
     """The value of a generator of waits that does not wait (a grab on the caller's thread)."""
     try:

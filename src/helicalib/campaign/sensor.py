@@ -31,7 +31,7 @@ from __future__ import annotations
 import inspect
 import math
 from collections import deque
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 
 import numpy as np
 
@@ -369,3 +369,18 @@ def _takes_exposure(camera) -> bool:
 
 def _f(x) -> float | None:
     return None if x is None else float(x)
+
+
+def frames_off_thread(sensors: dict) -> Callable[[], None]:
+    """Give every camera sensor among ``sensors`` (target id → spot sensor) a :class:`FrameWorker`;
+    returns the function that takes them back and closes them (a live run's end)."""
+    given = {tid: s for tid, s in sensors.items() if isinstance(s, CameraSensor)}
+    for tid, sensor in given.items():
+        sensor.frames = FrameWorker(tid)
+
+    def stop() -> None:
+        for sensor in given.values():
+            worker, sensor.frames = sensor.frames, None
+            if worker is not None:
+                worker.close()
+    return stop
