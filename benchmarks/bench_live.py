@@ -49,17 +49,15 @@ ONE_UNIT_REACH = 2016
 
 
 def make_field(n: int, work: Path) -> Path:
-    """``sim-field`` field of ``n`` heliostats on 8 boards in ``work`` (made once), in the units map
-    beyond one unit id's reach."""
+    """``sim-field`` field of ``n`` heliostats on 8 boards in ``work`` (made once); beyond one unit
+    id's reach ``sim-field`` writes the units map into it."""
     path = work / f"field{n}.yaml"
     if not path.exists():
         work.mkdir(parents=True, exist_ok=True)
         subprocess.run([sys.executable, "-m", "helicalib", "sim-field", "--n", str(n), "--targets", "8", "--site", SITE,
                         "--out", str(path)], check=True, stdout=subprocess.DEVNULL)
-        if n > ONE_UNIT_REACH:
-            text = path.read_text(encoding="utf-8")
-            path.write_text(text.replace("  clock: plant\n", "  clock: plant\n  register_map: plant-interface-1-units\n"),
-                            encoding="utf-8")
+    if n > ONE_UNIT_REACH and "register_map: plant-interface-1-units" not in path.read_text(encoding="utf-8"):
+        raise SystemExit(f"{path}: a field of {n} heliostats without the units map (plant.register_map)")
     return path
 
 
