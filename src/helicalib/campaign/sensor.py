@@ -92,7 +92,7 @@ class CameraSensor:
         self._marks_frames = 0  # before frames the marks were last sought on
         self._recent: deque = deque(maxlen=MARKS_MEAN_FRAMES)  # the last before images
         self.frames: FrameWorker | None = None
-        """The camera's frame worker in a live run (:func:`~.frames.frames_off_thread`); None: grabs on
+        """The camera's frame worker in a live run (:func:`frames_off_thread`); None: grabs on
         the visit's thread (simulations on a virtual clock)."""
 
     # ------------------------------------------------------------------ frames

@@ -65,8 +65,13 @@ class GateLock:
         ticket = object()
         with self._cond:
             self._queue.append(ticket)
-            while self._alone or self._sharing or self._queue[0] is not ticket:
-                self._cond.wait()
+            try:
+                while self._alone or self._sharing or self._queue[0] is not ticket:
+                    self._cond.wait()
+            except BaseException:  # interrupted while waiting (KeyboardInterrupt): its ticket leaves the queue
+                self._queue.remove(ticket)
+                self._cond.notify_all()
+                raise
             self._queue.popleft()
             self._alone = True
         return self
