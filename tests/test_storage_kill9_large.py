@@ -29,7 +29,7 @@ N = 10_000
 FRAME_SHAPE = (12, 16)
 
 WRITER = textwrap.dedent("""
-    import dataclasses, sys, numpy as np
+    import dataclasses, sys, time, numpy as np
     sys.path.insert(0, sys.argv[2])
     from test_store_sqlite import _obs
     from helicalib.store import Store
@@ -40,6 +40,11 @@ WRITER = textwrap.dedent("""
     s.close_interrupted_visits(camp.id, 2e9)
     s.remove_orphan_frames(camp.id)
     start = int(sys.argv[3])
+
+    def deleting(done, total):
+        print("deleting", done, total, flush=True)
+        time.sleep(3600)  # the test's SIGKILL lands here, inside the pass (else the writer may go on to its next visit)
+
     frame = np.zeros((12, 16), np.uint8)
     for k in range(start, start + 10**6):
         hid = f"H{k % 10000:05d}"
@@ -56,7 +61,7 @@ WRITER = textwrap.dedent("""
         s.end_visit(vid, ended_s=1.9e9 + k + 50, outcome="converged", iterations=2)
         if k % 40 == 39:  # the nightly retention, in the writer's process, as operate runs it
             print("prune", flush=True)
-            retention.retain_frames(s, 1, progress=lambda done, total: print("deleting", done, total, flush=True))
+            retention.retain_frames(s, 1, progress=deleting)
             print("pruned", flush=True)
 """)
 

@@ -158,6 +158,11 @@ class HttpCamera:
                 return self._once(end, parts, asked=parts is not None)
             except CameraError as err:
                 out_of_time = self._monotonic() >= end
+                if err.transient and out_of_time and attempt < self.retries:
+                    # attempts were left but the time was not (an attempt's timeout ends at the
+                    # deadline, the watchdog's or the socket's firing first): the deadline ended it
+                    raise CameraError("camera_deadline", f"{err}; no further attempt within the fetch's "
+                                                         f"deadline of {self.deadline_s:g} s") from None
                 if not err.transient or attempt == self.retries or out_of_time:
                     if err.transient and attempt:
                         raise CameraError(err.reason, f"{err} (after {attempt + 1} attempts)") from None
