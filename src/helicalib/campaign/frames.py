@@ -8,9 +8,16 @@ while the visit's generator yields :data:`FRAME_POLL_S` waits until the frame is
 tick goes on with the other boards. One thread per camera keeps a camera's grabs in the order they
 were asked and never two at once. The frame keeps the capture time the camera gave it.
 
+A reading's last frame takes its vision along (``fetch(grab, then)``): the spot is measured on the
+camera's thread straight after the frame is decoded, and the visit waits for both, so neither the
+vision (tens of real milliseconds a reading) nor a look of the tick between frame and vision holds
+the other boards. ``then`` is pure (images in, a result out); what the result changes in the sensor
+and the reading made of it stay on the tick's thread.
+
 A grab that fails raises its error where the visit waits for it (as a grab on the tick's thread
-would: an invalid reading with its reason, or the visit's fault). Simulations on a virtual clock
-never get a worker: their grabs stay on the loop's thread, frame for frame as before.
+would: an invalid reading with its reason, or the visit's fault); so does an error of ``then``.
+Simulations on a virtual clock never get a worker: their grabs and vision stay on the loop's
+thread, frame for frame as before.
 """
 
 from __future__ import annotations
@@ -45,13 +52,19 @@ class FrameWorker:
         decoded there (None when it cannot be: the caller decodes it again for the error)."""
         return self._pool.submit(_fetch, grab)
 
-    def fetch(self, grab: Callable[[], Frame]) -> Generator[float, None, tuple[Frame, np.ndarray | None]]:
-        """``(frame, image)`` of ``grab()``, yielding :data:`FRAME_POLL_S` plant seconds until it is there;
-        the grab's error is raised here."""
+    def fetch(self, grab: Callable[[], Frame], then: Callable[[np.ndarray], object] | None = None
+              ) -> Generator[float, None, tuple[Frame, np.ndarray | None, Future | None]]:
+        """``(frame, image, done)`` of ``grab()``, yielding :data:`FRAME_POLL_S` plant seconds until it is
+        there; the grab's error is raised here. ``then``: run on the image on this camera's thread
+        straight after it (not when the image cannot be decoded: its result is then None), waited for
+        too; ``done`` is its finished future (None without ``then``), whose ``result()`` raises its error."""
         fut = self.submit(grab)
-        while not fut.done():
+        done = None if then is None else self._pool.submit(_then, fut, then)
+        last = fut if done is None else done
+        while not last.done():
             yield FrameWait(FRAME_POLL_S)
-        return fut.result()
+        frame, image = fut.result()
+        return frame, image, done
 
     def now(self, grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:
         """``(frame, image)`` of ``grab()``, waited for (a step that cannot yield: still in the camera's order)."""
@@ -69,6 +82,15 @@ def _fetch(grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:
     except Exception:  # noqa: BLE001 - decoded again on the visit's side, where its error belongs
         image = None
     return frame, image
+
+
+def _then(fetched: Future, then: Callable[[np.ndarray], object]):
+    """``then(image)`` once ``fetched`` (a job before this one on the same thread) is done; None when
+    its grab failed or its image could not be decoded (that error is the visit's, from ``fetched``)."""
+    if fetched.exception() is not None:
+        return None
+    _frame, image = fetched.result()
+    return None if image is None else then(image)
 
 
 def run_now(steps: Generator):

@@ -107,15 +107,23 @@ class CameraSensor:
         time around the grab. With a frame worker (:attr:`frames`, a live run) the grab runs on the
         camera's thread and this generator yields short waits until the frame is there (``block``:
         waited for, in the camera's order); without one, on this thread and without a wait."""
+        frame, image, _done = yield from self._grab_then(ctx, exposure_ms, block)
+        return frame, image
+
+    def _grab_then(self, ctx, exposure_ms: float | None = None, block: bool = False, then=None):
+        """:meth:`_grab_waiting`, and ``then(image)`` run on the camera's thread straight after the frame
+        (a live run, not ``block``); returns ``(frame, image, done)``, ``done`` the finished future of
+        ``then`` (None: not run there, the caller runs it)."""
         t0 = ctx.now()
         ask = exposure_ms is not None and self.exposure_control
         grab = (lambda: self.camera.grab(exposure_ms=exposure_ms)) if ask else self.camera.grab
+        done = None
         if self.frames is None:
             frame, image = grab(), None
         elif block:
             frame, image = self.frames.now(grab)
         else:
-            frame, image = yield from self.frames.fetch(grab)
+            frame, image, done = yield from self.frames.fetch(grab, then)
         t1 = ctx.now()
         self._saw_exposure(frame.exposure_ms)
         slack = ctx.settings.max_capture_skew_s + (ctx.time_slack_s() if ctx.time_slack_s is not None else 0.0)
@@ -124,7 +132,7 @@ class CameraSensor:
             off = f"{t - t1:+.6g} s from" if math.isfinite(t - t1) else "nowhere near"
             raise CaptureTimeError(f"{ctx.heliostat_id}: the camera's capture time {t:.6g} lies {off} the plant "
                                    f"time of the grab (tolerance {slack:.1f} s): is the camera's clock set?", frame)
-        return frame, image if image is not None else decode_frame(frame.data, expected_shape=None)
+        return frame, image if image is not None else decode_frame(frame.data, expected_shape=None), done
 
     def _saw_exposure(self, exposure_ms: float | None) -> None:
         """What a frame says of the camera's exposure control (the first: Fe's reference exposure and
@@ -254,12 +262,15 @@ class CameraSensor:
 
     def after(self, ctx, before: Before) -> Generator[float, None, Reading]:
         """The after frames, a plant second apart (each fetched off the loop's thread in a live run:
-        :attr:`frames`; there the reading is judged as soon as its last frame is in, not a second later)."""
-        frames, images, reason, message, refused = [], [], None, "", []
+        :attr:`frames`; there the spot is measured on the camera's thread straight after the last
+        frame, and the reading judged on the loop's thread as soon as both are in)."""
+        frames, images, reason, message, refused, done = [], [], None, "", [], None
         n = ctx.settings.after_frames
         for k in range(n):
+            last = self.frames is not None and k == n - 1 and before.state is not None
+            vision = self._vision(ctx, before, list(images)) if last else None
             try:
-                f, img = yield from self._grab_waiting(ctx, getattr(before.state, "exposure_ms", None))
+                f, img, done = yield from self._grab_then(ctx, getattr(before.state, "exposure_ms", None), then=vision)
                 frames.append(f)
                 images.append(img)
             except MeasurementError as err:
@@ -274,16 +285,25 @@ class CameraSensor:
         data = tuple(f.data for f in frames) + tuple(refused)
         if reason is not None:
             return Reading(False, reason, message, capture_s, frames=data)
-        return self._judge(ctx, before, images, data, capture_s)
+        return self._judge(ctx, before, images, data, capture_s, None if done is None else done.result())
 
-    def _judge(self, ctx, before: Before, images: list, data: tuple, capture_s: float) -> Reading:
-        """The spot of the after ``images`` against ``before`` (``data``: the frames to store)."""
+    def _vision(self, ctx, before: Before, earlier: list) -> Callable[[np.ndarray], object]:
+        """The spot of ``earlier`` after images and one more against ``before``, as a pure function of
+        that last image (it runs on the camera's thread in a live run: :meth:`after`)."""
         image, marks = before.state
         # the jitter limit as an angle: a far heliostat's beam wanders as many metres for less mrad
         distance_m = float(np.linalg.norm(np.asarray(ctx.target.center_enu_m, dtype=float) - ctx.model.pivots_enu[0]))
         limits = SpotLimits(max_jitter_m=1e-3 * ctx.settings.max_jitter_mrad * distance_m)
-        spot = measure_spot(image, images, ctx.target, self.camera_config, method=ctx.settings.spot_method,
-                            marks=marks, limits=limits)
+        target, camera, method = ctx.target, self.camera_config, ctx.settings.spot_method
+        return lambda last: measure_spot(image, [*earlier, last], target, camera, method=method, marks=marks,
+                                         limits=limits)
+
+    def _judge(self, ctx, before: Before, images: list, data: tuple, capture_s: float, spot=None) -> Reading:
+        """The reading of the after ``images`` against ``before`` (``data``: the frames to store);
+        ``spot``: their spot measured already (on the camera's thread), else measured here. What the
+        spot changes (the marks' doubt, the exposure's gain) changes here, on the loop's thread."""
+        if spot is None:
+            spot = self._vision(ctx, before, images[:-1])(images[-1])
         if spot.reason in MARKS_DOUBT:
             self._forget_marks()
         images = AfterImages(images)
