@@ -79,3 +79,22 @@ def test_without_the_spread_a_choice_reads_every_due_candidate(demo_field_path, 
     field.cleanliness_of_rows(rows[:30], now + CLEANLINESS_MAX_AGE_S - 1.0)   # fresh: nothing read
     field.cleanliness_of_rows(rows[:30], now + CLEANLINESS_MAX_AGE_S)         # due: all 30 again
     assert [len(r) for r in plant.reads] == [30, 30]
+
+
+def test_a_first_read_that_came_in_counts_for_the_next_choice_at_once(demo_field_path, tmp_path):
+    """A heliostat whose first read was asked in the background and came in while the tick went on
+    is seen by a choice with its value, not skipped until the next tick takes the read in."""
+    cfg = load_field_config(demo_field_path)
+    ids = [h.id for h in cfg.heliostats]
+    runner, sim, _store, _cid, _cams = inprocess_campaign(cfg, tmp_path, 10, 2, ids, plant=Logged)
+    plant, field = runner.devices.plant, runner.field
+    field.spread_cleanliness = True
+    now = runner.devices.clock.now_s()
+    field.refresh_cleanliness(now)                                  # the field's first reads, in the background
+    asked = np.asarray(sorted(field._clean_pending[0]))
+    field._clean_pending[1].result()                                # in, not yet taken by a tick
+    seen = field.cleanliness_of_rows(asked, now + 1.0)
+    assert len(plant.reads) == 1                                    # no second read of them
+    assert np.array_equal(seen, sim.cleanliness_many(runner.state.plant_index[asked]))
+    assert np.all(np.isfinite(seen)) and field._clean_pending is None
+    field.close()

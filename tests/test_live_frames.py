@@ -217,3 +217,32 @@ def test_a_live_tick_steps_again_the_visits_whose_frame_is_on_its_way(demo_field
     assert steps == ["A", "B", "A", "B", "B"]   # A's frame came in at its second look; C waits on its move
     assert not runner.state.active["A"].frame and runner.state.active["B"].frame
     runner.state.active = {}
+
+
+def test_the_frame_workers_are_closed_when_the_live_jobs_cannot_start(demo_field_path, tmp_path, monkeypatch):
+    """``run_live`` gives its cameras' frame workers back (and the signal handlers) when anything
+    between their start and the run's loop fails (here the scheduler's start)."""
+    import signal
+
+    from apscheduler.schedulers.background import BackgroundScheduler
+
+    from campaign_helpers import inprocess_campaign
+    from helicalib.app import live
+    from helicalib.config import load_field_config
+
+    cfg = load_field_config(demo_field_path)
+    runner = inprocess_campaign(cfg, tmp_path, 10, 2, [cfg.heliostats[0].id])[0]
+    given = []
+
+    def refuse(_scheduler, *args, **kwargs):
+        given.extend(s.frames for s in runner.devices.sensors.values() if isinstance(s, CameraSensor))
+        raise RuntimeError("no thread for the scheduler")
+
+    monkeypatch.setattr(BackgroundScheduler, "start", refuse)
+    handler = signal.getsignal(signal.SIGINT)
+    with pytest.raises(RuntimeError, match="no thread for the scheduler"):
+        live.run_live(runner, runner.devices.clock.now_s() + 60.0)
+    assert given and all(isinstance(w, FrameWorker) for w in given)     # they were started ...
+    assert all(s.frames is None for s in runner.devices.sensors.values())  # ... and given back
+    assert all(w._pool._shutdown for w in given)
+    assert signal.getsignal(signal.SIGINT) is handler

@@ -7,7 +7,8 @@ Three jobs run in a background scheduler (UTC, module-level callables, fixed ids
   the tick keeps the lock beyond :data:`WEATHER_WAIT_S`, it reads the weather and stows the field
   on its own (the visits' commands are then refused, and the tick ends the visits when it is back);
 * ``helicalib-tick``: the runner's tick (visits stepped when due, planner when a target is free),
-  every :data:`TICK_PLANT_S` plant seconds; each camera's frames are fetched on a thread of their own
+  every :data:`TICK_PLANT_S` plant seconds, and at once when a frame a visit waits for is in; each
+  camera's frames, and a reading's spot, are taken on a thread of their own
   (:mod:`helicalib.campaign.frames`), so a visit waiting for its frames never holds the other boards';
 * ``helicalib-daylight``: at the next sunrise/sunset through the low band's lower edge, an event
   that opens or closes the day (the tick also gates on the sun, so a missed job loses nothing).
@@ -105,14 +106,38 @@ def _recorded(record, reason: str) -> None:
         _quietly(lambda: print(f"helicalib: fault (not recorded): {reason}", file=sys.stderr, flush=True))
 
 
-def _tick_job(runner: CampaignRunner, lock: threading.Lock) -> None:
+def _tick_job(runner: CampaignRunner, lock: threading.Lock, kick: _Kick | None = None) -> None:
     if not lock.acquire(blocking=False):
         return
     try:
+        if kick is not None:
+            kick.asked.clear()  # a frame in from now on is news for the next tick
         if not runner.state.stopping:
             _guarded(runner, "tick", lambda: runner.tick(runner.devices.clock.now_s()))
     finally:
         lock.release()
+    if kick is not None and kick.asked.is_set():  # a frame came in during the tick: the next one at once
+        kick()
+
+
+class _Kick:
+    """The tick run at once, not at its next period, when a frame a visit waits for is in (the
+    cameras' :attr:`~helicalib.campaign.frames.FrameWorker.on_done`): at 10× a tick's period is two
+    plant seconds the plant would wait. One asked while a tick runs (and may have missed it) runs the
+    next tick straight after it (:func:`_tick_job`)."""
+
+    def __init__(self, scheduler, runner: CampaignRunner):
+        self.scheduler, self.runner = scheduler, runner
+        self.asked = threading.Event()
+
+    def __call__(self) -> None:
+        self.asked.set()
+        if self.runner.state.stopping:
+            return
+        try:
+            self.scheduler.modify_job("helicalib-tick", next_run_time=dt.datetime.now(dt.timezone.utc))
+        except Exception:  # noqa: BLE001 - the scheduler stopping: the run's end takes over
+            pass
 
 
 def _weather_job(runner: CampaignRunner, lock: threading.Lock) -> None:
@@ -190,17 +215,6 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
     if output is not None and output.on_event not in runner.journal.listeners:
         runner.journal.listeners.append(output.on_event)
     rate = _rate(runner.devices.clock)
-    stop_frames = frames_off_thread(runner.devices.sensors)  # a board's frames never hold the other boards' visits
-    runner.field.spread_cleanliness = True  # nor does a choice's reading of its candidates' cleanliness
-    runner.tracking.batches = runner.devices.abilities.parallel_tracking  # nor the tracking refresh
-    runner.frame_passes = FRAME_PASSES  # a frame that came in during the tick is used in that tick
-    scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
-    common = dict(replace_existing=True, coalesce=True, max_instances=1, misfire_grace_time=None)
-    scheduler.add_job(_weather_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, WEATHER_POLL_S / rate),
-                      args=[runner, lock], id="helicalib-weather", next_run_time=dt.datetime.now(dt.timezone.utc),
-                      **common)
-    scheduler.add_job(_tick_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, TICK_PLANT_S / rate),
-                      args=[runner, lock], id="helicalib-tick", **common)
     previous = {}
     signals = {"n": 0}
 
@@ -210,11 +224,32 @@ def run_live(runner: CampaignRunner, until_s: float, stop_event: threading.Event
         if signals["n"] > 1:
             raise KeyboardInterrupt
 
-    if threading.current_thread() is threading.main_thread():  # before anything slow: a Ctrl-C now stops cleanly
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, on_signal)
-    _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
-    scheduler.start()
+    stop_frames = None
+    try:  # the jobs' start: should it fail, the frame workers and the signal handlers are given back
+        scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
+        kick = _Kick(scheduler, runner)
+        # a board's frames and their vision never hold the other boards' visits; one in asks for a tick
+        stop_frames = frames_off_thread(runner.devices.sensors, on_done=kick)
+        runner.field.spread_cleanliness = True  # nor does a choice's reading of its candidates' cleanliness
+        runner.tracking.batches = runner.devices.abilities.parallel_tracking  # nor the tracking refresh
+        runner.frame_passes = FRAME_PASSES  # a frame that came in during the tick is used in that tick
+        common = dict(replace_existing=True, coalesce=True, max_instances=1, misfire_grace_time=None)
+        scheduler.add_job(_weather_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, WEATHER_POLL_S / rate),
+                          args=[runner, lock], id="helicalib-weather",
+                          next_run_time=dt.datetime.now(dt.timezone.utc), **common)
+        scheduler.add_job(_tick_job, "interval", seconds=max(MIN_REAL_INTERVAL_S, TICK_PLANT_S / rate),
+                          args=[runner, lock, kick], id="helicalib-tick", **common)
+        if threading.current_thread() is threading.main_thread():  # before anything slow: a Ctrl-C now stops cleanly
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                previous[sig] = signal.signal(sig, on_signal)
+        _guarded(runner, "daylight", lambda: schedule_daylight(runner, scheduler, lock))
+        scheduler.start()
+    except BaseException:
+        if stop_frames is not None:
+            stop_frames()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        raise
     result = LiveResult("stopped")
 
     def plant_now() -> float | None:

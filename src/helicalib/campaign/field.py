@@ -179,6 +179,7 @@ class Field:
         due = now - read_at[rows] >= CLEANLINESS_MAX_AGE_S
         if self.spread_cleanliness:
             due &= ~np.isfinite(read_at[rows])
+            self._land()  # a background read that came in since the tick looked: its values count now
         self._read_cleanliness(rows[due], now)
         return values[rows]
 
@@ -190,15 +191,8 @@ class Field:
         taken on the first tick that finds them in, stamped with the plant time they were asked), and
         first the heliostats never read, :data:`CLEANLINESS_WARM_ROWS` at a time."""
         values, read_at = self.state.clean_rows
-        if self._clean_pending is not None:
-            rows, fut = self._clean_pending
-            if not fut.done():
-                return
-            self._clean_pending = None
-            try:
-                values[rows] = fut.result()
-            except PlantError:
-                values[rows] = np.nan
+        if not self._land():
+            return
         bulk = self.devices.abilities.bulk_cleanliness
         never = np.flatnonzero(~np.isfinite(read_at)) if bulk else read_at[:0].astype(np.int64)
         stale = np.flatnonzero(np.isfinite(read_at) & (now - read_at >= CLEANLINESS_MAX_AGE_S / 2))
@@ -216,6 +210,21 @@ class Field:
         read_at[rows] = now
         self._clean_pending = (rows, self._clean_reader.submit(self.devices.plant.cleanliness_many,
                                                                self.state.plant_index[rows]))
+
+    def _land(self) -> bool:
+        """Take the values of the background read if it is in; False while it is still on its way."""
+        if self._clean_pending is None:
+            return True
+        rows, fut = self._clean_pending
+        if not fut.done():
+            return False
+        self._clean_pending = None
+        values = self.state.clean_rows[0]
+        try:
+            values[rows] = fut.result()
+        except PlantError:
+            values[rows] = np.nan
+        return True
 
     def close(self) -> None:
         """The cleanliness reader's thread ends (a live run's end): a read not begun is dropped, one on

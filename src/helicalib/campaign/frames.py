@@ -44,8 +44,11 @@ class FrameWait(float):
 class FrameWorker:
     """One camera's grabs on a thread of their own (module docstring)."""
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, on_done: Callable[[], None] | None = None):
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"helicalib-camera-{name}")
+        self.on_done = on_done
+        """Called (on the camera's thread) when a frame a visit waits for is in, with its vision if
+        asked: a live run's tick then runs at once (:mod:`helicalib.app.live`), not at its next period."""
 
     def submit(self, grab: Callable[[], Frame]) -> Future:
         """``grab()`` on the camera's thread; the future's result is ``(frame, image)``, the image
@@ -61,10 +64,18 @@ class FrameWorker:
         fut = self.submit(grab)
         done = None if then is None else self._pool.submit(_then, fut, then)
         last = fut if done is None else done
+        if self.on_done is not None:
+            last.add_done_callback(self._tell)
         while not last.done():
             yield FrameWait(FRAME_POLL_S)
         frame, image = fut.result()
         return frame, image, done
+
+    def _tell(self, _fut: Future) -> None:
+        try:
+            self.on_done()
+        except Exception:  # noqa: BLE001 - a tick asked early is a hurry, never a frame's failure
+            pass
 
     def now(self, grab: Callable[[], Frame]) -> tuple[Frame, np.ndarray | None]:
         """``(frame, image)`` of ``grab()``, waited for (a step that cannot yield: still in the camera's order)."""

@@ -159,16 +159,16 @@ class CampaignRunner:
             field.nightly_retention(now)
         if st.returning and st.armed:
             self.tracking.check_returns(now)
-        due = sorted((v.wake_s, hid) for hid, v in st.active.items() if v.wake_s <= now)
-        for _wake, hid in due:
+        # a live tick steps first the visits waiting for a frame (their reading may be in: on to the
+        # next command before the other boards' polls); in simulations none waits so, the order is by wake-up
+        due = sorted((not v.frame, v.wake_s, hid) for hid, v in st.active.items() if v.wake_s <= now)
+        for _frame, _wake, hid in due:
             if hid in st.active:
                 self._step(hid, now)
         if self.frame_passes:  # a live tick: the visits whose frames came in meanwhile go on now
             self._frames_in(now)
         if st.refresh_round is not None and st.faults.plant_unreachable_since_s is None:
             self.tracking.write_round()  # a slice, after the visits: they never wait for a whole round
-        if field.spread_cleanliness and st.faults.plant_unreachable_since_s is None:
-            field.refresh_cleanliness(now)  # a live run: a few per tick, never a board's candidates at once
         free = self._free_targets()
         gate = None
         if free and not st.stowed:
@@ -177,6 +177,10 @@ class CampaignRunner:
                 for tid in free:
                     while self._start_visit(tid, now):  # a board fills its places (--spots-per-board)
                         pass
+        if field.spread_cleanliness and st.faults.plant_unreachable_since_s is None:
+            # a live run: a few per tick, never a board's candidates at once; after the choices, so
+            # that a read asked now is not on its way while this tick's choices look at its heliostats
+            field.refresh_cleanliness(now)
         wakes = [v.wake_s for v in st.active.values()]
         wakes.append(st.last_poll_s + WEATHER_POLL_S)
         if st.refresh_round is not None:

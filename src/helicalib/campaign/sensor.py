@@ -391,12 +391,13 @@ def _f(x) -> float | None:
     return None if x is None else float(x)
 
 
-def frames_off_thread(sensors: dict) -> Callable[[], None]:
-    """Give every camera sensor among ``sensors`` (target id → spot sensor) a :class:`FrameWorker`;
-    returns the function that takes them back and closes them (a live run's end)."""
+def frames_off_thread(sensors: dict, on_done: Callable[[], None] | None = None) -> Callable[[], None]:
+    """Give every camera sensor among ``sensors`` (target id → spot sensor) a :class:`FrameWorker`
+    (``on_done``: :attr:`FrameWorker.on_done`); returns the function that takes them back and closes
+    them (a live run's end)."""
     given = {tid: s for tid, s in sensors.items() if isinstance(s, CameraSensor)}
     for tid, sensor in given.items():
-        sensor.frames = FrameWorker(tid)
+        sensor.frames = FrameWorker(tid, on_done)
 
     def stop() -> None:
         for sensor in given.values():
