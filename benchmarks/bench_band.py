@@ -12,7 +12,10 @@ interrupted one's database) and prints, against the bound:
 * days to 90 % and 95 % accepted (the store's verdict timeline);
 * per band crossing: its hours, the hours the weather left open (the run's gated / ungated events),
   visits started and heliostats with a valid point in it, band points per board-hour;
-* the bound again at the run's own band rate, and with the run's weather (open hours only).
+* the bound again at the run's own band rate, and with the run's weather (open hours only); the
+  run's rate is taken over the crossings after which heliostats that got that band's point later
+  still lacked it (1 % of the field or more: the boards were the limit, not the heliostats left
+  to serve), or over all its crossings if none was.
 
 A run resumes where an interrupted one stopped (its database in ``--work``; ``--fresh`` starts
 over); ``--db`` reads a database without running anything. Progress (plant day and hour, accepted,
@@ -256,8 +259,16 @@ def report(cfg, db: Path, start_s: float, days: float, rates: dict[str, float], 
     with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as con:  # how far the run got (an interrupted one)
         reached = con.execute("SELECT MAX(capture_time_s) FROM observations").fetchone()[0] or start_s
     used = [s for s, c in zip(stats, cross) if s["open_hours"] > 0 and c.end_s <= reached]
-    measured = (sum(s["heliostats_with_point"] for s in used) / sum(s["open_hours"] * boards for s in used)
-                if used else None)
+    # the boards' capacity shows where heliostats that got the band's point later still lacked it after
+    # the crossing (1 % of the field or more): a crossing whose demand ran out (or was left to heliostats
+    # no search ever found) measures fewer points than its boards could take
+    final = {kind: max((s["heliostats_with_kind"] for s, c in zip(stats, cross) if c.kind == kind), default=0)
+             for kind in ("rising", "setting")}
+    limited = [s for s, c in zip(stats, cross) if s in used and s["heliostats_with_point"]
+               and final[c.kind] - s["heliostats_with_kind"] >= max(1.0, 0.01 * n)]
+    basis = limited or used
+    measured = (sum(s["heliostats_with_point"] for s in basis) / sum(s["open_hours"] * boards for s in basis)
+                if basis else None)
 
     def bound(rate, fraction, hours=None, over=far):
         t = capacity_bound(over, n, boards, rate, fraction, hours)
