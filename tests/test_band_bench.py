@@ -109,3 +109,27 @@ def test_a_database_gives_open_hours_band_points_and_days_against_the_bound(benc
 def test_the_cli_reads_a_database_and_refuses_a_missing_one(tmp_path, capsys):
     with pytest.raises(SystemExit, match="no such database"):
         bb.main(["--db", str(tmp_path / "none.db"), "--out", str(tmp_path / "o.json")])
+
+
+def test_the_run_s_rate_comes_from_the_crossings_the_boards_limited(bench500, tmp_path):
+    """Day 0's rising crossing leaves 200 heliostats to the next morning's (the boards were the limit);
+    that crossing serves just those 200 (nobody else left): the run's rate is day 0's alone."""
+    start = _start()
+    cross = bb.crossings(bench500, start, start + 2 * 86400.0)
+    rise0, set0, rise1, _set1 = cross
+    ids = [h.id for h in bench500.heliostats]
+    with Store.open(tmp_path / "helicalib.db", tmp_path / "img", durable=False, batched=True) as store:
+        cid = store.start_campaign(name="t", mode="simulate", started_s=start,
+                                   heliostats=[(h, bench500.heliostat_index(h), bench500.heliostat(h).target)
+                                               for h in ids], settings={"days": 2.0, "seed": 7, "spots_per_board": 1})
+        for c, served in ((rise0, ids[:300]), (set0, ids), (rise1, ids[300:])):
+            for k, hid in enumerate(served):
+                t = c.start_s + (k + 0.5) / len(served) * (c.end_s - c.start_s)
+                vid = store.begin_visit(cid, hid, "T1", t - 1)
+                store.record_observation(_obs(cid, vid, hid, t, 10.0))
+                store.end_visit(vid, ended_s=t + 5, outcome="converged")
+        store.finish_campaign(cid, start + 2 * 86400.0)
+    doc = bb.report(bench500, tmp_path / "helicalib.db", start, 2.0, {"with turns": 140.0}, "with turns")
+    rate = next(b["rate"] for k, b in doc["bounds"].items() if k.startswith("this run's band rate ("))
+    assert rate == pytest.approx(300 / (4 * rise0.hours), abs=0.1)  # not the mean over the three crossings
+    assert doc["band_points_per_open_board_hour"] == pytest.approx(rate, abs=0.1)
