@@ -224,3 +224,39 @@ def test_a_live_run_measures_spots_off_the_tick_and_a_vision_error_is_an_invalid
         failed = [o for o in obs if o.reason == "error__Broken"]
         assert failed and all(not o.valid and "spot finder broke" in o.message for o in failed), \
             [(o.reason, o.message) for o in obs]
+
+
+def test_a_frame_in_asks_for_the_tick_at_once(cfg, cameras, tmp_path):
+    """A camera's frame that a visit waits for moves the tick job's next run to now (a real, not
+    started, APScheduler); one that comes in during a tick runs the next tick straight after it."""
+    import datetime as dt
+
+    from apscheduler.schedulers.background import BackgroundScheduler
+
+    from campaign_helpers import inprocess_campaign
+    from helicalib.app import live
+
+    runner = inprocess_campaign(cfg, tmp_path, 10, 2, [cfg.heliostats[0].id])[0]
+    scheduler = BackgroundScheduler(timezone=dt.timezone.utc)
+    later = dt.datetime.now(dt.timezone.utc) + dt.timedelta(hours=1)
+    scheduler.add_job(lambda: None, "interval", seconds=3600, id="helicalib-tick", next_run_time=later)
+    kick = live._Kick(scheduler, runner)
+    next_run = lambda: scheduler.get_job("helicalib-tick").next_run_time  # noqa: E731
+    cam = cameras("ok", 6)
+    sensor = sensor_of(cam)
+    stop = frames_off_thread({"T": sensor}, on_done=kick)
+    try:
+        drive({"T": sensor._grab_waiting(ctx_of(cfg, "H0001"))})
+    finally:
+        stop()
+    assert kick.asked.is_set() and next_run() < later - dt.timedelta(minutes=59)
+    # a frame in while a tick runs: after it the next one is asked at once; none in: none asked
+    scheduler.modify_job("helicalib-tick", next_run_time=later)
+    tick = runner.tick
+    runner.tick = lambda now: (kick.asked.set(), tick(now))[1]
+    live._tick_job(runner, threading.Lock(), kick)
+    assert next_run() < later - dt.timedelta(minutes=59)
+    scheduler.modify_job("helicalib-tick", next_run_time=later)
+    runner.tick = tick
+    live._tick_job(runner, threading.Lock(), kick)
+    assert next_run() == later and not kick.asked.is_set()
