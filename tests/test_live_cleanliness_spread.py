@@ -1,5 +1,5 @@
-"""A live run's cleanliness reads spread over ticks (campaign/field.py): a choice reads only the
-candidates never read; those read before are re-read a few per tick, the oldest first, once half
+"""A live run's cleanliness reads spread over ticks (campaign/field.py): a choice reads none itself
+(those never read are read first on the field's reader thread); those read before are re-read a few per tick, the oldest first, once half
 their maximum age (those never read first), on a thread of the field's while the ticks go on;
 without the spread
 (simulations) a choice reads what is due, as it always did.
@@ -30,7 +30,7 @@ class Logged:
         return self.sim.cleanliness_many(indices)
 
 
-def test_a_live_choice_reads_only_what_was_never_read_and_the_ticks_refresh_the_rest(demo_field_path, tmp_path):
+def test_a_live_choice_reads_none_itself_the_never_read_first_and_the_ticks_refresh_the_rest(demo_field_path, tmp_path):
     cfg = load_field_config(demo_field_path)
     ids = [h.id for h in cfg.heliostats]
     runner, sim, _store, _cid, _cams = inprocess_campaign(cfg, tmp_path, 10, 2, ids, plant=Logged)
@@ -39,32 +39,45 @@ def test_a_live_choice_reads_only_what_was_never_read_and_the_ticks_refresh_the_
     rows = np.arange(len(ids))
     now = runner.devices.clock.now_s()
     field.spread_cleanliness = True
-    first = field.cleanliness_of_rows(rows[:30], now)              # never read: read now, in one read
-    assert plant.reads == [[int(runner.state.plant_index[r]) for r in rows[:30]]]
-    assert np.array_equal(first, sim.cleanliness_many(runner.state.plant_index[:30]))
+    wanted = rows[10:40]
+    first = field.cleanliness_of_rows(wanted, now)                 # never read: asked, not read on the tick
+    assert plant.reads == [] and np.all(np.isnan(first))
+    field.refresh_cleanliness(now)                                 # read on the field's reader thread, those first
+    field._clean_pending[1].result()
+    index = [int(i) for i in runner.state.plant_index]
+    assert plant.reads[0][:30] == [index[r] for r in wanted]
+    assert sorted(plant.reads[0][30:]) == sorted(index[r] for r in rows if r not in wanted)[:len(plant.reads[0]) - 30]
+    first = field.cleanliness_of_rows(wanted, now + 1.0)           # in: taken at once, no read of its own
+    assert np.array_equal(first, sim.cleanliness_many(runner.state.plant_index[wanted])) and len(plant.reads) == 1
+    field.refresh_cleanliness(now + 2.0)                            # the rest of the field's first reads
+    if field._clean_pending is not None:
+        field._clean_pending[1].result()
+        field.refresh_cleanliness(now + 3.0)
+    assert np.all(np.isfinite(field.state.clean_rows[1])) and field._clean_pending is None
+    plant.reads.clear()
     later = now + 2 * CLEANLINESS_MAX_AGE_S                         # all of them stale now
-    again = field.cleanliness_of_rows(rows[:40], later)            # the 10 new ones only; the 30 served as read
-    assert plant.reads[1] == [int(runner.state.plant_index[r]) for r in rows[30:40]]
-    assert np.array_equal(again[:30], first)
+    again = field.cleanliness_of_rows(wanted, later)               # read before: served as read, none read
+    assert plant.reads == [] and np.array_equal(again, first)
     values, read_at = field.state.clean_rows
+    read_at[30:] = later                                           # read again just now: not stale
     read_at[:30] = now + np.arange(30)[::-1]                       # read at different times: row 29 the oldest
     values[:30] = -1.0
     field.refresh_cleanliness(later)                               # asked on the field's reader thread
     field._clean_pending[1].result()
     oldest = rows[:30][::-1][:CLEANLINESS_SPREAD_ROWS]
-    assert sorted(plant.reads[2]) == sorted(int(runner.state.plant_index[r]) for r in oldest)
+    assert sorted(plant.reads[0]) == sorted(int(runner.state.plant_index[r]) for r in oldest)
     assert np.all(read_at[oldest] == later) and np.all(values[oldest] == -1.0)   # in on the next tick
     field.refresh_cleanliness(later + 1.0)                          # the next tick: taken in, the rest asked
     assert np.array_equal(values[oldest], sim.cleanliness_many(runner.state.plant_index[oldest]))
     field._clean_pending[1].result()
-    assert len(plant.reads[3]) == 30 - CLEANLINESS_SPREAD_ROWS
+    assert len(plant.reads[1]) == 30 - CLEANLINESS_SPREAD_ROWS
     field.refresh_cleanliness(later + 2.0)                          # taken in; none stale: nothing asked
-    assert field._clean_pending is None and len(plant.reads) == 4 and np.all(values[:30] >= 0.0)
+    assert field._clean_pending is None and len(plant.reads) == 2 and np.all(values[:30] >= 0.0)
     read_at[5:8] = -np.inf                                         # never read: asked first, before any stale one
     read_at[20:30] = later - CLEANLINESS_MAX_AGE_S
     field.refresh_cleanliness(later + 3.0)
     field._clean_pending[1].result()
-    assert plant.reads[4] == [int(runner.state.plant_index[r]) for r in (5, 6, 7)]
+    assert plant.reads[2] == [int(runner.state.plant_index[r]) for r in (5, 6, 7)]
     field.close()
 
 
