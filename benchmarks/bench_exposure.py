@@ -10,6 +10,8 @@ too bright or too faint reading). Prints, per run:
 * the share of readings [%] by reason: ``clipped``, ``saturated``, ``low_contrast``, ``ok`` (goal:
   clipped + low_contrast ≤ 0.5 % with exposure control);
 * readings retaken at another exposure, and how many of them ended valid;
+* the ``clipped`` and ``low_contrast`` readings that were a heliostat's very first reading, and the
+  heliostats with the most of them;
 * days to 90 % / 95 % accepted, the true sky RMS over the accepted heliostats and the first-shot
   RMS (the campaign's accuracy must not drop), visits and CPU seconds.
 
@@ -28,6 +30,7 @@ Usage::
     .venv/bin/python benchmarks/bench_exposure.py                          # bench500, equinox, 1 day
     .venv/bin/python benchmarks/bench_exposure.py --heliostats 100 --days 1   # every 5th heliostat
     .venv/bin/python benchmarks/bench_exposure.py --spots 400                 # spot accuracy only
+    .venv/bin/python benchmarks/bench_exposure.py --only exposure --ids H00034 --keep DIR --keep-frames
 
 Writes ``benchmarks/out/bench_exposure.json``.
 """
@@ -143,6 +146,29 @@ def spot_accuracy(n: int, seed: int = 2026) -> dict:
     return out
 
 
+def refused(db: str, reasons_: tuple[str, ...] = ("clipped", "low_contrast")) -> dict:
+    """The readings refused for ``reasons_``: how many, how many of them a heliostat's very first reading,
+    and the heliostats with the most of them."""
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        cid = con.execute("SELECT MAX(id) FROM campaigns").fetchone()[0]
+        rows = con.execute("SELECT id, heliostat_id, reason FROM observations WHERE campaign_id = ? AND iteration >= 0 "
+                           "ORDER BY id", (cid,)).fetchall()
+    finally:
+        con.close()
+    seen: set[str] = set()
+    first = 0
+    per: dict[str, int] = {}
+    for _, hid, reason in rows:
+        if reason in reasons_:
+            first += hid not in seen
+            per[hid] = per.get(hid, 0) + 1
+        seen.add(hid)
+    top = sorted(per.items(), key=lambda kv: (-kv[1], kv[0]))[:5]
+    return {"readings": sum(per.values()), "first_readings": first, "heliostats": len(per),
+            "top": ", ".join(f"{h} {n}" for h, n in top)}
+
+
 def main(argv=None) -> int:
     from helicalib.config import load_field_config
     from helicalib.geometry.sun import parse_time, to_unix_seconds
@@ -161,6 +187,7 @@ def main(argv=None) -> int:
     ap.add_argument("--spots", type=int, default=None, help="measure the spot accuracy on this many spots instead")
     ap.add_argument("--out", default=None, help="JSON (default benchmarks/out/bench_exposure[_spots].json)")
     ap.add_argument("--keep", default=None, help="keep each run's database under this directory (<side>/helicalib.db)")
+    ap.add_argument("--keep-frames", action="store_true", help="with --keep: keep every reading's frames (<side>/images)")
     args = ap.parse_args(argv)
     if args.spots:
         out = spot_accuracy(args.spots, args.seed)
@@ -184,10 +211,12 @@ def main(argv=None) -> int:
             if args.only not in (None, side):
                 continue
             scenario = base.model_copy(update={"camera": base.camera.model_copy(update={"exposure": control})})
-            r = run_one(cfg, "gaps", args.days, args.seed, scenario, ids, root / side, keep_frames=False,
+            r = run_one(cfg, "gaps", args.days, args.seed, scenario, ids, root / side,
+                        keep_frames=bool(args.keep and args.keep_frames),
                         start_s=start_s, fidelity="render")
             r["reasons"] = reasons(r["database"])
             r["retakes"] = retakes(r["database"])
+            r["refused"] = refused(r["database"])
             r["clipped_plus_low_contrast_pct"] = round(r["reasons"].get("clipped", 0.0)
                                                        + r["reasons"].get("low_contrast", 0.0), 2)
             results[side] = r
@@ -201,6 +230,10 @@ def main(argv=None) -> int:
         print(f"{'% readings ' + k:34}" + "".join(f"{results[s]['reasons'].get(k, 0.0):>12}" for s in sides))
     for k in ("readings", "retaken", "retaken_valid"):
         print(f"{k:34}" + "".join(f"{results[s]['retakes'][k]:>12}" for s in sides))
+    for k in ("readings", "first_readings", "heliostats"):
+        print(f"{'clipped+low_contrast ' + k:34}" + "".join(f"{results[s]['refused'][k]:>12}" for s in sides))
+    for s_ in sides:
+        print(f"clipped+low_contrast by heliostat ({s_}): {results[s_]['refused']['top']}")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps({"args": vars(args), "results": results}, indent=2, default=str))
     return 0

@@ -5,10 +5,13 @@ Pipeline for one "before" frame (no beam) and one or more "after" frames (beam o
 1. marks on the before frame (or given) → homography → a metric grid of the board
    (:mod:`helicalib.vision.rectify`); both frames are sampled onto it, so everything below is
    in board metres, free of perspective;
-2. ambient ratio ``k`` = median(after / before) over the board; the difference ``D = after - k·before``
+2. ambient ratio ``k`` = after / before on the board free of the spot (the lowest well-populated
+   mode of the ratio, then the median away from the spot); the difference ``D = after - k·before``
    removes the board, its marks and uneven light, and compensates a small change of daylight; on a
    dot board the spot's light on the dots is restored (:class:`~helicalib.vision.dots.DotFill`),
-   with a smoother estimate of it for the peak and the threshold test of step 3;
+   with a smoother estimate of it for the peak and the threshold test of step 3. A spot that covers
+   most of the board and leaves no free board for ``k`` is refused ("fills_board",
+   :mod:`helicalib.vision.ambient`);
 3. threshold ``T`` by Otsu's method on the histogram of ``D`` (A.1), raised to 4 noise sigmas;
    ``I = D`` where ``D ≥ T`` else 0; spot area ``S`` = count of ``D ≥ T`` (cells);
 4. window side ``l = √S`` (A.2), the window sum ``f`` at every position from one integral image
@@ -38,6 +41,7 @@ import numpy as np
 
 from helicalib.config import Camera, Target
 from helicalib.errors import MeasurementError
+from helicalib.vision.ambient import below_share, mad_sigma
 from helicalib.vision.frames import as_gray_u8
 from helicalib.vision.homography import MarksResult, board_to_image
 from helicalib.vision.marks import find_marks
@@ -45,7 +49,7 @@ from helicalib.vision.rectify import BoardGrid, board_grid
 
 METHODS = ("grlm", "grlm-centroid", "centroid")
 REASONS = ("ok", "no_spot", "clipped", "saturated", "low_contrast", "marks_not_found", "reprojection",
-           "ambient_change", "jitter", "bad_frame")
+           "ambient_change", "fills_board", "jitter", "bad_frame")
 SATURATED_LEVEL = 250
 CORE_SHARES = (0.3, 0.4, 0.5, 0.6)
 """Core thresholds [shares of the peak] tried, lowest first, on a spot whose region at ``T`` runs over
@@ -78,6 +82,14 @@ class SpotLimits:
     """More of the spot area at ≥ 250 grey levels in the after frame than this → "saturated"."""
     max_ambient_change: float = 0.25
     """|after/before light ratio - 1| above this → "ambient_change"."""
+    max_below_share: float = 0.04
+    """A spot whose region at ``T`` covers at least ``fills_board_share`` of the board, with more than this
+    share of the lit board darker than the ambient light ratio's fit allows
+    (:func:`~helicalib.vision.ambient.below_share`) →
+    "fills_board": the ratio was taken on the spot, as no free board was left to take it on, and the
+    difference would lose part of the spot (a centre metres off)."""
+    fills_board_share: float = 0.4
+    """See ``max_below_share``: smaller spots leave the ratio its free board."""
     max_jitter_m: float = 0.10
     """RMS distance of the frame centres to their mean above this [m] → "jitter"."""
     min_area_cells: int = 9
@@ -367,7 +379,7 @@ def _ambient_ratio(a_s: np.ndarray, b_s: np.ndarray, lit: np.ndarray) -> tuple[f
     d = a_s - k * b_s
     near = lit & (np.abs(ratio - k) <= 0.04 * k)
     ref = d[near] if np.count_nonzero(near) >= 16 else d[lit]
-    noise = max(0.5, 1.4826 * float(np.median(np.abs(ref - np.median(ref)))))
+    noise = mad_sigma(ref)
     spot = ((d > 3.0 * noise) & lit).astype(np.uint8)
     n_spot = int(np.count_nonzero(spot))
     if n_spot:
@@ -405,7 +417,7 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
     if fill is not None:
         D, Ddet = fill.correct(D, k)
     # noise sigma of the difference, from the board cells outside the spot (second pass above)
-    noise = max(0.5, 1.4826 * float(np.median(np.abs(d0 - np.median(d0)))))
+    noise = mad_sigma(d0)
     Dm = cv2.multiply(D, grid.inside_f32)  # zero off the board's inner part
     Dd = Dm if Ddet is D else cv2.multiply(Ddet, grid.inside_f32)
     peak = float(cv2.minMaxLoc(cv2.boxFilter(Dd, -1, (3, 3)))[1])
@@ -438,6 +450,13 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
         raise _Invalid("ambient_change", f"{lost} cells of the board were lit in the before frame and are "
                        f"{T:.0f} grey levels or more darker in the after frame (the spot has {S}): another beam "
                        "crossed the board while the before frame was taken.", partial, before_beam=True)
+    if S >= limits.fills_board_share * np.count_nonzero(inside):
+        below = below_share(a_s, b_s, lit, k)
+        if below > limits.max_below_share:
+            raise _Invalid("fills_board", f"the spot fills the board ({S} of its {np.count_nonzero(inside)} cells "
+                           f"above the threshold {T:.0f}); {100 * below:.0f} % of the board is darker than the "
+                           f"ambient light ratio {k:.2f} allows (limit {100 * limits.max_below_share:.0f} %): no "
+                           "free board is left to judge the ambient light by.", partial)
     side = math.sqrt(S)
     core_share = None
     if clipped > limits.max_clipped_cells or side >= min(grid.shape):
