@@ -24,7 +24,16 @@ symmetry of its visible part, :mod:`helicalib.vision.mirror`). Prints:
 a mirror's footprint (3.5–5 m sides) blurred by a Gaussian (σ 0.5–1.1 m, 3.9 mrad at 130–280 m),
 axis-aligned on the board: flat-topped with soft edges, as the far heliostats of ``bench500`` are.
 
-    .venv/bin/python benchmarks/bench_clipped.py [--spots N] [--seed S] [--reach M] [--kind mixed|beam]
+``--kind board`` renders spots that fill the board instead, through the simulated plant's renderer
+(``sim.camera.BoardRenderer``) on board T4 of ``simulations/fields/bench500.yaml`` seen by its camera,
+as a near heliostat of ``bench500`` throws them at a high sun: a 9.5–11 m footprint blurred by 0.63 m,
+centred within ±2 m of the board centre, 0–3 other heliostats' beams (8–10 m, anywhere within ±9 m)
+on the board in both frames, the exposure 1.8–3.2 times the nominal one (the spot's peak near 170).
+Each pair is measured without the board-filling rule (``max_below_share`` 1: ``fills_board`` never)
+and with it (the default limits); prints the reasons, the error of the valid readings and how many
+valid readings lie more than 0.1 / 0.5 m off, by the centre's distance from the board centre.
+
+    .venv/bin/python benchmarks/bench_clipped.py [--spots N] [--seed S] [--reach M] [--kind mixed|beam|board]
 
 Writes ``benchmarks/out/bench_clipped.json``.
 """
@@ -169,16 +178,81 @@ def summarise(rows: list[dict], n: int, seed: int, reach_m: float) -> dict:
     return out
 
 
+BOARD_DNI_WM2 = 927.5
+BOARD_SPOT_POWER_W = 14400.0
+"""H00034's spot on ``bench500``'s board T4 at noon of the September equinox (its beam's power)."""
+
+
+def _beams(rows):
+    """``(uv, power, width, sigma)`` arrays of ``sim.camera.BoardRenderer.render`` from (centre, power,
+    square footprint side, sigma) rows."""
+    return (np.array([r[0] for r in rows], float), np.array([r[1] for r in rows], float),
+            np.array([[r[2], r[2]] for r in rows], float), np.array([[r[3], r[3]] for r in rows], float))
+
+
+def run_board(n: int, seed: int = 2026) -> dict:
+    """Board-filling spots (``--kind board``) with and without the board-filling rule; the figures."""
+    from helicalib.config import load_field_config
+    from helicalib.sim.camera import BoardRenderer
+    from helicalib.sim.scenario import CameraSpec, Optics
+
+    cfg = load_field_config(HERE.parent / "simulations" / "fields" / "bench500.yaml")
+    target = cfg.target("T4")
+    camera = next(c for c in cfg.cameras if c.target == "T4")
+    renderer = BoardRenderer(camera, target, CameraSpec(), Optics(), seed=seed)
+    rng = np.random.default_rng(seed)
+    sides = {"without": SpotLimits(max_below_share=1.0), "with": SpotLimits()}
+    rows = []
+    for _ in range(n):
+        others = [(tuple(rng.uniform(-9.0, 9.0, 2)), 14500.0, float(rng.uniform(8.0, 10.0)), 0.6)
+                  for _ in range(int(rng.integers(0, 4)))]
+        centre = rng.uniform(-2.0, 2.0, 2)
+        side, exposure = float(rng.uniform(9.5, 11.0)), float(rng.uniform(1.8, 3.2))
+        before = renderer.render(_beams(others) if others else None, BOARD_DNI_WM2, True, exposure)
+        after = renderer.render(_beams(others + [(tuple(centre), BOARD_SPOT_POWER_W, side, 0.63)]), BOARD_DNI_WM2,
+                                True, exposure)
+        marks = find_marks(before, target, camera)
+        row = {"center_m": centre.round(3).tolist(), "side_m": round(side, 2), "others": len(others),
+               "distance_m": float(np.max(np.abs(centre)))}
+        for name, lim in sides.items():
+            res = measure_spot(before, [after], target, camera, marks=marks, limits=lim)
+            row[name] = res.reason
+            if res.valid:
+                row[name + "_err_mm"] = 1000.0 * float(np.linalg.norm(res.offset_m - centre))
+        rows.append(row)
+    out: dict = {"spots": n, "seed": seed, "kind": "board", "reasons_pct": {}, "error": {}, "off": {}, "by_distance": []}
+    for name in sides:
+        counts: dict[str, int] = {}
+        for r in rows:
+            counts[r[name]] = counts.get(r[name], 0) + 1
+        out["reasons_pct"][name] = {k: round(100.0 * v / n, 2) for k, v in sorted(counts.items())}
+        err = np.array([r[name + "_err_mm"] for r in rows if name + "_err_mm" in r])
+        out["error"][name] = _stats(err)
+        out["off"][name] = {"over_0.1_m": int(np.sum(err > 100.0)), "over_0.5_m": int(np.sum(err > 500.0))}
+    for lo, hi in ((0.0, 1.0), (1.0, 2.0)):
+        row = {"distance_m": [lo, hi]}
+        for name in sides:
+            err = np.array([r[name + "_err_mm"] for r in rows if name + "_err_mm" in r and lo <= r["distance_m"] < hi])
+            row[name] = {**_stats(err), "over_0.1_m": int(np.sum(err > 100.0))}
+        out["by_distance"].append(row)
+    out["refused_by_the_rule"] = sum(r["with"] == "fills_board" for r in rows)
+    out["refused_were"] = {k: sum(r["with"] == "fills_board" and r["without"] == k for r in rows)
+                           for k in sorted({r["without"] for r in rows if r["with"] == "fills_board"})}
+    out["rows"] = rows
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spots", type=int, default=600)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--reach", type=float, default=7.0, help="spot centres within ± this [m] of the board centre")
-    ap.add_argument("--kind", choices=("mixed", "beam"), default="mixed",
-                    help="mixed Gaussian and flat-topped spots, or the simulated plant's (box blurred by a Gaussian)")
+    ap.add_argument("--kind", choices=("mixed", "beam", "board"), default="mixed",
+                    help="mixed Gaussian and flat-topped spots, the simulated plant's (box blurred by a Gaussian), "
+                         "or board-filling ones on bench500's board T4 with other beams")
     ap.add_argument("--out", default=str(OUT))
     args = ap.parse_args(argv)
-    out = run(args.spots, args.seed, args.reach, args.kind)
+    out = run_board(args.spots, args.seed) if args.kind == "board" else run(args.spots, args.seed, args.reach, args.kind)
     print(json.dumps({k: v for k, v in out.items() if k != "rows"}, indent=2))
     path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
