@@ -18,7 +18,9 @@ Measured here (the controller's plant client and cameras are wrapped to time-sta
 * **tracking refresh lag**: per calibrated heliostat and refresh, plant seconds from when its
   refresh was due to when its track command went out; max and p99 against the 15-minute period;
 * **controller RSS**: this process's peak (``VmHWM``; goal < 2 GB), the plant's for reference;
-* **plant rate achieved**: plant seconds per real second over the run, from the plant's clock.
+* **plant rate achieved**: plant seconds per real second over the run, from the plant's clock;
+* **full garbage collections** in the controller's process: how many, the longest, when those over
+  0.1 s began (a collection holds every thread, the tick's too).
 
 Prints progress every ``--progress-s`` real seconds and a summary; writes JSON (``--out``).
 
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import json
 import os
 import re
@@ -114,6 +117,24 @@ def seed(cfg, db: Path, start_s: float, calibrated: int) -> None:
         store.flush()
     finally:
         store.close()
+
+
+class GcPauses:
+    """The garbage collector's full (generation 2) collections in this process: real time and
+    duration of each (``gc.callbacks``); a pause holds every thread, the tick's too."""
+
+    def __init__(self):
+        self.pauses: list[tuple[float, float]] = []   # (real time, seconds)
+        self._t0 = None
+
+    def __call__(self, phase, info):
+        if info.get("generation") != 2:
+            return
+        if phase == "start":
+            self._t0 = time.monotonic()
+        elif self._t0 is not None:
+            self.pauses.append((self._t0, time.monotonic() - self._t0))
+            self._t0 = None
 
 
 class Meter:
@@ -281,6 +302,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  sim-plant up (Modbus {modbus_port}, cameras {camera_port})", flush=True)
     meter = Meter(a.rate)
     undo = meter.install()
+    gc_pauses = GcPauses()
+    gc.callbacks.append(gc_pauses)
     stop = threading.Event()
     wall0 = time.monotonic()
     plant_t0 = None
@@ -319,6 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         stop.set()
         undo()
+        gc.callbacks.remove(gc_pauses)
         wall = time.monotonic() - wall0
         plant_rss = rss_mb(proc.pid, "VmHWM")
         proc.terminate()
@@ -358,6 +382,10 @@ def main(argv: list[str] | None = None) -> int:
         "refreshes": meter.refreshes, "refresh_writes": int(len(lags)),
         "refresh_lag_plant_s": {"p99": pct(lags, 99), "max": None if not len(lags) else round(float(lags.max()), 1),
                                 "period": 900.0},
+        "gc_full_collections": {"n": len(gc_pauses.pauses),
+                                "max_s": round(max((d for _t, d in gc_pauses.pauses), default=0.0), 3),
+                                "total_s": round(sum(d for _t, d in gc_pauses.pauses), 2),
+                                "at_s": [round(t - wall0, 1) for t, d in gc_pauses.pauses if d > 0.1]},
         "controller_rss_peak_mb": round(meter.rss_peak_mb, 1), "plant_rss_peak_mb": round(plant_rss, 1),
         "load_average_1min_end": round(os.getloadavg()[0], 1), "cpus": os.cpu_count(),
     }
