@@ -10,6 +10,7 @@ heliostats in one read.
 
 from __future__ import annotations
 
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 
@@ -35,6 +36,10 @@ every minute, a 10⁴-heliostat field would cost 10⁴ register reads a minute."
 CLEANLINESS_WARM_ROWS = 128
 """Heliostats never read whose cleanliness a live tick asks at once on the field's reader thread (a
 10⁴ field's first reads in about 80 ticks, while a choice would read a board's borrowed candidates)."""
+CLEANLINESS_TURN_ROWS = 16
+"""Heliostats the field's reader thread reads between pauses (:func:`_in_turns`): about 4 requests."""
+CLEANLINESS_TURN_PAUSE_S = 0.002
+"""Real seconds the field's reader thread pauses between its turns on the plant's connection."""
 CLEANLINESS_SPREAD_ROWS = 16
 """Heliostats whose cleanliness a live tick re-reads at most (:meth:`Field.refresh_cleanliness`): about
 4 requests; 10⁴ heliostats every 30 plant minutes at a tick every 2 plant seconds need 11."""
@@ -221,7 +226,7 @@ class Field:
         if self._clean_reader is None:
             self._clean_reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="helicalib-cleanliness")
         read_at[rows] = now
-        self._clean_pending = (rows, self._clean_reader.submit(self.devices.plant.cleanliness_many,
+        self._clean_pending = (rows, self._clean_reader.submit(_in_turns, self.devices.plant.cleanliness_many,
                                                                self.state.plant_index[rows]))
 
     def _land(self) -> bool:
@@ -360,3 +365,16 @@ class Field:
         st.band_cache = (now, text)
         return text
 
+
+def _in_turns(read_many, indices: np.ndarray) -> np.ndarray:
+    """``read_many(indices)`` a few heliostats (:data:`CLEANLINESS_TURN_ROWS`) at a time, pausing
+    between: the reader shares the plant's connection with the tick, and a thread that takes the
+    connection's lock again straight after letting it go mostly keeps it (Python's locks are not
+    fair): 128 heliostats read at once (some 32 requests) could hold the tick's requests until the
+    whole read was done."""
+    out = np.empty(len(indices))
+    for k in range(0, len(indices), CLEANLINESS_TURN_ROWS):
+        if k:
+            time.sleep(CLEANLINESS_TURN_PAUSE_S)
+        out[k:k + CLEANLINESS_TURN_ROWS] = read_many(indices[k:k + CLEANLINESS_TURN_ROWS])
+    return out
