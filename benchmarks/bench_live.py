@@ -19,6 +19,9 @@ Measured here (the controller's plant client and cameras are wrapped to time-sta
   refresh was due to when its track command went out; max and p99 against the 15-minute period;
 * **controller RSS**: this process's peak (``VmHWM``; goal < 2 GB), the plant's for reference;
 * **plant rate achieved**: plant seconds per real second over the run, from the plant's clock;
+* **the split of reading → command**: for a reading, its last frame → its spot (measured on the
+  camera's thread) and the spot → the command (the tick's part); a before frame's apart;
+* **CPU** cores used by the controller and the simulated plant over the run;
 * **full garbage collections** in the controller's process: how many, the longest, when those over
   0.1 s began (a collection holds every thread, the tick's too).
 
@@ -154,20 +157,29 @@ class Meter:
         self.rss_peak_mb = 0.0
         self.profile = None
         self.gap_log: list[tuple[float, str, str, float]] = []  # (real time, heliostat, command, gap real s)
+        self.spot_done: dict[str, float] = {}           # camera thread → real time its last spot was measured
+        self.split: list[tuple[str, float, float]] = []  # per gap: "reading" or "before", frame → spot, spot → command
         self.visit_seen: dict[int, float] = {}           # visit id → real time of its first command
         self.turnover_s: list[float] = []                # real seconds, a board's last frame → the next visit's first command
 
     def install(self):
         """Wrap the classes the run builds (undone by the returned function)."""
-        from helicalib.campaign import tracking
+        from helicalib.campaign import sensor, tracking
         from helicalib.campaign.loop import CampaignRunner
         from helicalib.devices.camera_http import HttpCamera
         from helicalib.devices.modbus import ModbusPlant
 
         saved = [(HttpCamera, "grab", HttpCamera.grab), (ModbusPlant, "_command", ModbusPlant._command),
                  (CampaignRunner, "__init__", CampaignRunner.__init__),
-                 (tracking.Tracking, "refresh", tracking.Tracking.refresh)]
+                 (tracking.Tracking, "refresh", tracking.Tracking.refresh),
+                 (sensor, "measure_spot", sensor.measure_spot)]
         meter = self
+
+        def measure_spot(*a, **kw):
+            out = saved[4][2](*a, **kw)
+            with meter.lock:
+                meter.spot_done[threading.current_thread().name] = time.monotonic()
+            return out
 
         def grab(cam, *a, **kw):
             frame = saved[0][2](cam, *a, **kw)
@@ -203,6 +215,7 @@ class Meter:
 
         HttpCamera.grab, ModbusPlant._command, CampaignRunner.__init__ = grab, command, init
         tracking.Tracking.refresh = refresh
+        sensor.measure_spot = measure_spot
 
         def undo():
             for cls, name, fn in saved:
@@ -224,6 +237,7 @@ class Meter:
         first = self.visit_seen.setdefault(visit.ctx.visit_id, t)   # the visit's first command: before its frames
         with self.lock:
             last = self.last_frame.get(cam)
+            spot = self.spot_done.get(f"helicalib-camera-{visit.target_id}_0")
         if last is not None and self.seen_frame.get(hid) != last and last <= t:
             self.seen_frame[hid] = last
             if last < first:  # the board's last frame is an earlier visit's: the board changed hands
@@ -231,6 +245,10 @@ class Meter:
                 return
             self.gaps_s.append(t - last)
             self.gap_log.append((t, hid, what, t - last))
+            if spot is not None and last <= spot <= t:   # a reading's spot, measured on the camera's thread
+                self.split.append(("reading", spot - last, t - spot))
+            else:                                         # a before frame's (or a spot measured on the tick)
+                self.split.append(("before", float("nan"), t - last))
 
 
 def rss_mb(pid: str | int = "self", key: str = "VmRSS") -> float:
@@ -241,6 +259,33 @@ def rss_mb(pid: str | int = "self", key: str = "VmRSS") -> float:
     except OSError:
         pass
     return 0.0
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (0 when it cannot be read)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
+def split_figures(split, rate: float) -> dict:
+    """Reading → command split: for a reading, the camera's last frame → its spot measured (on the
+    camera's thread) and the spot → the command (the tick's part); apart, a before frame → the
+    first placement's command. Plant seconds, p50/p99."""
+    out = {}
+    for kind in ("reading", "before"):
+        rows = [(v, r) for k, v, r in split if k == kind]
+        if not rows:
+            continue
+        vision = np.asarray([v for v, _r in rows]) * rate
+        rest = np.asarray([r for _v, r in rows]) * rate
+        out[kind] = {"n": len(rows), "tick_part_p50": pct(rest, 50), "tick_part_p99": pct(rest, 99)}
+        if kind == "reading":
+            out[kind].update(vision_p50=pct(vision, 50), vision_p99=pct(vision, 99),
+                             total_p99=pct(vision + rest, 99))
+    return out
 
 
 def pct(values, q) -> float | None:
@@ -304,6 +349,7 @@ def main(argv: list[str] | None = None) -> int:
     undo = meter.install()
     gc_pauses = GcPauses()
     gc.callbacks.append(gc_pauses)
+    cpu0, plant_cpu0 = time.process_time(), cpu_s(proc.pid)
     stop = threading.Event()
     wall0 = time.monotonic()
     plant_t0 = None
@@ -344,6 +390,7 @@ def main(argv: list[str] | None = None) -> int:
         undo()
         gc.callbacks.remove(gc_pauses)
         wall = time.monotonic() - wall0
+        cpu, plant_cpu = time.process_time() - cpu0, cpu_s(proc.pid) - plant_cpu0
         plant_rss = rss_mb(proc.pid, "VmHWM")
         proc.terminate()
         proc.wait(30)
@@ -382,6 +429,8 @@ def main(argv: list[str] | None = None) -> int:
         "refreshes": meter.refreshes, "refresh_writes": int(len(lags)),
         "refresh_lag_plant_s": {"p99": pct(lags, 99), "max": None if not len(lags) else round(float(lags.max()), 1),
                                 "period": 900.0},
+        "gap_split_plant_s": split_figures(meter.split, a.rate),
+        "cpu_cores_used": {"controller": round(cpu / wall, 2), "sim_plant": round(plant_cpu / wall, 2)},
         "gc_full_collections": {"n": len(gc_pauses.pauses),
                                 "max_s": round(max((d for _t, d in gc_pauses.pauses), default=0.0), 3),
                                 "total_s": round(sum(d for _t, d in gc_pauses.pauses), 2),
