@@ -260,3 +260,56 @@ def test_a_frame_in_asks_for_the_tick_at_once(cfg, cameras, tmp_path):
     runner.tick = tick
     live._tick_job(runner, threading.Lock(), kick)
     assert next_run() == later and not kick.asked.is_set()
+
+
+class _Plant:
+    """The plant's answers a measurement reads (weather, a heliostat's status), each call logged."""
+
+    def __init__(self, log):
+        self.log = log
+
+    def weather(self):
+        self.log.append("weather")
+        return SimpleNamespace(wind_ms=3.0, wind_direction_deg=90.0, dni_wm2=900.0, temperature_c=20.0)
+
+    def status(self, index):
+        self.log.append("status")
+        return SimpleNamespace(cleanliness=0.95)
+
+
+class _Sensor:
+    """A spot sensor whose after frames are on their way for one wait (``frames``: a live run's
+    worker, or None as in simulations); it says no spot."""
+
+    def __init__(self, log, live):
+        self.log, self.frames = log, (object() if live else None)
+
+    def after(self, ctx, before):
+        self.log.append("frames asked")
+        yield FrameWait(FRAME_POLL_S)
+        self.log.append("reading in")
+        return Reading(False, "no_spot", "no spot on the board", 1000.0)
+
+
+@pytest.mark.parametrize("live", [True, False])
+def test_a_live_measurement_reads_the_plant_before_its_frames_a_simulated_one_after(cfg, live):
+    """In a live run the weather and cleanliness are read while the beam holds, so the way from the
+    reading to the next command holds no plant request of theirs; a simulation reads them after the
+    reading, as it always did (the same results for the same seed)."""
+    from helicalib.campaign.measure import measure
+
+    log, recorded = [], []
+    h = cfg.heliostat("H0001")
+    host = SimpleNamespace(record=lambda ctx, obs, frames: recorded.append(obs) or 7)
+    ctx = SimpleNamespace(sensor=_Sensor(log, live), plant=_Plant(log), host=host, index=0, approach=(1, 1),
+                          sun=lambda t: ((0.0, 0.0, 1.0), 180.0, 30.0, True), campaign_id=1, heliostat_id="H0001",
+                          target_id=h.target, target=cfg.target(h.target), visit_id=3, before_path="b.png")
+    before = Before(capture_time_s=999.0, data=b"", state=None)
+    values, _ = drive({"m": measure(ctx, before, (100.0, 200.0), (100.0, 200.0), None, 0)})
+    obs, _before = values["m"]
+    if live:
+        assert log == ["weather", "status", "frames asked", "reading in"]
+    else:
+        assert log == ["frames asked", "reading in", "weather", "status"]
+    assert len(recorded) == 1 and recorded[0].reason == "no_spot"
+    assert not obs.valid and obs.dni_wm2 == 900.0 and obs.cleanliness == 0.95 and obs.id == 7

@@ -165,6 +165,8 @@ class CampaignRunner:
         for _frame, _wake, hid in due:
             if hid in st.active:
                 self._step(hid, now)
+                if self.frame_passes:       # a live tick: a reading in meanwhile goes on now,
+                    self._frames_in(now, 1)  # not after the other boards' polls
         if self.frame_passes:  # a live tick: the visits whose frames came in meanwhile go on now
             self._frames_in(now)
         if st.refresh_round is not None and st.faults.plant_unreachable_since_s is None:
@@ -198,11 +200,11 @@ class CampaignRunner:
         field.account(now, nxt, gate)
         return max(nxt, now + 1e-3)
 
-    def _frames_in(self, now: float) -> None:
-        """Step again, up to :attr:`frame_passes` times, the visits waiting for a frame on its way
-        (:class:`~.frames.FrameWait`): one whose frame came in while the tick stepped the others goes
-        on in this tick, not the next (a step of one still waiting costs nothing)."""
-        for _ in range(self.frame_passes):
+    def _frames_in(self, now: float, passes: int | None = None) -> None:
+        """Step again, up to :attr:`frame_passes` times (or ``passes``), the visits waiting for a frame
+        on its way (:class:`~.frames.FrameWait`): one whose frame came in while the tick stepped the
+        others goes on in this tick, not the next (a step of one still waiting costs nothing)."""
+        for _ in range(self.frame_passes if passes is None else passes):
             waiting = [hid for hid, v in self.state.active.items() if v.frame]
             if not waiting:
                 return

@@ -3,7 +3,9 @@
 :func:`measure` asks the visit's spot sensor for the "after" reading against the before
 reference, takes the sun at the frame's capture time and the plant's weather and cleanliness,
 and, for a valid reading, the tracking error [mrad] between the spot seen and the spot the model
-predicts for the held strokes. Every attempt is recorded through the visit's host, valid or not,
+predicts for the held strokes. In a live run (a camera with a frame worker) the weather and
+cleanliness are read while the beam holds, just before the after frames, so that the reading's
+way to the next command holds no plant request of theirs (read again after a retake). Every attempt is recorded through the visit's host, valid or not,
 with its reason; :func:`record_failure` records a failed attempt (a move that failed, a camera
 that did not answer) the same way.
 
@@ -71,7 +73,8 @@ def measure(ctx: VisitContext, before: Before, strokes_cmd, strokes_read, aim, i
             ) -> Generator[float, None, tuple[Observation, Before]]:
     """One "after" measurement at the held strokes; always returns an Observation (recorded) and the
     before reference the visit goes on with (a new one when it was taken again: :func:`retake_before`)."""
-    reading = yield from ctx.sensor.after(ctx, before)
+    early = _plant_reads(ctx) if getattr(ctx.sensor, "frames", None) is not None else None
+    reading = first = yield from ctx.sensor.after(ctx, before)
     if reading.before_beam:
         before, reading = yield from retake_before(ctx, before, reading, iteration)
     if not reading.valid and getattr(ctx.sensor, "exposure_retake", None) is not None:
@@ -80,8 +83,7 @@ def measure(ctx: VisitContext, before: Before, strokes_cmd, strokes_read, aim, i
     approach = ctx.approach  # of this placement's last hold (a retake moves the beam to standby and back)
     capture_s = reading.capture_time_s
     sun_vec, az, el, rising = ctx.sun(capture_s)
-    weather = _safe(ctx.plant.weather)
-    status = _safe(lambda: ctx.plant.status(ctx.index))
+    weather, status = early if early is not None and reading is first else _plant_reads(ctx)
     base = dict(
         campaign_id=ctx.campaign_id, heliostat_id=ctx.heliostat_id, target_id=ctx.target.id,
         visit_id=ctx.visit_id, iteration=iteration, capture_time_s=float(capture_s),
@@ -246,6 +248,11 @@ def record_failure(ctx: VisitContext, code: str, message: str, frame=None) -> No
 def _before_data(ctx: VisitContext, before: Before):
     """The before frame's bytes, unless it was saved already (then its path is in the observation)."""
     return None if ctx.before_path is not None else before.data
+
+
+def _plant_reads(ctx: VisitContext):
+    """The plant's weather and the heliostat's status now (None each where the plant does not answer)."""
+    return _safe(ctx.plant.weather), _safe(lambda: ctx.plant.status(ctx.index))
 
 
 def _safe(fn):
