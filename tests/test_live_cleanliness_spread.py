@@ -45,7 +45,7 @@ def test_a_live_choice_reads_none_itself_the_never_read_first_and_the_ticks_refr
     field.refresh_cleanliness(now)                                 # read on the field's reader thread, those first
     field._clean_pending[1].result()
     index = [int(i) for i in runner.state.plant_index]
-    asked = sum(plant.reads, [])                                   # in turns of CLEANLINESS_TURN_ROWS
+    asked = [i for r in plant.reads for i in r]                    # in turns of CLEANLINESS_TURN_ROWS
     assert all(len(r) <= CLEANLINESS_TURN_ROWS for r in plant.reads) and len(plant.reads) > 1
     assert asked[:30] == [index[r] for r in wanted]
     assert sorted(asked[30:]) == sorted(index[r] for r in rows if r not in wanted)[:len(asked) - 30]

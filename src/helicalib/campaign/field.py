@@ -205,7 +205,7 @@ class Field:
         taken on the first tick that finds them in, stamped with the plant time they were asked), and
         first the heliostats never read, :data:`CLEANLINESS_WARM_ROWS` at a time, those a choice
         asked for (:meth:`cleanliness_of_rows`) before the others."""
-        values, read_at = self.state.clean_rows
+        read_at = self.state.clean_rows[1]
         if not self._land():
             return
         bulk = self.devices.abilities.bulk_cleanliness
