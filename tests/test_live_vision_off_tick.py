@@ -199,9 +199,18 @@ def test_a_live_run_measures_spots_off_the_tick_and_a_vision_error_is_an_invalid
     ids = ["H0001", "H0021"]
     runner, store, cid = _network_runner(cfg, tmp_path, served, ids)
     stop = threading.Event()
+    recorded = []  # the measurements the tick has recorded (a spot measured is recorded on a later step)
+    record = runner.host.record
+
+    def counted(ctx, observation, frames):
+        if observation.iteration >= 0 or observation.reason.startswith("error_"):
+            recorded.append(observation.reason)
+        return record(ctx, observation, frames)
+
+    runner.host.record = counted
 
     def enough():
-        return len(rec.threads) >= 2 and runner.state.stats.visits >= 2
+        return len(rec.threads) >= 2 and runner.state.stats.visits >= 2 and bool(recorded)
 
     def watch():
         end = time.monotonic() + 60.0
