@@ -258,13 +258,14 @@ def report(cfg, db: Path, start_s: float, days: float, rates: dict[str, float], 
     first = [s for s in stats if s["heliostats_with_point"]]
     with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as con:  # how far the run got (an interrupted one)
         reached = con.execute("SELECT MAX(capture_time_s) FROM observations").fetchone()[0] or start_s
-    used = [s for s, c in zip(stats, cross) if s["open_hours"] > 0 and c.end_s <= reached]
+    done = [s["open_hours"] > 0 and c.end_s <= reached for s, c in zip(stats, cross)]
+    used = [s for s, ok in zip(stats, done) if ok]
     # the boards' capacity shows where heliostats that got the band's point later still lacked it after
     # the crossing (1 % of the field or more): a crossing whose demand ran out (or was left to heliostats
     # no search ever found) measures fewer points than its boards could take
     final = {kind: max((s["heliostats_with_kind"] for s, c in zip(stats, cross) if c.kind == kind), default=0)
              for kind in ("rising", "setting")}
-    limited = [s for s, c in zip(stats, cross) if s in used and s["heliostats_with_point"]
+    limited = [s for s, c, ok in zip(stats, cross, done) if ok and s["heliostats_with_point"]
                and final[c.kind] - s["heliostats_with_kind"] >= max(1.0, 0.01 * n)]
     basis = limited or used
     measured = (sum(s["heliostats_with_point"] for s in basis) / sum(s["open_hours"] * boards for s in basis)

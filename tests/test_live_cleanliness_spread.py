@@ -41,7 +41,7 @@ def test_a_live_choice_reads_none_itself_the_never_read_first_and_the_ticks_refr
     field.spread_cleanliness = True
     wanted = rows[10:40]
     first = field.cleanliness_of_rows(wanted, now)                 # never read: asked, not read on the tick
-    assert plant.reads == [] and np.all(np.isnan(first))
+    assert plant.reads == [] and np.all(np.isneginf(first))   # not read yet: not chosen (NaN: the plant gives none)
     field.refresh_cleanliness(now)                                 # read on the field's reader thread, those first
     field._clean_pending[1].result()
     index = [int(i) for i in runner.state.plant_index]
@@ -115,3 +115,28 @@ def test_a_first_read_that_came_in_counts_for_the_next_choice_at_once(demo_field
     assert np.array_equal(seen, sim.cleanliness_many(runner.state.plant_index[asked]))
     assert np.all(np.isfinite(seen)) and field._clean_pending is None
     field.close()
+
+
+def test_a_heliostat_whose_first_read_is_not_in_is_not_chosen_on_its_spot_measured_cleanliness(
+        demo_field_path, tmp_path):
+    """Resumed or in operation, a heliostat has a cleanliness its spots measured; until the plant's
+    first read of it is in, a live choice does not take that measure for the plant's (which may now be
+    under the limit): no heliostat is chosen; once the reads are in, one is."""
+    cfg = load_field_config(demo_field_path)
+    ids = [h.id for h in cfg.heliostats]
+    runner, _sim, _store, _cid, _cams = inprocess_campaign(cfg, tmp_path, 10, 2, ids, plant=Logged)
+    field = runner.field
+    field.spread_cleanliness = True
+    runner.state.book.table.measured_cleanliness[:] = 0.95
+    now = runner.devices.clock.now_s() + 6 * 3600.0  # the sun well up
+    target = cfg.targets[0].id
+    try:
+        assert runner._choose(target, now)[0] is None
+        for k in range(20):  # the field's first reads, in the background, taken in by the next look
+            field.refresh_cleanliness(now)
+            if field._clean_pending is not None:
+                field._clean_pending[1].result()
+        assert np.all(np.isfinite(runner.state.clean_rows[1]))
+        assert runner._choose(target, now)[0] is not None
+    finally:
+        field.close()

@@ -106,17 +106,27 @@ def _recorded(record, reason: str) -> None:
         _quietly(lambda: print(f"helicalib: fault (not recorded): {reason}", file=sys.stderr, flush=True))
 
 
+KICKED_TICKS = 4
+"""Ticks a tick job runs back to back while frames keep coming in during them (then it asks the
+scheduler for the next at once): the scheduler counts a job as running until it returns, so a run
+asked from within it could be skipped as a second instance."""
+
+
 def _tick_job(runner: CampaignRunner, lock: threading.Lock, kick: _Kick | None = None) -> None:
     if not lock.acquire(blocking=False):
         return
     try:
-        if kick is not None:
-            kick.asked.clear()  # a frame in from now on is news for the next tick
-        if not runner.state.stopping:
+        for _ in range(KICKED_TICKS):
+            if kick is not None:
+                kick.asked.clear()  # a frame in from now on is news for the next tick
+            if runner.state.stopping:
+                break
             _guarded(runner, "tick", lambda: runner.tick(runner.devices.clock.now_s()))
+            if kick is None or not kick.asked.is_set():  # no frame came in during the tick
+                break
     finally:
         lock.release()
-    if kick is not None and kick.asked.is_set():  # a frame came in during the tick: the next one at once
+    if kick is not None and kick.asked.is_set():  # still frames coming in: the next job at once
         kick()
 
 

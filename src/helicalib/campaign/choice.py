@@ -165,7 +165,8 @@ def choose_next_vectorised(cfg, book: Book, target_id: str, now_s: float, cleanl
     if not rows.size:
         return None
     plant = np.asarray(cleanliness(rows), dtype=float)
-    clean = np.where(np.isfinite(plant), plant, tb.measured_cleanliness[rows])
+    # NaN: the plant gives none (the spot's own measure stands in); −inf: a live run's read not in yet
+    clean = np.where(np.isfinite(plant) | np.isneginf(plant), plant, tb.measured_cleanliness[rows])
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(clean) & (clean > cfg.gating.cleanliness_min)
     rows, borrowed, clean = rows[ok], borrowed[ok], clean[ok]

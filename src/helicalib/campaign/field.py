@@ -181,7 +181,8 @@ class Field:
         gives none), read only for those whose last read is :data:`CLEANLINESS_MAX_AGE_S` old; with
         :attr:`spread_cleanliness` (a live run) only for those never read (the others are re-read a
         few per tick: :meth:`refresh_cleanliness`), and with a plant's bulk reads not even those: they
-        are read first on the field's reader thread, and are NaN (not chosen) until they are in. A
+        are read first on the field's reader thread, and are −inf until they are in (not chosen: NaN
+        would say the plant gives none, and the spot's own measure would stand in for it). A
         board's first choice would otherwise read its candidates on the tick's thread (1250 at 10⁴:
         3.5 real seconds during which no other board's visit is stepped)."""
         values, read_at = self.state.clean_rows
@@ -193,7 +194,9 @@ class Field:
                 if self._clean_wanted is None:
                     self._clean_wanted = np.zeros(read_at.size, dtype=bool)
                 self._clean_wanted[rows[due]] = True
-                due[:] = False
+                out = values[rows]
+                out[due] = -np.inf
+                return out
         self._read_cleanliness(rows[due], now)
         return values[rows]
 

@@ -163,7 +163,9 @@ class CampaignRunner:
         # next command before the other boards' polls); in simulations none waits so, the order is by wake-up
         due = sorted((not v.frame, v.wake_s, hid) for hid, v in st.active.items() if v.wake_s <= now)
         for _frame, _wake, hid in due:
-            if hid in st.active:
+            v = st.active.get(hid)
+            # (a live tick: a visit that _frames_in stepped meanwhile is due again only after its new wait)
+            if v is not None and not (self.frame_passes and v.wake_s > now):
                 self._step(hid, now)
                 if self.frame_passes:       # a live tick: a reading in meanwhile goes on now,
                     self._frames_in(now, 1)  # not after the other boards' polls

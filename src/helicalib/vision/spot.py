@@ -34,6 +34,7 @@ Every result says valid or not, with a reason code (:data:`REASONS`) and one sen
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -513,18 +514,23 @@ def _frame_spot(B: np.ndarray, A: np.ndarray, grid: BoardGrid, method: str, limi
 
 # ---------------------------------------------------------------------------- public
 _GRIDS: dict = {}
+_GRIDS_LOCK = threading.Lock()
+_GRIDS_KEPT = 16
+"""Board grids kept (a live run measures its boards' spots on the cameras' threads, each with its own marks)."""
 
 
 def _grid_for(marks: MarksResult, target: Target, shape, cells_per_m) -> BoardGrid:
     """The board grid, memoised for the same marks object (a campaign reuses the marks of its before frame)."""
     key = (id(marks), target.id, tuple(shape), cells_per_m)
-    hit = _GRIDS.get(key)
+    with _GRIDS_LOCK:
+        hit = _GRIDS.get(key)
     if hit is not None and hit[0] is marks:
         return hit[1]
     grid = board_grid(marks, target, shape, cells_per_m)
-    if len(_GRIDS) >= 8:
-        _GRIDS.pop(next(iter(_GRIDS)))
-    _GRIDS[key] = (marks, grid)
+    with _GRIDS_LOCK:
+        while len(_GRIDS) >= _GRIDS_KEPT:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[key] = (marks, grid)
     return grid
 
 

@@ -196,6 +196,8 @@ class OperationChecks:
         plant = self.host.field.cleanliness_of_rows(np.array([self.state.index[h] for h in free], dtype=np.int64), now)
         out = []
         for hid, c in zip(free, plant):
+            if float(c) == -math.inf:  # a live run's first read of it not in yet (Field.cleanliness_of_rows)
+                continue
             if not math.isfinite(float(c)):  # the plant gives none: the spot's own measure
                 c = self.state.book.h[hid].measured_cleanliness
             if c is not None and math.isfinite(float(c)) and c <= self.state.cfg.gating.cleanliness_min:
