@@ -9,6 +9,8 @@ The in-process simulated plant, its bulk cleanliness read logged.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from campaign_helpers import inprocess_campaign
@@ -130,8 +132,14 @@ def test_a_heliostat_whose_first_read_is_not_in_is_not_chosen_on_its_spot_measur
     runner.state.book.table.measured_cleanliness[:] = 0.95
     now = runner.devices.clock.now_s() + 6 * 3600.0  # the sun well up
     target = cfg.targets[0].id
+    plant, held = runner.devices.plant, threading.Event()
+    read = plant.cleanliness_many
+    plant.cleanliness_many = lambda indices: (held.wait(30.0), read(indices))[1]  # on its way until let go
     try:
         assert runner._choose(target, now)[0] is None
+        field.refresh_cleanliness(now)  # the first reads asked, on their way: still none chosen
+        assert field._clean_pending is not None and runner._choose(target, now)[0] is None
+        held.set()
         for k in range(20):  # the field's first reads, in the background, taken in by the next look
             field.refresh_cleanliness(now)
             if field._clean_pending is not None:
@@ -139,4 +147,5 @@ def test_a_heliostat_whose_first_read_is_not_in_is_not_chosen_on_its_spot_measur
         assert np.all(np.isfinite(runner.state.clean_rows[1]))
         assert runner._choose(target, now)[0] is not None
     finally:
+        held.set()
         field.close()

@@ -190,12 +190,15 @@ class Field:
         if self.spread_cleanliness:
             due &= ~np.isfinite(read_at[rows])
             self._land()  # a background read that came in since the tick looked: its values count now
-            if self.devices.abilities.bulk_cleanliness and due.any():
-                if self._clean_wanted is None:
-                    self._clean_wanted = np.zeros(read_at.size, dtype=bool)
-                self._clean_wanted[rows[due]] = True
+            if self.devices.abilities.bulk_cleanliness:
                 out = values[rows]
-                out[due] = -np.inf
+                if due.any():
+                    if self._clean_wanted is None:
+                        self._clean_wanted = np.zeros(read_at.size, dtype=bool)
+                    self._clean_wanted[rows[due]] = True
+                    out[due] = -np.inf
+                if self._clean_pending is not None:  # a first read on its way: not in yet either
+                    out[np.isin(rows, self._clean_pending[0]) & np.isnan(out)] = -np.inf
                 return out
         self._read_cleanliness(rows[due], now)
         return values[rows]
