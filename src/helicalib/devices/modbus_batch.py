@@ -69,25 +69,23 @@ class TrackBatch:
         if self.direct is None:
             link = self._free.get()
             try:
-                self.plant.track(index, corrections_mm, link=link)
-                return None
-            except PlantUnreachableError as err:
-                if link.answered or not self._scs_answers(index):
+                err = self._track(index, corrections_mm, link)
+                if not isinstance(err, PlantUnreachableError) or link.answered or not self._scs_answers(index):
                     return err
-                # nothing was sent on a link that never connected, while the SCS connection answers:
-                # the endpoint takes no more clients, so this command and all after it go on that one
-                self.direct = f"{err} (the endpoint took no connection beside the SCS one)"
-            except PlantError as err:
-                return err
-            except Exception as err:  # noqa: BLE001 - a worker's error is the command's answer, never lost
-                return PlantError(f"track command to {self.plant._label(index)}: {type(err).__name__}: {err}")
             finally:
                 self._free.put(link)
+            # nothing was sent on a link that never connected, while the SCS connection answers: the
+            # endpoint takes no more clients, so this command and all after it go on that one
+            self.direct = f"{err} (the endpoint took no connection beside the SCS one)"
+        return self._track(index, corrections_mm)
+
+    def _track(self, index: int, corrections_mm, link: ModbusLink | None = None) -> PlantError | None:
+        """One track command on ``link`` (None: the SCS connection); its refusal, or None (taken)."""
         try:
-            self.plant.track(index, corrections_mm)
+            self.plant.track(index, corrections_mm, link=link)
         except PlantError as err:
             return err
-        except Exception as err:  # noqa: BLE001
+        except Exception as err:  # noqa: BLE001 - a worker's error is the command's answer, never lost
             return PlantError(f"track command to {self.plant._label(index)}: {type(err).__name__}: {err}")
         return None
 
